@@ -1,0 +1,51 @@
+# gs2e: `make demo` and `make test` set everything up on a fresh machine.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+CORES ?= all
+# Torch first and pinned: on the project's machines pip takes the local CPU
+# wheel for this version; an unpinned torch would pull several GB of CUDA wheels.
+TORCH ?= torch==2.13.0
+
+.PHONY: setup demo test test-slow test-all bench dryrun clean-results help
+
+help:
+	@echo "make demo      - set up .venv and run the workflow on the built-in demo scene"
+	@echo "make test      - set up .venv and run the default test suite"
+	@echo "make test-slow - the slow cases (real scenes, long runs)"
+	@echo "make bench     - quick benchmarks (benchmarks/*.py --quick)"
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+
+$(STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/pip install -q --upgrade pip setuptools wheel
+	$(BIN)/pip install -q "$(TORCH)"
+	$(BIN)/pip install -q -e ".[test]"
+	touch $(STAMP)
+
+setup: $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/snakemake --cores $(CORES) --configfile config/config.yaml
+	@echo "demo outputs: results/demo/ (see README.md, 'What the demo produces')"
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -m "not slow" tests
+
+test-slow: $(STAMP)
+	$(BIN)/python -m pytest -m "slow" tests
+
+test-all: $(STAMP)
+	$(BIN)/python -m pytest tests
+
+bench: $(STAMP)
+	set -e; for b in benchmarks/bench_*.py; do echo "== $$b"; $(BIN)/python $$b --quick; done
+
+dryrun: $(STAMP)
+	$(BIN)/snakemake -n --cores $(CORES)
+
+clean-results:
+	rm -rf results logs

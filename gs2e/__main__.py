@@ -1,0 +1,5 @@
+import sys
+
+from gs2e.cli import main
+
+sys.exit(main())

@@ -1,0 +1,193 @@
+"""Configuration: JSON-schema (2020-12) validation with defaults, scenes table,
+per-scene overrides.
+
+The schema files live in ``workflow/schemas/``. The Snakefile and the CLI both
+validate through this module, so a bad value is rejected before any job runs
+with a message naming its key (``sfm.matcher``) or the table cell
+(``config/scenes.tsv:3: layout``).
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import json
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+from jsonschema import Draft202012Validator, validators
+
+from gs2e.common.errors import ConfigError
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+SCHEMA_DIR = REPO_ROOT / "workflow" / "schemas"
+CONFIG_SCHEMA = SCHEMA_DIR / "config.schema.yaml"
+SCENES_SCHEMA = SCHEMA_DIR / "scenes.schema.yaml"
+DEFAULT_CONFIG = REPO_ROOT / "config" / "config.yaml"
+SECTIONS = ("demo", "ingest", "sfm", "splat", "trajectory", "render", "events", "metrics")
+
+
+def _with_defaults(cls):
+    """Extend a validator class so 'default' values are filled into instances."""
+    validate_props = cls.VALIDATORS["properties"]
+
+    def set_defaults(validator, properties, instance, schema):
+        if isinstance(instance, dict):
+            for key, sub in properties.items():
+                if isinstance(sub, dict) and "default" in sub and key not in instance:
+                    instance[key] = copy.deepcopy(sub["default"])
+        yield from validate_props(validator, properties, instance, schema)
+
+    return validators.extend(cls, {"properties": set_defaults})
+
+
+_DefaultingValidator = _with_defaults(Draft202012Validator)
+
+
+def load_schema(path: Path = CONFIG_SCHEMA) -> dict:
+    with open(path) as fh:
+        return yaml.safe_load(fh)
+
+
+def _key_path(err) -> str:
+    return ".".join(str(p) for p in err.absolute_path)
+
+
+def _format_error(err, what: str) -> str:
+    key = _key_path(err)
+    if err.validator == "additionalProperties":
+        extra = sorted(set(err.instance) - set(err.schema.get("properties", {})))
+        keys = ", ".join(f"{key + '.' if key else ''}{k}" for k in extra)
+        return f"{what}: unknown key {keys}"
+    if err.validator == "required":
+        return f"{what}: {err.message}" + (f" (in {key})" if key else "")
+    return f"{what} key '{key or '<root>'}': {err.message}"
+
+
+def validate(instance: dict, schema: dict, what: str = "config") -> dict:
+    """Validate ``instance`` in place, filling defaults; raise ConfigError naming the key."""
+    if not isinstance(instance, dict):
+        raise ConfigError(f"{what}: expected a mapping, got {type(instance).__name__}")
+    v = _DefaultingValidator(schema)
+    # Fill defaults first (a full pass), then report the first error by path order.
+    errors = sorted(v.iter_errors(instance), key=lambda e: (list(map(str, e.absolute_path)), e.message))
+    if errors:
+        raise ConfigError(_format_error(errors[0], what))
+    return instance
+
+
+def load_config(cfg: Mapping | str | Path | None = None) -> dict:
+    """Return the validated config with every default filled in.
+
+    ``cfg`` is a mapping (e.g. Snakemake's ``config``), a YAML path, or None for
+    ``config/config.yaml``. The input is not modified.
+    """
+    if cfg is None:
+        cfg = DEFAULT_CONFIG
+    if isinstance(cfg, (str, Path)):
+        try:
+            with open(cfg) as fh:
+                data = yaml.safe_load(fh) or {}
+        except OSError as exc:
+            raise ConfigError(f"cannot read config file {cfg}: {exc}") from exc
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"config file {cfg} is not valid YAML: {exc}") from exc
+    else:
+        data = copy.deepcopy(dict(cfg))
+    return validate(data, load_schema(), "config")
+
+
+def parse_overrides(text: str, where: str = "overrides") -> dict:
+    """'sfm.matcher=sequential;ingest.max_views=30' -> nested dict (YAML scalars)."""
+    out: dict[str, Any] = {}
+    for item in filter(None, (s.strip() for s in (text or "").split(";"))):
+        if "=" not in item:
+            raise ConfigError(f"{where}: '{item}' is not of the form section.key=value")
+        key, val = (s.strip() for s in item.split("=", 1))
+        parts = key.split(".")
+        if not all(parts):
+            raise ConfigError(f"{where}: bad key '{key}'")
+        try:
+            value = yaml.safe_load(val) if val else None
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"{where}: value of '{key}' is not valid YAML: {exc}") from exc
+        node = out
+        for p in parts[:-1]:
+            node = node.setdefault(p, {})
+            if not isinstance(node, dict):
+                raise ConfigError(f"{where}: '{key}' conflicts with another override")
+        node[parts[-1]] = value
+    return out
+
+
+def deep_merge(base: dict, over: Mapping) -> dict:
+    """Copy of ``base`` with ``over`` merged in recursively."""
+    out = copy.deepcopy(base)
+    for k, v in over.items():
+        if isinstance(v, Mapping) and isinstance(out.get(k), dict):
+            out[k] = deep_merge(out[k], v)
+        else:
+            out[k] = copy.deepcopy(v)
+    return out
+
+
+def load_scenes(path: str | Path) -> list[dict]:
+    """Read and validate the scenes TSV; returns one dict per row.
+
+    Columns: scene_id, layout, path (optional), overrides (optional).
+    Lines starting with '#' are comments.
+    """
+    path = Path(path)
+    try:
+        with open(path, newline="") as fh:
+            lines = [ln for ln in fh if ln.strip() and not ln.lstrip().startswith("#")]
+    except OSError as exc:
+        raise ConfigError(f"cannot read scenes table {path}: {exc}") from exc
+    if not lines:
+        raise ConfigError(f"scenes table {path} is empty (needs a header and one row)")
+    reader = csv.DictReader(lines, delimiter="\t")
+    schema = load_schema(SCENES_SCHEMA)
+    rows, seen = [], set()
+    for lineno, raw in enumerate(reader, start=2):
+        if None in raw:
+            raise ConfigError(f"{path}:{lineno}: more cells than header columns")
+        row = {k.strip(): (v or "").strip() for k, v in raw.items() if k is not None}
+        row = {k: v for k, v in row.items() if not (v == "" and k in ("path", "overrides"))}
+        validate(row, schema, f"{path}:{lineno}")
+        if row["scene_id"] in seen:
+            raise ConfigError(f"{path}:{lineno}: duplicate scene_id '{row['scene_id']}'")
+        if row["layout"] != "demo" and not row["path"]:
+            raise ConfigError(f"{path}:{lineno}: path is required for layout '{row['layout']}'")
+        seen.add(row["scene_id"])
+        rows.append(row)
+    if not rows:
+        raise ConfigError(f"scenes table {path} has no scenes")
+    return rows
+
+
+def scene_config(config: dict, scene: dict) -> dict:
+    """Validated config for one scene: global config + the row's overrides."""
+    over = parse_overrides(scene.get("overrides", ""), f"scene '{scene['scene_id']}' overrides")
+    merged = deep_merge(config, over)
+    return validate(merged, load_schema(), f"scene '{scene['scene_id']}' config")
+
+
+def section_json(config: dict, section: str) -> str:
+    """Canonical JSON of one config section (sorted keys), as passed to the CLI."""
+    return json.dumps(config[section], sort_keys=True, separators=(",", ":"))
+
+
+def load_section(section: str, text: str | None = None, path: str | None = None) -> dict:
+    """Validated section for the CLI: from a JSON string, a YAML config file, or defaults."""
+    if section not in SECTIONS:
+        raise ConfigError(f"unknown config section '{section}'")
+    if text:
+        try:
+            sec = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ConfigError(f"--config-json for '{section}' is not valid JSON: {exc}") from exc
+        return load_config({section: sec})[section]
+    if path:
+        return load_config(path)[section]
+    return load_config({})[section]

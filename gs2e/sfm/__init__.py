@@ -1,0 +1,1 @@
+"""gs2e.sfm stage."""
