@@ -41,6 +41,35 @@ def add_config_args(p: argparse.ArgumentParser) -> None:
                    help="a full gs2e config file; its section for this stage is used")
 
 
+def _register_config(sub) -> None:
+    p = sub.add_parser("config", help="validate a config file or print the config reference",
+                       description="Validate a config (and its scenes table) or print "
+                                   "config/README.md generated from the schema.")
+    p.add_argument("--doc", action="store_true", help="print the configuration reference (Markdown)")
+    p.add_argument("--validate", metavar="YAML", help="validate this config file and its scenes table")
+    p.add_argument("--print", dest="print_cfg", action="store_true",
+                   help="with --validate: print the config with defaults filled in")
+    p.set_defaults(func=_run_config)
+
+
+def _run_config(args) -> int:
+    import yaml
+
+    from gs2e import config as C
+
+    if args.doc:
+        sys.stdout.write(C.schema_markdown())
+    if args.validate:
+        cfg = C.load_config(args.validate)
+        scenes = C.load_scenes(cfg["scenes"])
+        for row in scenes:
+            C.scene_config(cfg, row)
+        logging.getLogger("gs2e").info("%s is valid (%d scenes)", args.validate, len(scenes))
+        if args.print_cfg:
+            sys.stdout.write(yaml.safe_dump(cfg, sort_keys=False))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="gs2e",
@@ -49,6 +78,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"gs2e {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    _register_config(sub)
     for mod_name in STAGE_CLIS:
         try:
             mod = importlib.import_module(mod_name)

@@ -19,7 +19,7 @@ PKG = Path(__file__).resolve().parent
 STAGE_DEPS: dict[str, tuple[str, ...]] = {
     "demo": ("demo", "io", "common"),
     "ingest": ("io", "common", "config.py"),
-    "sfm": ("sfm", "io", "common"),
+    "sfm": ("sfm", "io", "common", "metrics"),
     "train": ("splat", "io", "common", "metrics"),
     "trajectory": ("trajectory", "io", "common"),
     "render": ("render", "splat", "trajectory", "io", "common"),

@@ -1,0 +1,22 @@
+# gs2e workflow: sparse multi-view photos -> event-camera datasets.
+# This file is the real entry point (rule `all` lives here, not in an include).
+# Rules are thin: each calls the `gs2e` CLI; all logic lives in the gs2e package.
+
+import os
+
+# Defaults ship with the workflow; --configfile / --config given by the user
+# are merged on top and the result is validated in common.smk.
+configfile: os.path.join(workflow.basedir, "config", "config.yaml")
+
+
+include: "workflow/rules/common.smk"
+
+
+rule all:
+    input:
+        all_targets(),
+    default_target: True
+
+
+include: "workflow/rules/ingest.smk"
+include: "workflow/rules/sfm.smk"

@@ -1,0 +1,244 @@
+"""COLMAP structure-from-motion through pycolmap.
+
+Steps: SIFT extraction -> matching (exhaustive or sequential) -> incremental
+mapping (or, when the scene has poses and ``reuse_poses`` is set, triangulation
+with the given poses) -> undistortion to PINHOLE. The output folder is an
+internal-layout scene (undistorted ``images/``, ``scene.json``,
+``points3d.npz``) plus ``sparse/0`` (COLMAP binary model), the input layout
+3DGS implementations expect.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gs2e.common.atomic import atomic_dir, write_json_atomic
+from gs2e.common.errors import InputError
+from gs2e.common.log import get_logger, timed
+from gs2e.metrics.table import write_metrics
+from gs2e.io.scene import IMAGES_DIR, Scene, read_scene, write_scene_json
+from gs2e.sfm.align import alignment_errors
+
+log = get_logger("gs2e.sfm")
+
+
+def choose_matcher(cfg: dict, n_views: int) -> str:
+    """'exhaustive' or 'sequential' for ``cfg['matcher']`` (auto: by view count)."""
+    if cfg["matcher"] != "auto":
+        return cfg["matcher"]
+    return "exhaustive" if n_views <= cfg["exhaustive_max_views"] else "sequential"
+
+
+def _device(cfg: dict):
+    import pycolmap
+
+    return pycolmap.Device.cuda if cfg.get("gpu") else pycolmap.Device.cpu
+
+
+def _extract(db: Path, image_dir: Path, names: list[str], cfg: dict, threads: int,
+             camera_mode, camera_model: str) -> None:
+    import pycolmap
+
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = camera_model
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = threads
+    extraction.use_gpu = bool(cfg.get("gpu"))
+    extraction.sift.max_num_features = int(cfg["max_num_features"])
+    pycolmap.extract_features(db, image_dir, image_names=names, camera_mode=camera_mode,
+                              reader_options=reader, extraction_options=extraction,
+                              device=_device(cfg))
+
+
+def _match(db: Path, matcher: str, cfg: dict, threads: int) -> None:
+    import pycolmap
+
+    mopts = pycolmap.FeatureMatchingOptions()
+    mopts.num_threads = threads
+    mopts.use_gpu = bool(cfg.get("gpu"))
+    if matcher == "exhaustive":
+        pycolmap.match_exhaustive(db, matching_options=mopts, device=_device(cfg))
+    else:
+        popts = pycolmap.SequentialPairingOptions()
+        popts.overlap = int(cfg["sequential_overlap"])
+        popts.loop_detection = bool(cfg["sequential_loop_detection"])
+        popts.num_threads = threads
+        pycolmap.match_sequential(db, matching_options=mopts, pairing_options=popts,
+                                  device=_device(cfg))
+
+
+def _mapper_options(threads: int, seed: int):
+    import pycolmap
+
+    opts = pycolmap.IncrementalPipelineOptions()
+    opts.num_threads = threads
+    opts.random_seed = int(seed)
+    return opts
+
+
+def _known_pose_reconstruction(db_path: Path, scene: Scene):
+    """A reconstruction with the scene's cameras and poses whose image and camera
+    ids are those of the feature database (required by triangulate_points)."""
+    import pycolmap
+
+    from gs2e.io.colmap import reconstruction_from_scene
+
+    known = reconstruction_from_scene(scene)
+    db = pycolmap.Database.open(str(db_path))
+    try:
+        db_images = db.read_all_images()
+    finally:
+        db.close()
+    rec = pycolmap.Reconstruction()
+    for im in sorted(db_images, key=lambda i: i.image_id):
+        src = known.find_image_with_name(im.name)
+        if src is None:
+            raise InputError(f"image {im.name} of the database is not in the scene")
+        cam = pycolmap.Camera(known.cameras[src.camera_id].todict())
+        cam.camera_id = im.camera_id
+        if not rec.exists_camera(im.camera_id):
+            rec.add_camera_with_trivial_rig(cam)
+        new = pycolmap.Image(name=im.name, camera_id=im.camera_id, image_id=im.image_id)
+        rec.add_image_with_trivial_frame(new, src.cam_from_world())
+    return rec
+
+
+def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
+            threads: int | None = None, scene_id: str | None = None) -> dict[str, Any]:
+    """Recover cameras and sparse points for the scene in ``scene_dir``.
+
+    Parameters
+    ----------
+    scene_dir : internal-layout scene (output of ``gs2e ingest``).
+    out_dir : output folder, written atomically (nothing is left on failure).
+    cfg : the validated ``sfm`` config section.
+    seed : seed of COLMAP's RANSAC/mapper.
+    threads : CPU threads (None: ``cfg['num_threads']``, -1 = all).
+
+    Returns
+    -------
+    dict of statistics (also written to ``out_dir/sfm_stats.json``): views,
+    registered views and rate, points, mean reprojection error (px), mean track
+    length, matcher, mode, per-step times (s), and camera errors against the
+    input poses when the input had poses and mapping was run. The same values
+    are written as a one-row table ``out_dir/metrics.parquet``.
+
+    Raises
+    ------
+    InputError if fewer than ``cfg['min_registered_fraction']`` of the views
+    register (the message names the scene folder and unregistered views).
+    """
+    import pycolmap
+
+    scene_dir, out_dir = Path(scene_dir), Path(out_dir)
+    scene = read_scene(scene_dir)
+    image_dir = scene_dir / IMAGES_DIR
+    names = [f.name for f in scene.frames]
+    n_views = len(names)
+    if n_views < 2:
+        raise InputError(f"{scene_dir}: SfM needs at least 2 views, got {n_views}")
+    threads = int(cfg["num_threads"] if threads is None else threads)
+    reuse = bool(cfg["reuse_poses"]) and scene.has_poses
+    matcher = choose_matcher(cfg, n_views)
+    timings: dict[str, float] = {}
+    t_start = time.perf_counter()
+    log.info("SfM on %s: %d views, matcher=%s, mode=%s, threads=%d", scene_dir, n_views,
+             matcher, "triangulate (reuse poses)" if reuse else "incremental mapping", threads)
+
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_dir(out_dir) as out, tempfile.TemporaryDirectory(
+            prefix=".sfm-work-", dir=out_dir.parent) as work_s:
+        work = Path(work_s)
+        db = work / "database.db"
+        if reuse:
+            same_k = len({(f.camera.model, f.camera.fx, f.camera.fy, f.camera.cx, f.camera.cy,
+                           *f.camera.dist) for f in scene.frames}) == 1
+            mode = pycolmap.CameraMode.SINGLE if same_k else pycolmap.CameraMode.PER_IMAGE
+            cam_model = scene.frames[0].camera.model
+        else:
+            mode = pycolmap.CameraMode.SINGLE if cfg["single_camera"] else pycolmap.CameraMode.PER_IMAGE
+            cam_model = cfg["camera_model"]
+        with timed("feature extraction", log, timings):
+            _extract(db, image_dir, names, cfg, threads, mode, cam_model)
+        with timed(f"{matcher} matching", log, timings):
+            _match(db, matcher, cfg, threads)
+        timings["matching"] = timings.pop(f"{matcher} matching")
+        opts = _mapper_options(threads, seed)
+        model_dir = work / "model"
+        model_dir.mkdir()
+        if reuse:
+            with timed("triangulation with known poses", log, timings):
+                rec = _known_pose_reconstruction(db, scene)
+                rec = pycolmap.triangulate_points(rec, db, image_dir, model_dir, options=opts)
+            timings["mapping"] = timings.pop("triangulation with known poses")
+        else:
+            with timed("incremental mapping", log, timings):
+                recs = pycolmap.incremental_mapping(db, image_dir, work / "sparse", options=opts)
+            timings["mapping"] = timings.pop("incremental mapping")
+            if not recs:
+                raise InputError(f"{scene_dir}: COLMAP registered no views (no initial pair found)")
+            rec = max(recs.values(), key=lambda r: r.num_reg_images())
+            rec.write(model_dir)
+
+        n_reg = rec.num_reg_images()
+        rate = n_reg / n_views
+        registered = {rec.image(i).name for i in rec.reg_image_ids()}
+        if rate < cfg["min_registered_fraction"]:
+            missing = [n for n in names if n not in registered]
+            raise InputError(
+                f"{scene_dir}: only {n_reg} of {n_views} views registered "
+                f"({rate:.0%} < sfm.min_registered_fraction={cfg['min_registered_fraction']}); "
+                f"not registered: {', '.join(missing[:10])}{' ...' if len(missing) > 10 else ''}")
+
+        with timed("undistortion to PINHOLE", log, timings):
+            undist = work / "undist"
+            pycolmap.undistort_images(undist, model_dir, image_dir, num_threads=threads)
+        timings["undistortion"] = timings.pop("undistortion to PINHOLE")
+
+        with timed("writing outputs", log, timings):
+            from gs2e.io.colmap import scene_from_reconstruction
+
+            rec_u = pycolmap.Reconstruction(str(undist / "sparse"))
+            out_scene = scene_from_reconstruction(rec_u)
+            out_scene.layout = "sfm"
+            out_scene.source = str(scene_dir)
+            out_scene.extra = {"input_extra": scene.extra, "registered": sorted(registered)}
+            shutil.move(str(undist / "images"), str(out / IMAGES_DIR))
+            (out / "sparse").mkdir()
+            shutil.move(str(undist / "sparse"), str(out / "sparse" / "0"))
+            write_scene_json(out_scene, out)
+        timings["writing"] = timings.pop("writing outputs")
+
+        stats: dict[str, Any] = {
+            "n_views": n_views,
+            "n_registered": n_reg,
+            "registration_rate": rate,
+            "n_points": int(rec.num_points3D()),
+            "mean_reproj_error_px": float(rec.compute_mean_reprojection_error()),
+            "mean_track_length": float(rec.compute_mean_track_length()) if rec.num_points3D() else float("nan"),
+            "matcher": matcher,
+            "mode": "triangulate" if reuse else "incremental",
+            "threads": threads,
+            **{f"time_{k}_s": v for k, v in timings.items()},
+        }
+        if scene.has_poses and not reuse:
+            gt = {f.name: f.c2w for f in scene.frames}
+            common = [f for f in out_scene.frames if f.name in gt]
+            if len(common) >= 3:
+                errs = alignment_errors(np.stack([f.c2w for f in common]),
+                                        np.stack([gt[f.name] for f in common]))
+                stats.update({f"gt_{k}": v for k, v in errs.items()})
+        stats["time_total_s"] = time.perf_counter() - t_start
+        write_json_atomic(out / "sfm_stats.json", stats)
+        write_metrics(out / "metrics.parquet", stats, scene_id=scene_id or scene_dir.parent.name,
+                      stage="sfm")
+    log.info("SfM: %d/%d views registered, %d points, %.3f px mean reprojection error, %.1f s",
+             n_reg, n_views, stats["n_points"], stats["mean_reproj_error_px"], stats["time_total_s"])
+    return stats

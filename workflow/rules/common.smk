@@ -1,0 +1,45 @@
+# Shared wiring: validated config, the scenes table, per-scene parameters.
+from pathlib import Path
+
+from gs2e.codeversion import code_version
+from gs2e.config import (derive_seed, load_config, load_scenes, scene_config,
+                         section_json)
+
+# Reject invalid config / scenes table before any job runs.
+config = load_config(config)
+SCENES = {row["scene_id"]: row for row in load_scenes(config["scenes"])}
+SCENE_CFG = {sid: scene_config(config, row) for sid, row in SCENES.items()}
+RESULTS = config["results_dir"]
+
+
+wildcard_constraints:
+    scene="[A-Za-z0-9][A-Za-z0-9_.-]*",
+
+
+def res(*parts):
+    return str(Path(RESULTS, *parts))
+
+
+def stage_cfg(section):
+    """params: function giving one scene's config section as canonical JSON."""
+    return lambda wc: section_json(SCENE_CFG[wc.scene], section)
+
+
+def stage_seed(stage):
+    return lambda wc: derive_seed(SCENE_CFG[wc.scene]["seed"], wc.scene, stage)
+
+
+def scene_layout(wc):
+    return SCENES[wc.scene]["layout"]
+
+
+def scene_source(wc):
+    """Input of ingest: the generated demo scene or the scene's folder."""
+    row = SCENES[wc.scene]
+    if row["layout"] == "demo":
+        return res(wc.scene, "source")
+    return row["path"]
+
+
+def all_targets():
+    return [res(sid, "sfm") for sid in SCENES]

@@ -1,0 +1,32 @@
+rule demo_scene:
+    output:
+        directory(res("{scene}", "source")),
+    params:
+        cfg=stage_cfg("demo"),
+        code=code_version("demo"),
+    log:
+        res("{scene}", "logs", "demo_scene.log"),
+    benchmark:
+        res("{scene}", "benchmarks", "demo_scene.tsv")
+    threads: 1
+    shell:
+        "gs2e demo-scene --out {output} --config-json {params.cfg:q} 2> {log:q}"
+
+
+rule ingest:
+    input:
+        scene_source,
+    output:
+        directory(res("{scene}", "ingest")),
+    params:
+        layout=scene_layout,
+        cfg=stage_cfg("ingest"),
+        code=code_version("ingest"),
+    log:
+        res("{scene}", "logs", "ingest.log"),
+    benchmark:
+        res("{scene}", "benchmarks", "ingest.tsv")
+    threads: 1
+    shell:
+        "gs2e ingest --layout {params.layout} --src {input:q} --out {output:q}"
+        " --config-json {params.cfg:q} 2> {log:q}"

@@ -1,0 +1,21 @@
+rule sfm:
+    input:
+        rules.ingest.output,
+    output:
+        directory(res("{scene}", "sfm")),
+    params:
+        cfg=stage_cfg("sfm"),
+        seed=stage_seed("sfm"),
+        code=code_version("sfm"),
+    log:
+        res("{scene}", "logs", "sfm.log"),
+    benchmark:
+        res("{scene}", "benchmarks", "sfm.tsv")
+    threads: workflow.cores
+    resources:
+        mem_mb=4000,
+        runtime=60,
+    shell:
+        "gs2e sfm --scene {input:q} --out {output:q} --seed {params.seed}"
+        " --threads {threads} --scene-id {wildcards.scene}"
+        " --config-json {params.cfg:q} 2> {log:q}"
