@@ -15,6 +15,12 @@ from pathlib import Path
 from typing import Any, Iterator
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 @contextlib.contextmanager
 def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary directory that replaces ``path`` on success.
@@ -25,6 +31,7 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     final = Path(path)
     final.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.tmp-", dir=final.parent))
+    os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700; outputs get normal permissions
     try:
         yield tmp
     except BaseException:
@@ -46,6 +53,7 @@ def atomic_file(path: str | os.PathLike, mode: str = "wb") -> Iterator[Any]:
     final.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{final.name}.tmp-", dir=final.parent)
     os.close(fd)
+    os.chmod(tmp_name, 0o666 & ~_umask())
     try:
         with open(tmp_name, mode) as fh:
             yield fh
@@ -66,6 +74,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         prefix=f".{final.stem}.tmp-", suffix=final.suffix, dir=final.parent
     )
     os.close(fd)
+    os.chmod(tmp_name, 0o666 & ~_umask())
     try:
         yield Path(tmp_name)
         os.replace(tmp_name, final)

@@ -165,23 +165,20 @@ def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0
         else:
             mode = pycolmap.CameraMode.SINGLE if cfg["single_camera"] else pycolmap.CameraMode.PER_IMAGE
             cam_model = cfg["camera_model"]
-        with timed("feature extraction", log, timings):
+        with timed("extraction", log, timings):
             _extract(db, image_dir, names, cfg, threads, mode, cam_model)
-        with timed(f"{matcher} matching", log, timings):
+        with timed("matching", log, timings):
             _match(db, matcher, cfg, threads)
-        timings["matching"] = timings.pop(f"{matcher} matching")
         opts = _mapper_options(threads, seed)
         model_dir = work / "model"
         model_dir.mkdir()
         if reuse:
-            with timed("triangulation with known poses", log, timings):
+            with timed("mapping", log, timings):  # triangulation with the known poses
                 rec = _known_pose_reconstruction(db, scene)
                 rec = pycolmap.triangulate_points(rec, db, image_dir, model_dir, options=opts)
-            timings["mapping"] = timings.pop("triangulation with known poses")
         else:
-            with timed("incremental mapping", log, timings):
+            with timed("mapping", log, timings):
                 recs = pycolmap.incremental_mapping(db, image_dir, work / "sparse", options=opts)
-            timings["mapping"] = timings.pop("incremental mapping")
             if not recs:
                 raise InputError(f"{scene_dir}: COLMAP registered no views (no initial pair found)")
             rec = max(recs.values(), key=lambda r: r.num_reg_images())
@@ -197,12 +194,11 @@ def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0
                 f"({rate:.0%} < sfm.min_registered_fraction={cfg['min_registered_fraction']}); "
                 f"not registered: {', '.join(missing[:10])}{' ...' if len(missing) > 10 else ''}")
 
-        with timed("undistortion to PINHOLE", log, timings):
+        with timed("undistortion", log, timings):
             undist = work / "undist"
             pycolmap.undistort_images(undist, model_dir, image_dir, num_threads=threads)
-        timings["undistortion"] = timings.pop("undistortion to PINHOLE")
 
-        with timed("writing outputs", log, timings):
+        with timed("writing", log, timings):
             from gs2e.io.colmap import scene_from_reconstruction
 
             rec_u = pycolmap.Reconstruction(str(undist / "sparse"))
@@ -214,7 +210,6 @@ def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0
             (out / "sparse").mkdir()
             shutil.move(str(undist / "sparse"), str(out / "sparse" / "0"))
             write_scene_json(out_scene, out)
-        timings["writing"] = timings.pop("writing outputs")
 
         stats: dict[str, Any] = {
             "n_views": n_views,
