@@ -20,6 +20,8 @@ help:
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 
+export PATH := $(abspath $(BIN)):$(PATH)
+
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/pip install -q --upgrade pip setuptools wheel
 	$(BIN)/pip install -q "$(TORCH)"

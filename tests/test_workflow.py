@@ -56,7 +56,7 @@ def test_every_rule_has_log_benchmark_and_code_version():
     assert rules
     for body in rules:
         name = body.split(":", 1)[0]
-        for directive in ("log:", "benchmark:", "code=code_version("):
+        for directive in ("log:", "benchmark:", "code=code_version(", "conda:"):
             assert directive in body, f"rule {name} lacks {directive}"
         shell = body.split("shell:", 1)[1] if "shell:" in body else ""
         # config values reach the CLI through params only, never interpolated into shell.

@@ -10,6 +10,11 @@ config = load_config(config)
 SCENES = {row["scene_id"]: row for row in load_scenes(config["scenes"])}
 SCENE_CFG = {sid: scene_config(config, row) for sid, row in SCENES.items()}
 RESULTS = config["results_dir"]
+ENV = "../../envs/gs2e.yaml"  # used with --sdm conda (relative to the rule files)
+
+# Jobs run `python -m gs2e` from this checkout: the same code whether gs2e is
+# pip-installed (venv) or not (a conda env built from envs/gs2e.yaml).
+shell.prefix(f'export PYTHONPATH="{workflow.basedir}${{{{PYTHONPATH:+:$PYTHONPATH}}}}"; ')
 
 
 wildcard_constraints:

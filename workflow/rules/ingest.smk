@@ -4,13 +4,15 @@ rule demo_scene:
     params:
         cfg=stage_cfg("demo"),
         code=code_version("demo"),
+    conda:
+        ENV
     log:
         res("{scene}", "logs", "demo_scene.log"),
     benchmark:
         res("{scene}", "benchmarks", "demo_scene.tsv")
     threads: 1
     shell:
-        "gs2e demo-scene --out {output} --config-json {params.cfg:q} 2> {log:q}"
+        "python -m gs2e demo-scene --out {output} --config-json {params.cfg:q} 2> {log:q}"
 
 
 rule ingest:
@@ -22,11 +24,13 @@ rule ingest:
         layout=scene_layout,
         cfg=stage_cfg("ingest"),
         code=code_version("ingest"),
+    conda:
+        ENV
     log:
         res("{scene}", "logs", "ingest.log"),
     benchmark:
         res("{scene}", "benchmarks", "ingest.tsv")
     threads: 1
     shell:
-        "gs2e ingest --layout {params.layout} --src {input:q} --out {output:q}"
+        "python -m gs2e ingest --layout {params.layout} --src {input:q} --out {output:q}"
         " --config-json {params.cfg:q} 2> {log:q}"

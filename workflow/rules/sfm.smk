@@ -7,6 +7,8 @@ rule sfm:
         cfg=stage_cfg("sfm"),
         seed=stage_seed("sfm"),
         code=code_version("sfm"),
+    conda:
+        ENV
     log:
         res("{scene}", "logs", "sfm.log"),
     benchmark:
@@ -16,6 +18,6 @@ rule sfm:
         mem_mb=4000,
         runtime=60,
     shell:
-        "gs2e sfm --scene {input:q} --out {output:q} --seed {params.seed}"
+        "python -m gs2e sfm --scene {input:q} --out {output:q} --seed {params.seed}"
         " --threads {threads} --scene-id {wildcards.scene}"
         " --config-json {params.cfg:q} 2> {log:q}"
