@@ -1,0 +1,200 @@
+"""Adaptive density control (clone / split / prune / opacity reset) and the
+optimiser state that must follow it. Pure functions on dicts of tensors.
+
+Gaussian parameters are a dict of float tensors with the Gaussian index first:
+``means (N,3)``, ``quats (N,4)``, ``log_scales (N,3)``, ``opacity_logits (N,)``,
+``sh_dc (N,1,3)``, ``sh_rest (N,K-1,3)``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import torch
+
+PARAMS = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
+
+
+class Adam:
+    """Adam over a dict of tensors whose rows can be selected and appended
+    (what densification needs); new rows start with zero moments."""
+
+    def __init__(self, lrs: dict[str, float], betas=(0.9, 0.999), eps: float = 1e-15):
+        self.lrs = dict(lrs)
+        self.b1, self.b2 = betas
+        self.eps = eps
+        self.t = 0
+        self.m: dict[str, torch.Tensor] = {}
+        self.v: dict[str, torch.Tensor] = {}
+
+    def step(self, params: dict[str, torch.Tensor], grads: dict[str, torch.Tensor]) -> None:
+        self.t += 1
+        c1 = 1 - self.b1 ** self.t
+        c2 = 1 - self.b2 ** self.t
+        with torch.no_grad():
+            for k, g in grads.items():
+                if g is None:
+                    continue
+                p = params[k]
+                if k not in self.m:
+                    self.m[k] = torch.zeros_like(p)
+                    self.v[k] = torch.zeros_like(p)
+                m, v = self.m[k], self.v[k]
+                m.mul_(self.b1).add_(g, alpha=1 - self.b1)
+                v.mul_(self.b2).addcmul_(g, g, value=1 - self.b2)
+                denom = (v / c2).sqrt_().add_(self.eps)
+                p.addcdiv_(m, denom, value=-self.lrs[k] / c1)
+
+    def select(self, keep: torch.Tensor) -> None:
+        for d in (self.m, self.v):
+            for k in d:
+                d[k] = d[k][keep].contiguous()
+
+    def append(self, n_new: int) -> None:
+        for d in (self.m, self.v):
+            for k in d:
+                z = torch.zeros((n_new,) + tuple(d[k].shape[1:]), dtype=d[k].dtype)
+                d[k] = torch.cat([d[k], z]).contiguous()
+
+    def reset_rows(self, key: str) -> None:
+        if key in self.m:
+            self.m[key].zero_()
+            self.v[key].zero_()
+
+    def state_dict(self) -> dict:
+        return {"t": self.t, "m": self.m, "v": self.v, "lrs": self.lrs}
+
+    def load_state_dict(self, st: dict) -> None:
+        self.t, self.m, self.v, self.lrs = st["t"], st["m"], st["v"], st["lrs"]
+
+
+@dataclass
+class GradStats:
+    """Per-Gaussian screen-space gradient statistics between densifications."""
+
+    grad_accum: torch.Tensor  # (N,) sum of NDC-gradient norms over views that saw it
+    count: torch.Tensor       # (N,) number of such views
+    max_radius_px: torch.Tensor  # (N,) largest screen radius seen (full-res px)
+
+    @staticmethod
+    def zeros(n: int) -> "GradStats":
+        return GradStats(torch.zeros(n, dtype=torch.float64), torch.zeros(n, dtype=torch.float64),
+                         torch.zeros(n, dtype=torch.float64))
+
+    def update(self, grad2d_px: torch.Tensor, radii: torch.Tensor, width: int, height: int,
+               downscale: float) -> None:
+        vis = radii > 0
+        g = grad2d_px.double()
+        # gradient w.r.t. NDC coordinates (x_ndc = 2 x_px / W - 1): resolution independent
+        gn = torch.sqrt((g[:, 0] * 0.5 * width) ** 2 + (g[:, 1] * 0.5 * height) ** 2)
+        self.grad_accum[vis] += gn[vis]
+        self.count[vis] += 1
+        self.max_radius_px = torch.maximum(self.max_radius_px, radii.double() * downscale)
+
+    def mean_grad(self) -> torch.Tensor:
+        return self.grad_accum / self.count.clamp_min(1)
+
+
+@dataclass
+class DensifyConfig:
+    grad_threshold: float = 2e-4
+    percent_dense: float = 0.01
+    min_opacity: float = 0.005
+    max_screen_px: float = 20.0
+    max_world_frac: float = 0.1
+    split_n: int = 2
+    budget: int = 1_000_000
+    prune_big: bool = False
+    log: dict = field(default_factory=dict)
+
+
+def _quat_rotmat(q: torch.Tensor) -> torch.Tensor:
+    q = q / q.norm(dim=1, keepdim=True)
+    w, x, y, z = q.unbind(1)
+    return torch.stack([
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], 1).view(-1, 3, 3)
+
+
+def densify_and_prune(params: dict[str, torch.Tensor], opt: Adam, stats: GradStats,
+                      cfg: DensifyConfig, extent: float, gen: torch.Generator) -> dict[str, int]:
+    """One round of adaptive density control, in place on ``params`` and ``opt``.
+
+    Candidates have mean NDC gradient > ``grad_threshold``; small ones (max
+    scale <= percent_dense * extent) are cloned, large ones split into
+    ``split_n`` samples drawn from the Gaussian with scales / (0.8 * split_n).
+    When the candidates would exceed ``cfg.budget`` only the ones with the
+    largest gradients are densified. Then Gaussians with opacity <
+    ``min_opacity`` (and, if ``prune_big``, too large on screen or in the world)
+    are removed. Returns counts of cloned, split and pruned Gaussians.
+    """
+    n = params["means"].shape[0]
+    with torch.no_grad():
+        g = stats.mean_grad()
+        max_scale = params["log_scales"].exp().amax(dim=1).double()
+        cand = g >= cfg.grad_threshold
+        room = max(0, cfg.budget - n)
+        n_split_candidates = int((cand & (max_scale > cfg.percent_dense * extent)).sum())
+        n_clone_candidates = int(cand.sum()) - n_split_candidates
+        # each clone adds 1, each split adds split_n - 1 Gaussians
+        needed = n_clone_candidates + n_split_candidates * (cfg.split_n - 1)
+        if needed > room:
+            order = torch.argsort(torch.where(cand, g, torch.full_like(g, -1.0)), descending=True)
+            is_split_sorted = (max_scale > cfg.percent_dense * extent)[order].long()
+            cost = 1 + is_split_sorted * (cfg.split_n - 2)
+            keep_n = int((torch.cumsum(cost, 0) <= room).sum())
+            limited = torch.zeros_like(cand)
+            limited[order[:keep_n]] = True
+            cand = cand & limited
+        clone = cand & (max_scale <= cfg.percent_dense * extent)
+        split = cand & (max_scale > cfg.percent_dense * extent)
+
+        new: dict[str, list[torch.Tensor]] = {k: [] for k in PARAMS}
+        if clone.any():
+            for k in PARAMS:
+                new[k].append(params[k][clone].clone())
+        n_split = int(split.sum())
+        if n_split:
+            s = params["log_scales"][split].exp()
+            R = _quat_rotmat(params["quats"][split])
+            for _ in range(cfg.split_n):
+                eps = torch.randn((n_split, 3), generator=gen, dtype=s.dtype)
+                offs = torch.einsum("nij,nj->ni", R, eps * s)
+                new["means"].append(params["means"][split] + offs)
+                new["log_scales"].append(torch.log(s / (0.8 * cfg.split_n)))
+                for k in ("quats", "opacity_logits", "sh_dc", "sh_rest"):
+                    new[k].append(params[k][split].clone())
+        n_added = sum(t.shape[0] for t in new["means"])
+        if n_added:
+            for k in PARAMS:
+                params[k] = torch.cat([params[k]] + new[k]).contiguous()
+            opt.append(n_added)
+        # remove split originals, low-opacity and (optionally) oversized Gaussians
+        keep = torch.ones(n + n_added, dtype=torch.bool)
+        keep[:n][split] = False
+        opac = torch.sigmoid(params["opacity_logits"])
+        low = opac < cfg.min_opacity
+        keep &= ~low
+        n_big = 0
+        if cfg.prune_big:
+            radius = torch.cat([stats.max_radius_px, torch.zeros(n_added, dtype=torch.float64)])
+            big = (radius > cfg.max_screen_px) | (
+                params["log_scales"].exp().amax(dim=1).double() > cfg.max_world_frac * extent)
+            n_big = int((big & keep).sum())
+            keep &= ~big
+        if not keep.all():
+            for k in PARAMS:
+                params[k] = params[k][keep].contiguous()
+            opt.select(keep)
+    return {"cloned": int(clone.sum()), "split": n_split, "pruned": int((~keep).sum()) - n_split,
+            "pruned_big": n_big, "n": int(params["means"].shape[0])}
+
+
+def reset_opacity(params: dict[str, torch.Tensor], opt: Adam, max_opacity: float = 0.01) -> None:
+    """Clamp opacities to ``max_opacity`` (3DGS's periodic reset) and zero their moments."""
+    with torch.no_grad():
+        cap = math.log(max_opacity / (1 - max_opacity))
+        params["opacity_logits"].clamp_(max=cap)
+    opt.reset_rows("opacity_logits")
