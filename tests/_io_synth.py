@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import cv2
@@ -10,7 +11,9 @@ import numpy as np
 
 from gs2e.io.scene import Camera, Frame, Scene, opencv_to_opengl
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+# ../shared/data beside the repo; GS2E_TEST_DATA overrides it (e.g. from a git worktree).
+DATA = Path(os.environ.get("GS2E_TEST_DATA",
+                           Path(__file__).resolve().parents[1].parent / "shared" / "data"))
 
 
 def look_at_c2w(centre: np.ndarray, target=np.zeros(3), up=np.array([0.0, 0.0, 1.0])) -> np.ndarray:

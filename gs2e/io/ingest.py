@@ -147,6 +147,8 @@ def _read_internal(src: Path, cfg: dict) -> _Source:
 
 
 def _read_folder(src: Path, cfg: dict) -> _Source:
+    if not src.is_dir():
+        raise InputError(f"image folder {src} is not a directory")
     folder = src
     if not _list_images(src) and (src / IMAGES_DIR).is_dir():
         folder = src / IMAGES_DIR
