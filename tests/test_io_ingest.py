@@ -294,6 +294,20 @@ def test_nan_pose(tmp_path):
     _assert_fails(tmp_path / "src", "nerf", tmp_path / "out", {}, "transforms.json", "b.png")
 
 
+def test_nan_pose_internal(tmp_path):
+    ref = make_scene(3, points=0)
+    (tmp_path / "src" / "images").mkdir(parents=True)
+    write_images(tmp_path / "src" / "images", [f.name for f in ref.frames], 48, 32)
+    write_scene_json(ref, tmp_path / "src")
+    data = json.loads((tmp_path / "src" / "scene.json").read_text())
+    data["frames"][2]["c2w"][1][1] = float("nan")
+    (tmp_path / "src" / "scene.json").write_text(json.dumps(data))
+    _assert_fails(tmp_path / "src", "internal", tmp_path / "out", {}, "scene.json", "002.png", "NaN")
+    del data["frames"][0]["camera"]
+    (tmp_path / "src" / "scene.json").write_text(json.dumps(data))
+    _assert_fails(tmp_path / "src", "internal", tmp_path / "out", {}, "scene.json")
+
+
 def test_too_few_views(tmp_path):
     write_images(tmp_path / "src", ["only.png"], 32, 24)
     _assert_fails(tmp_path / "src", "folder", tmp_path / "out", {}, str(tmp_path / "src"))

@@ -135,7 +135,13 @@ class _Source:
 def _read_internal(src: Path, cfg: dict) -> _Source:
     if not (src / SCENE_JSON).is_file():
         raise InputError(f"{src / SCENE_JSON} does not exist (layout 'internal'/'demo' needs scene.json + images/)")
-    scene = read_scene(src)
+    try:
+        scene = read_scene(src)
+    except InputError as exc:
+        msg = str(exc)
+        raise InputError(msg if str(src) in msg else f"{src / SCENE_JSON}: {msg}") from exc
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{src / SCENE_JSON}: malformed scene file ({exc!r})") from exc
     frame_sizes = scene.extra.get("frame_sizes")
     views = [SourceView(f.name, src / IMAGES_DIR / f.name, f.camera,
                         tuple(frame_sizes[i]) if frame_sizes and frame_sizes[i] else (scene.width, scene.height),
