@@ -176,6 +176,35 @@ def test_dl3dv_layout(tmp_path):
     assert not (tmp_path / "out8").exists()
 
 
+def test_dl3dv_benchmark_layout_and_mismatched_colmap(tmp_path):
+    """nerfstudio/ (json + images_N) and gaussian_splat/sparse/0 beside it; the
+    COLMAP world may differ by a similarity (points follow); a model whose cameras
+    do not match is ignored."""
+    ref = _dl3dv(tmp_path / "s" / "nerfstudio", with_colmap=False)
+    s, ang = 2.5, 0.7
+    R = np.array([[np.cos(ang), -np.sin(ang), 0], [np.sin(ang), np.cos(ang), 0], [0, 0, 1]])
+    t = np.array([0.3, -1.0, 2.0])
+    S = np.eye(4)
+    S[:3, :3], S[:3, 3] = R, t
+    moved = Scene(ref.width, ref.height, [], points_xyz=s * ref.points_xyz @ R.T + t, points_rgb=ref.points_rgb)
+    for f in ref.frames:  # world scaled by s, rotated, shifted
+        T = S @ f.c2w
+        T[:3, 3] = s * (R @ f.c2w[:3, 3]) + t
+        moved.frames.append(Frame(f.name, f.camera, T))
+    write_colmap_model(moved, tmp_path / "s" / "gaussian_splat" / "sparse" / "0")
+    scene = ingest_scene(tmp_path / "s", "dl3dv", tmp_path / "out", {})
+    info = scene.extra["ingest"]["colmap_points"]
+    assert info["used"] and abs(info["scale"] - 1 / s) < 1e-9
+    np.testing.assert_allclose(scene.points_xyz, ref.points_xyz, atol=1e-9)
+    # shuffle the COLMAP cameras: no consistent similarity -> points dropped
+    rng = np.random.default_rng(0)
+    perm = rng.permutation(len(moved.frames))
+    moved.frames = [Frame(f.name, f.camera, moved.frames[j].c2w) for f, j in zip(moved.frames, perm)]
+    write_colmap_model(moved, tmp_path / "s" / "gaussian_splat" / "sparse" / "0")
+    scene = ingest_scene(tmp_path / "s", "dl3dv", tmp_path / "out", {})
+    assert scene.points_xyz is None and not scene.extra["ingest"]["colmap_points"]["used"]
+
+
 def test_nerf_layout_synthetic(tmp_path):
     """NeRF-synthetic style: transforms_train.json, camera_angle_x, './train/r_i'
     without extension, RGBA images (alpha dropped)."""

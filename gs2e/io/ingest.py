@@ -18,11 +18,14 @@ Layouts (``src`` is a folder unless said otherwise):
     ``extra["sequential"] = True``.
 ``dl3dv``
     A DL3DV scene: ``images_N/`` folders and a nerfstudio ``transforms.json``
-    whose ``file_path`` points to ``images/<file>``. Reads ``images_subdir`` (or
+    (in ``src`` or ``src/nerfstudio``) whose ``file_path`` points to
+    ``images/<file>``; images are matched by file name (or stem). Reads ``images_subdir`` (or
     picks a folder: the largest, or the smallest still >= ``max_side``);
     intrinsics are scaled to the actual image size. If a COLMAP model exists
     under ``colmap/`` its points are aligned to the json poses (similarity fit
-    on the camera centres) and kept. ``extra["sequential"] = True``.
+    on the camera centres) and kept (also ``src/colmap`` or
+    ``src/gaussian_splat``, as in the DL3DV benchmark release).
+    ``extra["sequential"] = True``.
 ``nerf``
     ``transforms.json`` (or ``transforms_train.json``) of NeRF synthetic /
     instant-ngp / nerfstudio; ``src`` may also be the json file itself.
@@ -253,9 +256,11 @@ def _read_dl3dv(src: Path, cfg: dict) -> _Source:
     views = sort_views(views)
     xyz = rgb = None
     prov: dict[str, Any] = {"transforms": str(json_path), "images_subdir": chosen}
-    colmap_dir = colmap_io.find_model_dir(root / "colmap") if (root / "colmap").is_dir() else None
-    if colmap_dir is None and (src / "colmap").is_dir():
-        colmap_dir = colmap_io.find_model_dir(src / "colmap")
+    colmap_dir = None
+    # colmap/ beside the json, or (DL3DV benchmark release) colmap/ or gaussian_splat/ in the scene
+    for cand in (root / "colmap", src / "colmap", src / "gaussian_splat"):
+        if colmap_dir is None and cand.is_dir():
+            colmap_dir = colmap_io.find_model_dir(cand)
     if colmap_dir is not None:
         xyz, rgb, info = _aligned_points(colmap_dir, views)
         prov["colmap_points"] = info
