@@ -1,0 +1,138 @@
+"""Image files: read as 8-bit RGB, write PNG, resize with matching intrinsics.
+
+Images in gs2e are numpy arrays of shape (H, W, 3), dtype uint8, RGB order.
+Pixel centres are at integer + 0.5 (see :mod:`gs2e.io.scene`), so resizing an
+image from (W, H) to (W', H') scales every continuous image coordinate, and the
+intrinsics, by exactly (W'/W, H'/H).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from gs2e.common.errors import InputError
+from gs2e.io.scene import Camera
+
+IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp", ".ppm", ".pgm")
+# PNG zlib level: fixed so the same pixels give the same bytes.
+PNG_COMPRESSION = 3
+
+
+def is_image_file(path: str | os.PathLike) -> bool:
+    """True for a regular file whose extension is a supported image type."""
+    p = Path(path)
+    return p.suffix.lower() in IMAGE_EXTS and p.is_file()
+
+
+def decode_image(data: bytes, name: str = "image") -> np.ndarray:
+    """Decode encoded image bytes to uint8 RGB (H, W, 3).
+
+    16-bit images are rounded to 8 bits (v / 257), float images are taken as
+    [0, 1], grayscale is replicated to RGB and an alpha channel is dropped.
+    EXIF orientation is ignored (COLMAP works on the stored pixel grid too).
+    Raises InputError naming ``name`` when the bytes are empty or undecodable.
+    """
+    if len(data) == 0:
+        raise InputError(f"image file {name} is empty (0 bytes)")
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if img is None or img.size == 0:
+        raise InputError(f"image file {name} is corrupt or not a supported image format")
+    if img.dtype == np.uint16:
+        img = ((img.astype(np.uint32) + 128) // 257).astype(np.uint8)
+    elif img.dtype in (np.float32, np.float64):
+        if not np.all(np.isfinite(img)):
+            raise InputError(f"image file {name} contains NaN or inf pixels")
+        img = np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8)
+    elif img.dtype != np.uint8:
+        raise InputError(f"image file {name} has unsupported pixel type {img.dtype}")
+    if img.ndim == 2:
+        img = img[:, :, None]
+    ch = img.shape[2]
+    if ch in (1, 2):  # gray or gray+alpha
+        rgb = np.repeat(img[:, :, :1], 3, axis=2)
+    elif ch in (3, 4):  # BGR or BGRA
+        rgb = img[:, :, 2::-1]
+    else:
+        raise InputError(f"image file {name} has {ch} channels (expected 1-4)")
+    return np.ascontiguousarray(rgb)
+
+
+def read_image_bytes(path: str | os.PathLike) -> bytes:
+    """Raw bytes of an image file; InputError naming the file if missing/unreadable."""
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"image file {p} does not exist")
+    if not p.is_file():
+        raise InputError(f"image path {p} is not a file")
+    try:
+        return p.read_bytes()
+    except OSError as exc:
+        raise InputError(f"cannot read image file {p}: {exc.strerror or exc}") from exc
+
+
+def read_image(path: str | os.PathLike) -> np.ndarray:
+    """Read an image file as uint8 RGB (H, W, 3); InputError naming the file on failure."""
+    return decode_image(read_image_bytes(path), str(path))
+
+
+def encode_png(rgb: np.ndarray) -> bytes:
+    """PNG bytes of a uint8 RGB (H, W, 3) image (deterministic for given pixels)."""
+    rgb = np.asarray(rgb)
+    if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"expected uint8 (H, W, 3), got {rgb.dtype} {rgb.shape}")
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(rgb[:, :, ::-1]),
+                           [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION])
+    if not ok:
+        raise RuntimeError("PNG encoding failed")
+    return buf.tobytes()
+
+
+def write_png(path: str | os.PathLike, rgb: np.ndarray) -> None:
+    """Write uint8 RGB (H, W, 3) as PNG (callers write into an atomic_dir)."""
+    Path(path).write_bytes(encode_png(rgb))
+
+
+def scaled_size(width: int, height: int, downscale: int = 1,
+                max_side: int | None = None) -> tuple[int, int]:
+    """Output (W, H) after an integer ``downscale`` and then a cap on the longer side.
+
+    Both steps round to the nearest integer pixel count (at least 1).
+    """
+    if downscale < 1:
+        raise ValueError("downscale must be >= 1")
+    w = max(1, int(math.floor(width / downscale + 0.5)))
+    h = max(1, int(math.floor(height / downscale + 0.5)))
+    if max_side is not None and max(w, h) > max_side:
+        s = max_side / max(w, h)
+        w = max(1, min(max_side, int(math.floor(w * s + 0.5))))
+        h = max(1, min(max_side, int(math.floor(h * s + 0.5))))
+    return w, h
+
+
+def resize_image(rgb: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Resize (H, W, 3) to ``size`` = (W', H'): area filter when shrinking,
+    bilinear when enlarging. Returns the input unchanged if the size matches."""
+    w, h = size
+    if rgb.shape[1] == w and rgb.shape[0] == h:
+        return rgb
+    shrink = w <= rgb.shape[1] and h <= rgb.shape[0]
+    interp = cv2.INTER_AREA if shrink else cv2.INTER_LINEAR
+    return cv2.resize(rgb, (int(w), int(h)), interpolation=interp)
+
+
+def resize_with_camera(rgb: np.ndarray, camera: Camera,
+                       size: tuple[int, int]) -> tuple[np.ndarray, Camera, tuple[float, float]]:
+    """Resize an image to ``size`` = (W', H') and scale its intrinsics to match.
+
+    Returns (image, camera, (sx, sy)) with sx = W'/W, sy = H'/H.
+    """
+    h0, w0 = rgb.shape[:2]
+    sx, sy = size[0] / w0, size[1] / h0
+    if sx == 1.0 and sy == 1.0:
+        return rgb, camera, (1.0, 1.0)
+    return resize_image(rgb, size), camera.scaled(sx, sy), (sx, sy)

@@ -1,0 +1,464 @@
+"""Ingestion: read a scene in one of the source layouts and write the internal layout.
+
+Layouts (``src`` is a folder unless said otherwise):
+
+``demo`` / ``internal``
+    An internal-layout folder (scene.json + images/ [+ points3d.npz]), e.g. the
+    output of ``gs2e demo-scene``.
+``folder``
+    Plain images (in ``src`` or ``src/images``), sorted by name; no poses. The
+    intrinsics are a PINHOLE guess fx = fy = 1.2 max(W, H), principal point at
+    the image centre, flagged ``extra["intrinsics_guess"] = True``.
+``colmap``
+    ``images/`` + a sparse model in ``sparse/0`` or ``sparse`` (.bin or .txt).
+    Only registered images become views; other images in ``images/`` are listed
+    in the provenance.
+``mvimgnet``
+    An MVImgNet clip: the same files as ``colmap``; frames are video-ordered,
+    ``extra["sequential"] = True``.
+``dl3dv``
+    A DL3DV scene: ``images_N/`` folders and a nerfstudio ``transforms.json``
+    (in ``src`` or ``src/nerfstudio``) whose ``file_path`` points to
+    ``images/<file>``; images are matched by file name (or stem). Reads ``images_subdir`` (or
+    picks a folder: the largest, or the smallest still >= ``max_side``);
+    intrinsics are scaled to the actual image size. If a COLMAP model exists
+    under ``colmap/`` its points are aligned to the json poses (similarity fit
+    on the camera centres) and kept (also ``src/colmap`` or
+    ``src/gaussian_splat``, as in the DL3DV benchmark release).
+    ``extra["sequential"] = True``.
+``nerf``
+    ``transforms.json`` (or ``transforms_train.json``) of NeRF synthetic /
+    instant-ngp / nerfstudio; ``src`` may also be the json file itself.
+
+Every layout goes through the same steps: sort views by name (natural order),
+subsample to ``max_views`` evenly spaced views (first and last kept), read each
+image (missing, empty, corrupt -> InputError naming the file), reconcile the
+size the source's intrinsics refer to with the actual size, check resolutions
+agree (or resize to the first view's when ``allow_mixed_resolutions``), reject
+duplicate views (pixel-identical images), downscale, re-encode as PNG and write
+the internal layout atomically. Provenance goes to ``extra["ingest"]``.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import logging
+import math
+import os
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gs2e.common.atomic import atomic_dir
+from gs2e.common.errors import ConfigError, InputError
+from gs2e.common.log import timed
+from gs2e.common.progress import progress
+from gs2e.io import colmap as colmap_io
+from gs2e.io import nerf as nerf_io
+from gs2e.io.images import (IMAGE_EXTS, is_image_file, read_image_bytes, decode_image,
+                            resize_with_camera, scaled_size, write_png, resize_image)
+from gs2e.io.scene import (IMAGES_DIR, SCENE_JSON, Camera, Frame, Scene, read_scene,
+                           write_scene_json)
+from gs2e.io.views import LAYOUTS, SourceView, natural_key, sort_views
+
+log = logging.getLogger("gs2e.ingest")
+
+GUESS_FOCAL_FACTOR = 1.2  # folder layout: fx = fy = 1.2 * max(W, H)
+ASPECT_TOL = 0.02  # relative aspect-ratio mismatch tolerated between declared and actual size
+
+
+# ---------------------------------------------------------------- small pure helpers
+
+def subsample_indices(n: int, max_views: int | None) -> np.ndarray:
+    """Indices of ``max_views`` views evenly spaced over ``n`` (first and last kept).
+
+    Deterministic: index_k = floor(k (n-1)/(m-1) + 0.5); strictly increasing
+    because the spacing is >= 1. ``max_views`` None or >= n keeps all.
+    """
+    if max_views is None or max_views >= n:
+        return np.arange(n)
+    if max_views < 1:
+        raise ValueError("max_views must be >= 1")
+    if max_views == 1:
+        return np.array([0])
+    k = np.arange(max_views)
+    return np.floor(k * (n - 1) / (max_views - 1) + 0.5).astype(np.int64)
+
+
+def guess_camera(width: int, height: int) -> Camera:
+    """PINHOLE guess for images without intrinsics: fx = fy = 1.2 max(W, H), centred."""
+    f = GUESS_FOCAL_FACTOR * max(width, height)
+    return Camera(f, f, width / 2.0, height / 2.0, "PINHOLE", [])
+
+
+def unique_png_names(names: list[str]) -> list[str]:
+    """Output PNG names: the source file's stem + .png; clashes (same stem in
+    different folders or with different extensions) get the relative folder
+    path joined with '_' and, if still needed, a numeric suffix."""
+    stems = [Path(n).stem for n in names]
+    out: list[str] = []
+    used: set[str] = set()
+    counts: dict[str, int] = {}
+    for s in stems:
+        counts[s] = counts.get(s, 0) + 1
+    for n, s in zip(names, stems):
+        cand = s if counts[s] == 1 else re.sub(r"[^A-Za-z0-9._-]+", "_",
+                                                str(Path(n).with_suffix("")).strip("./")) or s
+        if counts[s] > 1 and Path(n).suffix:
+            cand = f"{cand}_{Path(n).suffix.lstrip('.').lower()}"
+        base, i = cand, 1
+        while cand + ".png" in used:
+            cand = f"{base}_{i}"
+            i += 1
+        used.add(cand + ".png")
+        out.append(cand + ".png")
+    return out
+
+
+def _list_images(folder: Path) -> list[Path]:
+    return sorted((p for p in folder.iterdir() if is_image_file(p)), key=lambda p: natural_key(p.name))
+
+
+# ---------------------------------------------------------------- layout readers
+
+class _Source:
+    """What a layout reader found: views in sequence order plus scene data."""
+
+    def __init__(self, views: list[SourceView], points=(None, None), extra: dict | None = None,
+                 provenance: dict | None = None):
+        self.views = views
+        self.points_xyz, self.points_rgb = points
+        self.extra = extra or {}
+        self.provenance = provenance or {}
+
+
+def _read_internal(src: Path, cfg: dict) -> _Source:
+    if not (src / SCENE_JSON).is_file():
+        raise InputError(f"{src / SCENE_JSON} does not exist (layout 'internal'/'demo' needs scene.json + images/)")
+    try:
+        scene = read_scene(src)
+    except InputError as exc:
+        msg = str(exc)
+        raise InputError(msg if str(src) in msg else f"{src / SCENE_JSON}: {msg}") from exc
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{src / SCENE_JSON}: malformed scene file ({exc!r})") from exc
+    frame_sizes = scene.extra.get("frame_sizes")
+    views = [SourceView(f.name, src / IMAGES_DIR / f.name, f.camera,
+                        tuple(frame_sizes[i]) if frame_sizes and frame_sizes[i] else (scene.width, scene.height),
+                        f.c2w)
+             for i, f in enumerate(scene.frames)]
+    extra = {k: v for k, v in scene.extra.items() if k not in ("ingest", "frame_sizes")}
+    return _Source(views, (scene.points_xyz, scene.points_rgb), extra,
+                   {"source_layout": scene.layout})
+
+
+def _read_folder(src: Path, cfg: dict) -> _Source:
+    if not src.is_dir():
+        raise InputError(f"image folder {src} is not a directory")
+    folder = src
+    if not _list_images(src) and (src / IMAGES_DIR).is_dir():
+        folder = src / IMAGES_DIR
+    files = _list_images(folder)
+    if not files:
+        raise InputError(f"no image files ({', '.join(IMAGE_EXTS)}) in {src}")
+    views = [SourceView(p.name, p) for p in files]
+    return _Source(views, extra={"intrinsics_guess": True},
+                   provenance={"image_dir": str(folder)})
+
+
+def _read_colmap(src: Path, cfg: dict, sequential: bool = False) -> _Source:
+    model_dir = colmap_io.find_model_dir(src)
+    if model_dir is None:
+        if (src / "sparse").is_dir():
+            subs = sorted(p for p in (src / "sparse").iterdir() if colmap_io.is_model_dir(p))
+            if subs:
+                model_dir = subs[0]
+        if model_dir is None:
+            raise InputError(f"no COLMAP sparse model (cameras/images/points3D .bin or .txt) in "
+                             f"{src / 'sparse' / '0'} or {src / 'sparse'}")
+    image_dir = src / IMAGES_DIR
+    if not image_dir.is_dir():
+        raise InputError(f"image folder {image_dir} does not exist")
+    with timed(f"read COLMAP model {model_dir}", log):
+        rec = colmap_io.load_reconstruction(model_dir)
+    views = colmap_io.views_from_reconstruction(rec, image_dir, str(model_dir))
+    if not views:
+        raise InputError(f"COLMAP model {model_dir} has no registered images")
+    for v in views:
+        if not v.path.is_file():
+            raise InputError(f"image {v.path} referenced by COLMAP model {model_dir} does not exist")
+    in_model = {v.path.resolve() for v in views}
+    unregistered = [p.name for p in _list_images(image_dir) if p.resolve() not in in_model]
+    if unregistered:
+        log.warning("%d image(s) in %s are not in the COLMAP model and are skipped",
+                    len(unregistered), image_dir)
+    xyz, rgb = colmap_io.points_from_reconstruction(rec)
+    extra = {"sequential": True} if sequential else {}
+    return _Source(views, (xyz, rgb), extra,
+                   {"model_dir": str(model_dir), "unregistered_images": unregistered})
+
+
+def _read_mvimgnet(src: Path, cfg: dict) -> _Source:
+    return _read_colmap(src, cfg, sequential=True)
+
+
+_IMAGES_N = re.compile(r"^images(?:_(\d+))?$")
+
+
+def _dl3dv_json(src: Path) -> Path:
+    for cand in (src / "transforms.json", src / "nerfstudio" / "transforms.json"):
+        if cand.is_file():
+            return cand
+    raise InputError(f"DL3DV scene {src} has no transforms.json (looked in {src} and {src / 'nerfstudio'})")
+
+
+def _read_dl3dv(src: Path, cfg: dict) -> _Source:
+    json_path = _dl3dv_json(src)
+    root = json_path.parent
+    data = nerf_io.load_transforms_json(json_path)
+    # Image folders images/, images_2/, ... beside the json.
+    folders = {}
+    for p in root.iterdir():
+        m = _IMAGES_N.match(p.name)
+        if m and p.is_dir():
+            folders[p.name] = int(m.group(1) or 1)
+    sub = cfg.get("images_subdir")
+    if sub is not None:
+        if not (root / sub).is_dir():
+            raise ConfigError(f"ingest.images_subdir: folder {root / sub} does not exist")
+        chosen = sub
+    else:
+        if not folders:
+            raise InputError(f"DL3DV scene {root} has no images_N folder")
+        by_res = sorted(folders, key=lambda k: folders[k])  # largest resolution first
+        chosen = by_res[0]
+        w0 = data.get("w")
+        if cfg.get("max_side") and w0 and data.get("h"):
+            long_side = max(float(w0), float(data["h"]))
+            fits = [k for k in by_res if long_side / folders[k] >= cfg["max_side"]]
+            if fits:
+                chosen = fits[-1]  # the smallest folder still at least max_side
+    img_dir = root / chosen
+    log.info("DL3DV: reading images from %s", img_dir)
+    views = nerf_io.views_from_transforms(data, root, str(json_path), image_size=None
+                                          if "w" in data else _first_size(img_dir))
+    stems = {p.stem: p for p in img_dir.iterdir() if is_image_file(p)}
+    for v in views:
+        base = Path(v.name).name
+        p = img_dir / base
+        if not p.is_file() and Path(base).stem in stems:
+            p = stems[Path(base).stem]
+        v.path = p
+        v.name = base
+    views = sort_views(views)
+    xyz = rgb = None
+    prov: dict[str, Any] = {"transforms": str(json_path), "images_subdir": chosen}
+    colmap_dir = None
+    # colmap/ beside the json, or (DL3DV benchmark release) colmap/ or gaussian_splat/ in the scene
+    for cand in (root / "colmap", src / "colmap", src / "gaussian_splat"):
+        if colmap_dir is None and cand.is_dir():
+            colmap_dir = colmap_io.find_model_dir(cand)
+    if colmap_dir is not None:
+        xyz, rgb, info = _aligned_points(colmap_dir, views)
+        prov["colmap_points"] = info
+    return _Source(views, (xyz, rgb), {"sequential": True}, prov)
+
+
+def _first_size(folder: Path) -> tuple[int, int] | None:
+    files = _list_images(folder)
+    if not files:
+        return None
+    img = decode_image(read_image_bytes(files[0]), str(files[0]))
+    return img.shape[1], img.shape[0]
+
+
+def _aligned_points(model_dir: Path, views: list[SourceView]):
+    """COLMAP points mapped into the json world by a similarity fitted on camera
+    centres of images present in both (matched by file stem)."""
+    from gs2e.common.so3 import umeyama
+
+    rec = colmap_io.load_reconstruction(model_dir)
+    xyz, rgb = colmap_io.points_from_reconstruction(rec)
+    if xyz is None:
+        return None, None, {"model_dir": str(model_dir), "used": False, "reason": "no points"}
+    cv = {Path(v.name).stem: v for v in colmap_io.views_from_reconstruction(rec)}
+    src_c, dst_c = [], []
+    for v in views:
+        m = cv.get(Path(v.name).stem)
+        if m is not None and v.c2w is not None:
+            src_c.append(m.c2w[:3, 3])
+            dst_c.append(v.c2w[:3, 3])
+    info: dict[str, Any] = {"model_dir": str(model_dir), "matched_cameras": len(src_c)}
+    if len(src_c) < 3:
+        log.warning("DL3DV: only %d cameras shared with %s; its points are not used", len(src_c), model_dir)
+        return None, None, {**info, "used": False}
+    src_c, dst_c = np.asarray(src_c), np.asarray(dst_c)
+    s, R, t = umeyama(src_c, dst_c)
+    resid = np.linalg.norm(s * src_c @ R.T + t - dst_c, axis=1)
+    extent = np.linalg.norm(dst_c - dst_c.mean(0), axis=1).max()
+    rms = float(np.sqrt(np.mean(resid ** 2)))
+    info.update(scale=float(s), rms_camera_error=rms, extent=float(extent))
+    if not extent > 0 or rms > 0.01 * extent:
+        log.warning("DL3DV: COLMAP cameras do not match transforms.json (rms %.3g vs extent %.3g); "
+                    "its points are not used", rms, extent)
+        return None, None, {**info, "used": False}
+    return s * xyz @ R.T + t, rgb, {**info, "used": True}
+
+
+def _nerf_json(src: Path) -> Path:
+    if src.is_file():
+        return src
+    for name in ("transforms.json", "transforms_train.json"):
+        if (src / name).is_file():
+            return src / name
+    raise InputError(f"no transforms.json or transforms_train.json in {src}")
+
+
+def _read_nerf(src: Path, cfg: dict) -> _Source:
+    json_path = _nerf_json(src)
+    data = nerf_io.load_transforms_json(json_path)
+    views = nerf_io.views_from_transforms(data, json_path.parent, str(json_path))
+    prov = {"transforms": str(json_path)}
+    if "applied_transform" in data:
+        prov["applied_transform_undone"] = True
+    return _Source(sort_views(views), provenance=prov)
+
+
+_READERS = {
+    "demo": _read_internal,
+    "internal": _read_internal,
+    "folder": _read_folder,
+    "colmap": _read_colmap,
+    "mvimgnet": _read_mvimgnet,
+    "dl3dv": _read_dl3dv,
+    "nerf": _read_nerf,
+}
+
+
+# ---------------------------------------------------------------- the stage
+
+def _validated_cfg(cfg: dict | None) -> dict:
+    from gs2e.config import load_schema, validate
+
+    schema = load_schema()["properties"]["ingest"]
+    return validate(copy.deepcopy(dict(cfg or {})), schema, "config ingest")
+
+
+def _declared_to_actual(view: SourceView, actual: tuple[int, int]) -> tuple[Camera | None, tuple[float, float]]:
+    """Scale the view's camera from its declared size to the image's actual size."""
+    if view.camera is None or view.size is None or tuple(view.size) == tuple(actual):
+        return view.camera, (1.0, 1.0)
+    sx, sy = actual[0] / view.size[0], actual[1] / view.size[1]
+    if abs(sx - sy) > ASPECT_TOL * max(sx, sy):
+        raise InputError(
+            f"image {view.path} is {actual[0]}x{actual[1]} but its camera is for "
+            f"{view.size[0]}x{view.size[1]} (different aspect ratio)")
+    return view.camera.scaled(sx, sy), (sx, sy)
+
+
+def ingest_scene(src: str | os.PathLike, layout: str, out_dir: str | os.PathLike,
+                 cfg: dict | None = None) -> Scene:
+    """Read the scene at ``src`` in ``layout`` and write the internal layout to ``out_dir``.
+
+    Parameters
+    ----------
+    src : source folder (or, for ``nerf``, a transforms json file).
+    layout : one of ``LAYOUTS``.
+    out_dir : output folder; written atomically (replaced only on success).
+    cfg : the ``ingest`` config section (defaults filled in if keys are missing).
+
+    Returns
+    -------
+    The written Scene (frame names are the PNG names under ``out_dir/images``).
+
+    Raises
+    ------
+    InputError naming the file for missing/corrupt images, duplicate views,
+    mixed resolutions, invalid poses, fewer than 2 views; ConfigError for bad cfg.
+    """
+    cfg = _validated_cfg(cfg)
+    if layout not in LAYOUTS:
+        raise ConfigError(f"layout '{layout}' is not one of {', '.join(LAYOUTS)}")
+    src = Path(src)
+    out_dir = Path(out_dir)
+    if not src.exists():
+        raise InputError(f"source {src} does not exist")
+    if out_dir.resolve() == src.resolve() or src.resolve() in out_dir.resolve().parents:
+        raise InputError(f"output folder {out_dir} must not be the source {src} or inside it")
+
+    with timed(f"scan {layout} scene {src}", log):
+        source = _READERS[layout](src, cfg)
+    views = source.views
+    n_src = len(views)
+    idx = subsample_indices(n_src, cfg["max_views"])
+    views = [views[i] for i in idx]
+    log.info("%d views in the source, %d selected", n_src, len(views))
+    if len(views) < 2:
+        raise InputError(f"scene {src} has {len(views)} usable view(s); at least 2 are needed")
+    for v in views:  # fail before decoding anything if a file is missing
+        if not v.path.is_file():
+            raise InputError(f"image file {v.path} does not exist")
+    out_names = unique_png_names([v.name for v in views])
+
+    frames: list[Frame] = []
+    seen: dict[bytes, int] = {}
+    src_sizes, scales, cam_scales = [], [], []
+    first_size: tuple[int, int] | None = None
+    out_size: tuple[int, int] | None = None
+    with timed(f"ingest {len(views)} images -> {out_dir}", log), atomic_dir(out_dir) as tmp:
+        (tmp / IMAGES_DIR).mkdir()
+        for i, v in enumerate(progress(views, desc="ingest images")):
+            img = decode_image(read_image_bytes(v.path), str(v.path))
+            h, w = img.shape[:2]
+            digest = hashlib.sha256(np.asarray(img.shape).tobytes() + img.tobytes()).digest()
+            if digest in seen:
+                j = seen[digest]
+                raise InputError(f"duplicate views: images {views[j].path} and {v.path} are identical")
+            seen[digest] = i
+            src_sizes.append([w, h])
+            cam, s0 = _declared_to_actual(v, (w, h))
+            if first_size is None:
+                first_size = (w, h)
+                out_size = scaled_size(w, h, cfg["downscale"], cfg["max_side"])
+            if (w, h) != first_size:
+                if not cfg["allow_mixed_resolutions"]:
+                    raise InputError(
+                        f"mixed resolutions: image {v.path} is {w}x{h} but {views[0].path} is "
+                        f"{first_size[0]}x{first_size[1]} (set ingest.allow_mixed_resolutions to resize)")
+                # Resize to the first view's size first so every view shares one grid.
+                if cam is not None:
+                    img, cam, s1 = resize_with_camera(img, cam, first_size)
+                else:
+                    img, s1 = resize_image(img, first_size), (first_size[0] / w, first_size[1] / h)
+            else:
+                s1 = (1.0, 1.0)
+            if cam is None:
+                cam = guess_camera(*first_size)
+            img, cam, s2 = resize_with_camera(img, cam, out_size)
+            scales.append([s1[0] * s2[0], s1[1] * s2[1]])
+            cam_scales.append([s0[0] * s1[0] * s2[0], s0[1] * s1[1] * s2[1]])
+            write_png(tmp / IMAGES_DIR / out_names[i], img)
+            frames.append(Frame(out_names[i], cam, v.c2w))
+        extra = dict(source.extra)
+        extra["ingest"] = {
+            "layout": layout,
+            "source": str(src),
+            **source.provenance,
+            "n_source_views": n_src,
+            "subsample_indices": idx.tolist(),
+            "original_names": [v.name for v in views],
+            "source_sizes": src_sizes,
+            "scale_xy": scales,
+            "camera_scale_xy": cam_scales,
+            "output_size": list(out_size),
+            "config": cfg,
+        }
+        scene = Scene(out_size[0], out_size[1], frames, layout, str(src),
+                      source.points_xyz, source.points_rgb, extra)
+        write_scene_json(scene, tmp)
+    log.info("wrote %d views (%dx%d, poses: %s, points: %s) to %s", len(frames), out_size[0],
+             out_size[1], scene.has_poses, 0 if scene.points_xyz is None else len(scene.points_xyz), out_dir)
+    return scene
