@@ -45,6 +45,7 @@ def random_scene(n=300, seed=0, dtype=torch.float64, sh_degree=3, extent=1.5,
 
 def rel_err(a: torch.Tensor, b: torch.Tensor) -> float:
     """max |a - b| / max |b| (max-norm relative error; 0 if both are 0)."""
+    a, b = a.detach(), b.detach()
     den = float(b.abs().max()) if b.numel() else 0.0
     num = float((a - b).abs().max()) if a.numel() else 0.0
     if den == 0.0:
