@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from gs2e.splat.rasterize import SplatCamera
+from gs2e.splat.rasterize import SplatCamera, rasterize
+from gs2e.splat.reference import render_reference
 
 
 def look_at_camera(width=64, height=48, fx=None, eye=(0.0, 0.0, -4.0), near=0.01):
@@ -51,3 +52,40 @@ def rel_err(a: torch.Tensor, b: torch.Tensor) -> float:
     if den == 0.0:
         return num
     return num / den
+
+
+KEYS = ("means", "quats", "log_scales", "opacity_logits", "sh")
+
+
+def _render(fn, p, cam, **kw):
+    return fn(*(p[k] for k in KEYS), cam, p["background"], **kw)
+
+
+def _loss(out, seed=0):
+    """Random linear functional of image, alpha and depth (touches every output)."""
+    img, alpha, depth, _ = out
+    g = torch.Generator().manual_seed(seed)
+    w = [torch.randn(x.shape, generator=g, dtype=x.dtype) for x in (img, alpha, depth)]
+    return (img * w[0]).sum() + (alpha * w[1]).sum() + 0.1 * (depth * w[2]).sum()
+
+
+def compare(p, cam, tol, **kw):
+    """Assert outputs and every gradient match the reference within ``tol``
+    (max-norm relative error); return (fast outputs, errors, fast gradients)."""
+    fast = _render(rasterize, p, cam, **kw)
+    grads = torch.autograd.grad(_loss(fast), [p[k] for k in (*KEYS, "background")])
+    ref = _render(render_reference, p, cam, **kw)
+    rgrads = torch.autograd.grad(_loss(ref), [p[k] for k in (*KEYS, "background")] + [ref[3]["means2d"]])
+    errs = {n: rel_err(a.detach(), b.detach()) for n, a, b in zip(("image", "alpha", "depth"), fast, ref)}
+    for k, a, b in zip((*KEYS, "background"), grads, rgrads):
+        errs["d_" + k] = rel_err(a, b)
+    vis = fast[3]["radii"] > 0
+    errs["grad2d"] = rel_err(fast[3]["grad2d"][vis], rgrads[-1][vis].to(torch.float64))
+    assert (fast[3]["radii"] == ref[3]["radii"]).all()
+    bad = {k: v for k, v in errs.items() if not v <= tol}
+    assert not bad, f"relative errors above {tol}: {bad}"
+    for x in (*fast[:3], *grads):
+        assert torch.isfinite(x).all()
+    return fast, errs, dict(zip((*KEYS, "background"), grads))
+
+

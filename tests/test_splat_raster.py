@@ -5,54 +5,22 @@ import numpy as np
 import pytest
 import torch
 
-from splat_scenes import look_at_camera, random_scene, rel_err
+from splat_scenes import KEYS, _loss, _render, compare, look_at_camera, random_scene, rel_err
 from gs2e.splat import raster as R
 from gs2e.splat.rasterize import rasterize
-from gs2e.splat.reference import render_reference
-
-KEYS = ("means", "quats", "log_scales", "opacity_logits", "sh")
-
-
-def _render(fn, p, cam, **kw):
-    return fn(*(p[k] for k in KEYS), cam, p["background"], **kw)
-
-
-def _loss(out, seed=0):
-    """Random linear functional of image, alpha and depth (touches every output)."""
-    img, alpha, depth, _ = out
-    g = torch.Generator().manual_seed(seed)
-    w = [torch.randn(x.shape, generator=g, dtype=x.dtype) for x in (img, alpha, depth)]
-    return (img * w[0]).sum() + (alpha * w[1]).sum() + 0.1 * (depth * w[2]).sum()
-
-
-def compare(p, cam, tol, **kw):
-    """Max relative error of outputs and of every gradient vs the reference."""
-    fast = _render(rasterize, p, cam, **kw)
-    grads = torch.autograd.grad(_loss(fast), [p[k] for k in (*KEYS, "background")])
-    ref = _render(render_reference, p, cam, **kw)
-    rgrads = torch.autograd.grad(_loss(ref), [p[k] for k in (*KEYS, "background")] + [ref[3]["means2d"]])
-    errs = {n: rel_err(a.detach(), b.detach()) for n, a, b in zip(("image", "alpha", "depth"), fast, ref)}
-    for k, a, b in zip((*KEYS, "background"), grads, rgrads):
-        errs["d_" + k] = rel_err(a, b)
-    vis = fast[3]["radii"] > 0
-    errs["grad2d"] = rel_err(fast[3]["grad2d"][vis], rgrads[-1][vis].to(torch.float64))
-    assert (fast[3]["radii"] == ref[3]["radii"]).all()
-    bad = {k: v for k, v in errs.items() if not v <= tol}
-    assert not bad, f"relative errors above {tol}: {bad}"
-    return fast, errs
 
 
 @pytest.mark.parametrize("seed,degree", [(0, 3), (1, 0), (2, 1)])
 def test_matches_reference_float64(seed, degree):
     p = random_scene(300, seed=seed, sh_degree=degree)
     cam = look_at_camera(eye=(0.2 * seed, -0.3, -4.0))
-    fast, _ = compare(p, cam, 1e-4)
+    fast, _, _ = compare(p, cam, 1e-4)
     assert float(fast[1].detach().max()) > 0.9 and int((fast[3]["radii"] > 0).sum()) > 100  # non-trivial
 
 
 def test_matches_reference_float32():
     p = random_scene(300, seed=5, dtype=torch.float32)
-    fast, _ = compare(p, look_at_camera(), 1e-3)
+    fast, _, _ = compare(p, look_at_camera(), 1e-3)
     assert fast[0].dtype == torch.float32
 
 
@@ -66,7 +34,7 @@ def test_early_termination_and_alpha_clamp_exercised():
     p = random_scene(300, seed=11, extent=0.6, scale_range=(-2.5, -1.5))
     with torch.no_grad():
         p["opacity_logits"].fill_(6.0)
-    fast, _ = compare(p, look_at_camera(), 1e-4)
+    fast, _, _ = compare(p, look_at_camera(), 1e-4)
     T = 1 - fast[1].detach()
     assert float(T.min()) >= 1e-4 - 1e-12  # never composited below the stop threshold
     assert float((T < 1e-3).float().mean()) > 0.1  # ... but many pixels got there

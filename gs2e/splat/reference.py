@@ -102,7 +102,8 @@ def render_reference(means, quats, log_scales, opacity_logits, sh, cam,
     vis = radii > 0
     campos = torch.as_tensor(cam.campos(), dtype=dt)
     dirs = means - campos
-    dirs = dirs / dirs.norm(dim=1, keepdim=True)
+    nrm = dirs.norm(dim=1, keepdim=True)
+    dirs = dirs / torch.where(nrm > 0, nrm, torch.ones_like(nrm))
     nb = (sh_degree + 1) ** 2
     col = torch.einsum("nk,nkc->nc", sh_basis(dirs, sh_degree), sh[:, :nb]) + 0.5
     col = torch.relu(col)
