@@ -15,14 +15,12 @@ from gs2e.io.scene import IMAGES_DIR, Camera, Frame, Scene, write_scene_json
 
 log = logging.getLogger("gs2e.demo")
 
-N_POINTS_DEFAULT = 8000
-
 
 def write_png(path: Path, img: np.ndarray) -> None:
     """8-bit RGB PNG with no metadata (identical pixels give identical bytes)."""
     from PIL import Image
 
-    Image.fromarray(img, mode="RGB").save(path, format="PNG", compress_level=6)
+    Image.fromarray(np.ascontiguousarray(img, np.uint8)).save(path, format="PNG", compress_level=6)
 
 
 def generate_demo_scene(out: str | Path, cfg: dict) -> dict:
@@ -51,7 +49,7 @@ def generate_demo_scene(out: str | Path, cfg: dict) -> dict:
                 frames.append(Frame(name, cam, c2w))
         with timed("sample surface points", log, timings):
             rng = np.random.default_rng(np.random.SeedSequence([int(cfg["seed"]), 11]))
-            xyz, rgb = sample_points(world, int(cfg.get("n_points", N_POINTS_DEFAULT)), rng)
+            xyz, rgb = sample_points(world, int(cfg["n_points"]), rng)
         scene = Scene(width=W, height=H, frames=frames, layout="demo",
                       source="gs2e demo-scene (scikit-image photographs)",
                       points_xyz=xyz, points_rgb=rgb,

@@ -23,6 +23,10 @@ COLOUR_PHOTOS = ("astronaut", "coffee", "chelsea", "rocket", "immunohistochemist
                  "hubble_deep_field")
 GREY_PHOTOS = ("brick", "grass", "gravel", "camera", "coins", "moon", "page", "text")
 BUNDLED_PHOTOS = COLOUR_PHOTOS + GREY_PHOTOS
+# Natural tints for grey photos (RGB multipliers): sand, moss, terracotta, slate,
+# ochre, stone, plum.
+TINTS = ((0.93, 0.82, 0.62), (0.55, 0.68, 0.42), (0.85, 0.52, 0.38), (0.55, 0.62, 0.72),
+         (0.88, 0.72, 0.35), (0.80, 0.78, 0.74), (0.62, 0.50, 0.62))
 
 
 def load_photo(name: str) -> np.ndarray:
@@ -98,7 +102,8 @@ class Atlas:
         oy = float(rng.uniform(0, self.size - sy))
         tint = (1.0, 1.0, 1.0)
         if tint_grey and name in GREY_PHOTOS:
-            tint = tuple(float(c) for c in rng.uniform(0.45, 1.0, 3))
+            base = np.asarray(TINTS[int(rng.integers(len(TINTS)))])
+            tint = tuple(float(c) for c in np.clip(base * rng.uniform(0.85, 1.08), 0, 1))
         rot = int(rng.integers(4)) if rotate else 0
         return self.add_patch(name, (ox, oy, sx, sy), tint, rot)
 

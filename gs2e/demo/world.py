@@ -27,6 +27,7 @@ BACKDROP_GAIN = 0.95
 TARGET = np.array([0.0, 0.0, 0.35])  # object centre the cameras look at (scene units)
 WOBBLE_PERIODS = 3  # elevation oscillations per orbit (not 1: a tilted circle would be planar)
 TEXTURE_SIZE = 256  # texels per atlas texture side
+RAY_CHUNK = 1 << 15  # rays per batch in render_view
 
 OBJECT_POOL = ("astronaut", "coffee", "chelsea", "rocket", "immunohistochemistry")
 GROUND_POOL = ("gravel", "grass", "brick")
@@ -273,10 +274,13 @@ def render_view(world: World, c2w: np.ndarray, fx: float, fy: float, cx: float, 
     """Render one view: (height, width, 3) uint8 RGB, box-filtered over ss x ss samples."""
     ss = int(supersample)
     origin, d = camera_rays(c2w, fx, fy, cx, cy, width, height, ss)
-    o = np.broadcast_to(origin[:, None], d.shape)
-    t, idx = cast(world, o, d)
-    p = o + np.where(idx >= 0, t, 0) * d
-    rgb = shade(world, p, idx).reshape(3, height, ss, width, ss)
+    rgb = np.empty_like(d)
+    for a in range(0, d.shape[1], RAY_CHUNK):  # chunks keep the temporaries in cache
+        dc = d[:, a:a + RAY_CHUNK]
+        o = np.broadcast_to(origin[:, None], dc.shape)
+        t, idx = cast(world, o, dc)
+        rgb[:, a:a + RAY_CHUNK] = shade(world, o + np.where(idx >= 0, t, 0) * dc, idx)
+    rgb = rgb.reshape(3, height, ss, width, ss)
     img = rgb.sum(axis=(2, 4)) * F32(255.0 / (ss * ss))
     return np.clip(np.rint(img), 0, 255).astype(np.uint8).transpose(1, 2, 0).copy()
 
