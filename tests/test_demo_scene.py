@@ -17,7 +17,7 @@ from gs2e.demo import geometry as geo
 from gs2e.demo.io import generate_demo_scene
 from gs2e.demo.textures import BUNDLED_PHOTOS, build_atlas, load_photo
 from gs2e.demo.world import (TARGET, build_world, camera_rays, cast, check_orbit, intrinsics,
-                             orbit_c2w, wall_size)
+                             orbit_c2w, render_view, wall_size)
 from gs2e.io.scene import check_pose, read_scene
 
 SMALL = {"n_views": 8, "width": 96, "height": 72, "n_points": 2000}
@@ -283,3 +283,12 @@ def test_cli_writes_scene_and_replaces_existing(tmp_path):
     scene = read_scene(out)
     assert len(scene.frames) == 8 and scene.width == 64
     assert sorted(p.name for p in tmp_path.iterdir()) == ["config.yaml", "scene"]
+
+
+def test_chunking_does_not_change_the_image():
+    world = build_world(3, *wall_size(3.0))
+    c2w = orbit_c2w(8, 3.0, 25.0, 8.0)[5]
+    fx, fy, cx, cy = intrinsics(80, 60, 50.0)
+    a = render_view(world, c2w, fx, fy, cx, cy, 80, 60, 2, chunk=80 * 60 * 4)
+    b = render_view(world, c2w, fx, fy, cx, cy, 80, 60, 2, chunk=997)
+    assert a.shape == (60, 80, 3) and np.array_equal(a, b)

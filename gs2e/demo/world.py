@@ -270,16 +270,17 @@ def camera_rays(c2w: np.ndarray, fx: float, fy: float, cx: float, cy: float,
 
 
 def render_view(world: World, c2w: np.ndarray, fx: float, fy: float, cx: float, cy: float,
-                width: int, height: int, supersample: int = 2) -> np.ndarray:
-    """Render one view: (height, width, 3) uint8 RGB, box-filtered over ss x ss samples."""
+                width: int, height: int, supersample: int = 2, chunk: int = RAY_CHUNK) -> np.ndarray:
+    """Render one view: (height, width, 3) uint8 RGB, box-filtered over ss x ss samples.
+    Rays are cast ``chunk`` at a time (the result does not depend on it)."""
     ss = int(supersample)
     origin, d = camera_rays(c2w, fx, fy, cx, cy, width, height, ss)
     rgb = np.empty_like(d)
-    for a in range(0, d.shape[1], RAY_CHUNK):  # chunks keep the temporaries in cache
-        dc = d[:, a:a + RAY_CHUNK]
+    for a in range(0, d.shape[1], chunk):  # chunks keep the temporaries in cache
+        dc = d[:, a:a + chunk]
         o = np.broadcast_to(origin[:, None], dc.shape)
         t, idx = cast(world, o, dc)
-        rgb[:, a:a + RAY_CHUNK] = shade(world, o + np.where(idx >= 0, t, 0) * dc, idx)
+        rgb[:, a:a + chunk] = shade(world, o + np.where(idx >= 0, t, 0) * dc, idx)
     rgb = rgb.reshape(3, height, ss, width, ss)
     img = rgb.sum(axis=(2, 4)) * F32(255.0 / (ss * ss))
     return np.clip(np.rint(img), 0, 255).astype(np.uint8).transpose(1, 2, 0).copy()
