@@ -73,7 +73,8 @@ def main() -> None:
     labels = [f"{r['width']}x{r['height']}\nss{r['supersample']}" for r in rows]
     x = range(len(rows))
     fig, ax = plt.subplots(figsize=(7, 4))
-    ax.bar([i - 0.2 for i in x], [r["s_per_view_one_batch"] for r in rows], 0.4, label="one batch (baseline)")
+    ax.bar([i - 0.2 for i in x], [r["s_per_view_one_batch"] for r in rows], 0.4,
+           label="one batch (baseline)")
     ax.bar([i + 0.2 for i in x], [r["s_per_view_chunked"] for r in rows], 0.4, label=f"chunks of {RAY_CHUNK} rays")
     ax.set_xticks(list(x), labels)
     ax.set_ylabel("CPU s per view")

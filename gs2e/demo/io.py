@@ -61,6 +61,7 @@ def generate_demo_scene(out: str | Path, cfg: dict) -> dict:
                              "points": "surface samples with their rendered (static) colours"})
         write_scene_json(scene, tmp)
     total = time.perf_counter() - t0
+    render_s = next(v for k, v in timings.items() if k.startswith("render"))
     log.info("demo scene: %d views %dx%d, %d points -> %s in %.2f s (%.3f s/view)",
-             len(frames), W, H, len(xyz), out, total, timings[next(k for k in timings if k.startswith("render"))] / len(frames))
+             len(frames), W, H, len(xyz), out, total, render_s / len(frames))
     return {"n_views": len(frames), "n_points": int(len(xyz)), "seconds": total, "timings": timings}
