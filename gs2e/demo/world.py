@@ -248,17 +248,20 @@ def shade(world: World, p: np.ndarray, idx: np.ndarray) -> np.ndarray:
 
 
 def camera_rays(c2w: np.ndarray, fx: float, fy: float, cx: float, cy: float,
-                width: int, height: int, supersample: int = 1):
+                width: int, height: int, supersample: int = 1, rows: tuple[int, int] | None = None):
     """Rays through sub-pixel sample points, row-major over (height*ss, width*ss).
 
     Pixel (i, j) covers [j, j+1) x [i, i+1); its ss x ss samples sit at
     j + (a + 0.5)/ss, so with ss = 1 the ray passes through the pixel centre
-    (j + 0.5, i + 0.5). Returns origin (3,) float32 and unit directions (3, M) float32.
+    (j + 0.5, i + 0.5). ``rows`` = (first, stop) restricts to those sample rows.
+    Returns origin (3,) float32 and unit directions (3, M) float32.
     """
     ss = int(supersample)
     off = (np.arange(ss) + 0.5) / ss
     xs = (np.arange(width)[:, None] + off[None, :]).reshape(-1)
     ys = (np.arange(height)[:, None] + off[None, :]).reshape(-1)
+    if rows is not None:
+        ys = ys[rows[0]:rows[1]]
     dx = ((xs - cx) / fx).astype(F32)
     dy = ((ys - cy) / fy).astype(F32)
     R = np.asarray(c2w, np.float64)[:3, :3].astype(F32)
@@ -272,17 +275,21 @@ def camera_rays(c2w: np.ndarray, fx: float, fy: float, cx: float, cy: float,
 def render_view(world: World, c2w: np.ndarray, fx: float, fy: float, cx: float, cy: float,
                 width: int, height: int, supersample: int = 2, chunk: int = RAY_CHUNK) -> np.ndarray:
     """Render one view: (height, width, 3) uint8 RGB, box-filtered over ss x ss samples.
-    Rays are cast ``chunk`` at a time (the result does not depend on it)."""
+
+    Rays are made and cast about ``chunk`` at a time, whole pixel rows per batch,
+    so memory stays bounded at any resolution (the image does not depend on it).
+    """
     ss = int(supersample)
-    origin, d = camera_rays(c2w, fx, fy, cx, cy, width, height, ss)
-    rgb = np.empty_like(d)
-    for a in range(0, d.shape[1], chunk):  # chunks keep the temporaries in cache
-        dc = d[:, a:a + chunk]
-        o = np.broadcast_to(origin[:, None], dc.shape)
-        t, idx = cast(world, o, dc)
-        rgb[:, a:a + chunk] = shade(world, o + np.where(idx >= 0, t, 0) * dc, idx)
-    rgb = rgb.reshape(3, height, ss, width, ss)
-    img = rgb.sum(axis=(2, 4)) * F32(255.0 / (ss * ss))
+    img = np.empty((3, height, width), F32)
+    pix_rows = max(1, int(chunk) // (width * ss * ss))
+    for r0 in range(0, height, pix_rows):  # small batches keep the temporaries in cache
+        r1 = min(height, r0 + pix_rows)
+        origin, d = camera_rays(c2w, fx, fy, cx, cy, width, height, ss, rows=(r0 * ss, r1 * ss))
+        o = np.broadcast_to(origin[:, None], d.shape)
+        t, idx = cast(world, o, d)
+        rgb = shade(world, o + np.where(idx >= 0, t, 0) * d, idx)
+        img[:, r0:r1] = rgb.reshape(3, r1 - r0, ss, width, ss).sum(axis=(2, 4))
+    img *= F32(255.0 / (ss * ss))
     return np.clip(np.rint(img), 0, 255).astype(np.uint8).transpose(1, 2, 0).copy()
 
 
