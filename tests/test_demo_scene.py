@@ -292,3 +292,14 @@ def test_chunking_does_not_change_the_image():
     a = render_view(world, c2w, fx, fy, cx, cy, 80, 60, 2, chunk=80 * 60 * 4)
     b = render_view(world, c2w, fx, fy, cx, cy, 80, 60, 2, chunk=997)
     assert a.shape == (60, 80, 3) and np.array_equal(a, b)
+
+
+def test_config_yaml_lists_every_demo_key_with_its_default():
+    import yaml
+
+    from gs2e.config import DEFAULT_CONFIG, load_schema
+
+    props = load_schema()["properties"]["demo"]["properties"]
+    listed = yaml.safe_load(DEFAULT_CONFIG.read_text())["demo"]
+    assert listed == {k: v["default"] for k, v in props.items()}
+    assert all(v.get("description") for v in props.values())
