@@ -12,8 +12,15 @@ Pure functions live in ``curve`` (smoothing, metric, curves, arc length),
 stage on a scene; ``io`` writes and reads the files; ``cli`` is ``gs2e trajectory``.
 """
 
-from gs2e.trajectory.io import load_trajectory, read_index
-from gs2e.trajectory.stage import generate
-from gs2e.trajectory.trajectory import Trajectory
-
 __all__ = ["Trajectory", "load_trajectory", "read_index", "generate"]
+
+_LAZY = {"Trajectory": "gs2e.trajectory.trajectory", "load_trajectory": "gs2e.trajectory.io",
+         "read_index": "gs2e.trajectory.io", "generate": "gs2e.trajectory.stage"}
+
+
+def __getattr__(name: str):
+    # lazy: `gs2e --help` imports gs2e.trajectory.cli and must not load numba/scipy
+    if name in _LAZY:
+        import importlib
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'gs2e.trajectory' has no attribute {name!r}")
