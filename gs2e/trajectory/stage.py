@@ -76,7 +76,7 @@ def generate(scene: Scene, cfg: dict, seed: int, timings: dict | None = None) ->
     alpha, beta_n = base.info["alpha"], base.info["beta_per_scene_unit"]
     scale = base.info["translation_scale"]
     common = {"alpha": alpha, "beta": float(cfg["beta"]), "translation_scale": scale,
-              "fps_base": float(cfg["fps_base"]), "seed": int(seed)}
+              "fps_base": float(cfg["fps_base"])}
     out: dict[str, Trajectory] = {}
     base_meta = {k: v for k, v in base.info.items() if k != "v"}
     base_meta.update(common, kind="base", method=cfg["interpolation"],
@@ -98,7 +98,7 @@ def generate(scene: Scene, cfg: dict, seed: int, timings: dict | None = None) ->
             t_us = timestamps_us(dur, len(path.s))
             src = _nearest_input(base, j0)
             meta = {k: v for k, v in path.info.items() if k != "v"}
-            meta.update(common, kind="mini", group=g, preset=cfg["mini_preset"],
+            meta.update(common, kind="mini", group=g, seed=int(seed), preset=cfg["mini_preset"],
                         preset_values=dict(preset), intrinsics_from_frame=src,
                         **_speed_meta(path, alpha, beta_n))
             out[f"mini{g:02d}_{cfg['mini_preset']}"] = timed_trajectory(
