@@ -321,7 +321,7 @@ def arc_length_table(curve: PoseCurve, alpha: float, beta: float, n_sub: int = N
     Each curve segment is cut into n_sub (initially ``n_sub``) equal pieces
     integrated by 5-point Gauss-Legendre; the Hermite inverse is checked at every
     piece's midpoint and segments whose arc-length error exceeds ``rtol`` of the
-    piece's length are refined (doubling, up to ``max_sub`` pieces), so the
+    piece's length are refined (up to ``max_sub`` pieces per segment), so the
     samples land on their arc-length targets to ~1e-8 relative per piece.
     A constant curve (one keyframe) gives a degenerate map sending every s to
     u = breaks[0].
@@ -354,10 +354,14 @@ def arc_length_table(curve: PoseCurve, alpha: float, beta: float, n_sub: int = N
         u_hat = hermite_eval(Lk, uk, du, L_mid)
         sp_mid, qn_mid = curve_speed(curve, m, alpha, beta, return_qnorm=True)
         err = np.abs(u_hat - m) * sp_mid
-        bad = err > rtol * np.maximum(pieces, 1e-300)
-        bad_seg = np.unique(seg[bad])
-        bad_seg = bad_seg[counts[bad_seg] < max_sub]
+        ratio = err / (rtol * np.maximum(pieces, 1e-300))
+        worst = np.zeros(nseg)
+        np.maximum.at(worst, seg, ratio)
+        bad_seg = np.flatnonzero((worst > 1.0) & (counts < max_sub))
         if bad_seg.size == 0:
             break
-        counts[bad_seg] *= 2
+        # the relative error of a piece shrinks like h^3: jump to the count that
+        # should pass (rounded up to a power of two) instead of doubling blindly
+        grow = 2.0 ** np.ceil(np.log2(np.cbrt(1.5 * worst[bad_seg])))
+        counts[bad_seg] = np.minimum(counts[bad_seg] * np.maximum(grow, 2).astype(np.int64), max_sub)
     return ArcTable(Lk, uk, du, float(min(qn_nodes.min(), qn_mid.min())))
