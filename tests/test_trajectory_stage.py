@@ -178,3 +178,22 @@ def test_cli_errors_leave_no_output(tmp_path):
     assert r.returncode == 2 and "trajectory.velocity" in r.stderr
     assert not (tmp_path / "out").exists()
     assert not any(p.name.startswith(".out") for p in tmp_path.iterdir())
+
+
+def test_config_section_complete_and_documented():
+    import yaml
+
+    from gs2e.config import load_config, load_schema
+    raw = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+    assert raw["trajectory"] == load_config({})["trajectory"]
+    sec = load_schema()["properties"]["trajectory"]
+
+    def walk(node, path):
+        for k, sub in node.get("properties", {}).items():
+            assert "description" in sub and "default" in sub, f"{path}{k}"
+            if sub.get("type") == "object":
+                assert sub.get("additionalProperties") is False, f"{path}{k}"
+                walk(sub, f"{path}{k}.")
+
+    walk(sec, "trajectory.")
+    assert sec["properties"]["velocity"]["default"] == "0.25*sin(t)+1.1"
