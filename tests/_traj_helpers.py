@@ -63,3 +63,16 @@ def temple_c2w(n: int | None = None) -> np.ndarray:
     if n is not None:
         c2w = c2w[np.linspace(0, len(c2w) - 1, n).round().astype(int)]
     return c2w
+
+
+def fine_steps(tr, alpha: float, beta_n: float, n: int = 32) -> np.ndarray:
+    """Per-step metric arc length (M-1,) of a Trajectory measured independently:
+    chords of n sub-steps evaluated through pose_at (time map + arc map + curve)."""
+    from gs2e.common.so3 import geodesic_angle
+
+    t = tr.t_us.astype(float)
+    tt = t[:-1, None] + np.diff(t)[:, None] * np.linspace(0, 1, n + 1)[None]
+    P = tr.pose_at(tt.ravel()).reshape(len(t) - 1, n + 1, 4, 4)
+    ang = geodesic_angle(P[:, :-1, :3, :3], P[:, 1:, :3, :3]).sum(1)
+    lin = np.linalg.norm(np.diff(P[:, :, :3, 3], axis=1), axis=2).sum(1)
+    return alpha * ang + beta_n * lin

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from _traj_helpers import TEMPLE, look_at, ring, temple_c2w
+from _traj_helpers import TEMPLE, fine_steps, look_at, ring, temple_c2w
 from gs2e.common.errors import InputError
 from gs2e.common.so3 import geodesic_angle, quat_exp, quat_to_rotmat, rotmat_to_quat
 from gs2e.config import load_section
@@ -26,17 +26,6 @@ def cfg(**kw):
 
 def timed(path, dur_s=2.0):
     return timed_trajectory(path, timestamps_us(dur_s, len(path.s)), np.eye(3), 8, 6, {})
-
-
-def fine_steps(tr: Trajectory, alpha, beta_n, n=32):
-    """Per-step metric arc length measured independently: chords of n sub-steps
-    evaluated through pose_at (time map + arc map + curve)."""
-    t = tr.t_us.astype(float)
-    tt = t[:-1, None] + np.diff(t)[:, None] * np.linspace(0, 1, n + 1)[None]
-    P = tr.pose_at(tt.ravel()).reshape(len(t) - 1, n + 1, 4, 4)
-    ang = geodesic_angle(P[:, :-1, :3, :3], P[:, 1:, :3, :3]).sum(1)
-    lin = np.linalg.norm(np.diff(P[:, :, :3, 3], axis=1), axis=2).sum(1)
-    return alpha * ang + beta_n * lin
 
 
 def assert_profile(path, v_expected, tol=1e-3):
@@ -68,6 +57,12 @@ def test_speed_profile_matches_and_endpoints_preserved(method):
     sm = smooth_poses(c2w, 2)
     np.testing.assert_allclose(p.c2w[0], sm[0], atol=1e-12)
     np.testing.assert_allclose(p.c2w[-1], sm[-1], atol=1e-12)
+
+
+def test_velocity_expression_ratio_1_to_1000():
+    v = parse_velocity_expression("1 + 999*t**3")
+    p = build_base_path(ring(15, noise=0.01), cfg(gamma=60, velocity="1 + 999*t**3"), v)
+    assert_profile(p, v(np.linspace(0, 1, len(p.c2w))))
 
 
 def test_velocity_ratio_1_to_1000():

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from _traj_helpers import TEMPLE, make_scene, ring, temple_c2w
+from _traj_helpers import TEMPLE, fine_steps, make_scene, ring, temple_c2w
 from gs2e.common.errors import ConfigError
 from gs2e.common.so3 import geodesic_angle
 from gs2e.config import load_section
@@ -59,9 +59,9 @@ def test_generate_presets_and_minis():
         assert len(kf) == 5 and np.all(np.diff(kf) > 0)
         # endpoints are the first and last keyframes
         np.testing.assert_allclose(tr.c2w[[0, -1]], res.base.c2w[kf[[0, -1]]], atol=1e-9)
-        # uniform in arc length: equal steps (independent chord measure, fine enough here)
-        d = pose_deltas(tr.c2w, m["alpha"], m["beta"] / m["translation_scale"])
-        assert np.abs(d / d.mean() - 1).max() < 5e-3
+        # uniform in true arc length (independent sub-step measure) to 1e-3 per step
+        d = fine_steps(tr, m["alpha"], m["beta"] / m["translation_scale"])
+        assert np.abs(d / d.mean() - 1).max() < 1e-3
         assert m["method"] in ("bspline", "bezier", "bspline (bezier fallback)")
         assert 2 <= m["degree"] <= 5
     all_kf = np.concatenate([res.trajectories[f"mini{g:02d}_medium"].meta["keyframes"] for g in range(3)])
