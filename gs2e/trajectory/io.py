@@ -69,6 +69,7 @@ def write_outputs(out_dir: str | os.PathLike, result, cfg: dict, scene_dir: str,
                 "name": name, "file": f"{name}.npz", "kind": m["kind"],
                 "method": m["method"], "preset": m["preset"], "n_poses": int(len(tr.t_us)),
                 "duration_us": tr.duration_us, "length": tr.length,
+                "max_rel_step_error": m.get("max_rel_step_error"),
                 "max_rel_step_error_chord": m.get("max_rel_step_error_chord"),
                 "width": tr.width, "height": tr.height,
             })

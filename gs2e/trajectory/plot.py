@@ -61,16 +61,21 @@ def plot_scene(result, path: str | Path) -> None:
     ax0.set_title("camera paths (principal plane of the camera centres)")
     ax0.legend(loc="best", fontsize=8)
     if base_name:
+        from gs2e.trajectory.trajectory import achieved_steps_fine
         tr = trajs[base_name]
+        beta_n = tr.meta["beta"] / tr.meta["translation_scale"]
         t = np.linspace(0.0, 1.0, len(tr.t_us))[:-1]
         req = np.asarray(tr.meta["speed_requested"])
-        d = pose_deltas(tr.c2w, tr.meta["alpha"], tr.meta["beta"] / tr.meta["translation_scale"])
-        got = d / d.mean()
-        ax1.plot(t, req, "-", lw=2.5, color="0.7", label="requested v(t) (relative)")
-        ax1.plot(t, got, "--", lw=1.2, color="C3", label="achieved (pose-to-pose displacement)")
+        fine = achieved_steps_fine(result.base, tr.meta["alpha"], beta_n)
+        chord = pose_deltas(tr.c2w, tr.meta["alpha"], beta_n)
+        ax1.plot(t, req, "-", lw=3, color="0.75", label="requested v(t) (relative)")
+        ax1.plot(t, fine / fine.mean(), "--", lw=1.3, color="C3",
+                 label="achieved: arc length travelled per step")
+        ax1.plot(t, chord / fine.mean(), ":", lw=1.0, color="C0",
+                 label="frame-to-frame chord (shorter where the path turns)")
         ax1.set_xlabel("normalised time t")
         ax1.set_ylabel("relative speed")
-        err = tr.meta.get("max_rel_step_error_chord", float("nan"))
+        err = tr.meta.get("max_rel_step_error", float("nan"))
         ax1.set_title(f"base path speed profile (max rel. step error {err:.1e})")
         ax1.legend(fontsize=8)
     fig.tight_layout()

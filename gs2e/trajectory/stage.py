@@ -15,7 +15,8 @@ from gs2e.common.errors import InputError
 from gs2e.common.log import timed
 from gs2e.io.scene import Scene
 from gs2e.trajectory.curve import pose_deltas
-from gs2e.trajectory.trajectory import (SampledPath, Trajectory, build_base_path,
+from gs2e.trajectory.trajectory import (SampledPath, Trajectory, achieved_steps_fine,
+                                        build_base_path,
                                         build_mini_paths, check_config, hermite_eval,
                                         preset_duration_s, timed_trajectory, timestamps_us)
 from gs2e.trajectory.velocity import make_profile
@@ -47,11 +48,16 @@ def _nearest_input(base: SampledPath, j: int) -> int:
 
 
 def _speed_meta(path: SampledPath, alpha: float, beta_n: float) -> dict:
+    """Largest relative per-step deviation of the travelled arc length from the
+    requested one: measured along the path (sub-steps) and as frame-to-frame chords."""
     req = np.diff(path.s)
-    got = pose_deltas(path.c2w, alpha, beta_n)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        rel = np.where(req > 0, np.abs(got / req - 1.0), 0.0)
-    return {"max_rel_step_error_chord": float(rel.max()) if rel.size else 0.0}
+    out = {}
+    for key, got in (("max_rel_step_error", achieved_steps_fine(path, alpha, beta_n)),
+                     ("max_rel_step_error_chord", pose_deltas(path.c2w, alpha, beta_n))):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel = np.where(req > 0, np.abs(got / req - 1.0), 0.0)
+        out[key] = float(rel.max()) if rel.size else 0.0
+    return out
 
 
 def generate(scene: Scene, cfg: dict, seed: int, timings: dict | None = None) -> StageResult:
