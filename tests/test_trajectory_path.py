@@ -157,6 +157,7 @@ def test_all_poses_identical_and_single_pose():
         p = build_base_path(c2w, cfg(gamma=5), V_DEFAULT)
         assert len(p.c2w) == max(2, math.ceil(5 * len(c2w)))
         np.testing.assert_allclose(p.c2w, np.broadcast_to(one[0], p.c2w.shape), atol=1e-12)
+        assert p.info["length_curve"] == 0.0 and np.all(p.s == 0.0)
         tr = timed(p)
         assert np.all(np.diff(tr.t_us) > 0)
         np.testing.assert_allclose(tr.pose_at(np.array([0.0, tr.t_us[-1] / 3])), np.stack([one[0]] * 2), atol=1e-12)

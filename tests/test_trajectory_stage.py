@@ -87,6 +87,17 @@ def test_minis_use_first_keyframe_intrinsics_and_both_families():
     assert methods == {"bspline", "bezier"}
 
 
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_stage_on_tiny_scenes(n):
+    res = generate(make_scene(ring(n, arc=0.5)), cfg(smooth_half_width=2), seed=1)
+    assert len(res.trajectories) == 6
+    for name, tr in res.trajectories.items():
+        assert np.all(np.isfinite(tr.c2w)) and np.all(np.diff(tr.t_us) > 0), name
+        if n == 1:  # a static camera: one base frame per pose
+            assert tr.length == 0.0
+            assert tr.duration_us == round((len(tr.t_us) - 1) / 2400 * 1e6)
+
+
 def test_determinism_same_seed_same_bytes(tmp_path):
     scene = make_scene(ring(16, noise=0.02))
     c = cfg(plot=False)

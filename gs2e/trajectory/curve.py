@@ -267,7 +267,8 @@ class ArcTable:
 
     @property
     def total(self) -> float:
-        return float(self.L[-1])
+        """Total arc length; 0 for the degenerate map of a constant curve."""
+        return 0.0 if self.u[0] == self.u[-1] else float(self.L[-1])
 
 
 def hermite_eval(x: np.ndarray, y: np.ndarray, m: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -29,7 +29,7 @@ from gs2e.trajectory.curve import (ArcTable, PoseCurve, arc_length_table, check_
 from gs2e.trajectory.velocity import reparameterise, sample_profile
 
 MIN_QUAT_NORM = 0.05  # below this the normalised quaternion curve is ill-defined
-DUP_TOL = 1e-9        # relative to the path length: steps below are duplicate poses
+DUP_TOL = 1e-9        # relative to the path length: shorter steps are duplicate poses
 
 
 def eval_at_s(curve: PoseCurve, arc: ArcTable, s: np.ndarray) -> np.ndarray:
@@ -146,9 +146,8 @@ def _dedupe(delta: np.ndarray) -> np.ndarray:
     """Indices of poses to keep: a pose whose step from the previous kept pose is
     below DUP_TOL of the whole length duplicates it (zero-length segment)."""
     total = float(delta.sum())
-    keep = np.concatenate([[True], delta > DUP_TOL * max(total, 1e-300)])
-    if total <= 0:
-        keep[1:] = False
+    # the metric is in radians / translation scales, so 1e-12 is rounding noise
+    keep = np.concatenate([[True], delta > max(DUP_TOL * total, 1e-12)])
     return np.flatnonzero(keep)
 
 
