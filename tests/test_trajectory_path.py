@@ -11,8 +11,7 @@ from gs2e.common.so3 import geodesic_angle, quat_exp, quat_to_rotmat, rotmat_to_
 from gs2e.config import load_section
 from gs2e.trajectory.curve import (arc_length_table, curve_speed, curve_speed_numpy, fit_curve,
                                    smooth_poses, split_c2w)
-from gs2e.trajectory.trajectory import (build_base_path, timed_trajectory, timestamps_us,
-                                        Trajectory)
+from gs2e.trajectory.trajectory import build_base_path, timed_trajectory, timestamps_us
 from gs2e.trajectory.velocity import parse_velocity_expression, speed_list_profile
 
 V_DEFAULT = parse_velocity_expression("0.25*sin(t)+1.1")

@@ -14,7 +14,6 @@ from gs2e.common.errors import ConfigError
 from gs2e.common.so3 import geodesic_angle
 from gs2e.config import load_section
 from gs2e.io.scene import write_scene_json
-from gs2e.trajectory.curve import pose_deltas
 from gs2e.trajectory.io import load_trajectory, read_index, write_outputs
 from gs2e.trajectory.stage import generate
 
