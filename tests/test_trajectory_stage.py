@@ -144,9 +144,10 @@ def test_config_errors():
 
 
 def _cli(*args):
+    import os
+    env = {**os.environ, "PYTHONPATH": str(REPO), "GS2E_PROGRESS": "0"}
     return subprocess.run([sys.executable, "-m", "gs2e", *args], cwd=REPO, capture_output=True,
-                          text=True, env={"PYTHONPATH": str(REPO), "GS2E_PROGRESS": "0",
-                                          "PATH": "/usr/bin:/bin"}, timeout=300)
+                          text=True, env=env, timeout=300)
 
 
 def test_cli_end_to_end(tmp_path):
