@@ -65,7 +65,8 @@ def plot_scene(result, path: str | Path) -> None:
         tr = trajs[base_name]
         beta_n = tr.meta["beta"] / tr.meta["translation_scale"]
         t = np.linspace(0.0, 1.0, len(tr.t_us))[:-1]
-        req = np.asarray(tr.meta["speed_requested"])
+        ds = np.diff(tr.s)  # proportional to the requested v(t_j) by construction
+        req = ds / ds.mean()
         fine = achieved_steps_fine(result.base, tr.meta["alpha"], beta_n)
         chord = pose_deltas(tr.c2w, tr.meta["alpha"], beta_n)
         ax1.plot(t, req, "-", lw=3, color="0.75", label="requested v(t) (relative)")

@@ -92,8 +92,8 @@ def generate(scene: Scene, cfg: dict, seed: int, timings: dict | None = None) ->
         preset = cfg["presets"][name]
         dur = preset_duration_s(base.c2w, preset, scale, cfg["fps_base"])
         t_us = timestamps_us(dur, len(base.s))
-        meta = dict(base_meta, preset=name, preset_values=dict(preset),
-                    speed_requested=(base.info["v"][:-1] / base.info["v"][:-1].mean()).tolist())
+        # (the requested profile is not repeated here: diff(s) is proportional to v(t_j))
+        meta = dict(base_meta, preset=name, preset_values=dict(preset))
         out[f"base_{name}"] = timed_trajectory(base, t_us, Ks[0], scene.width, scene.height, meta)
     with timed("mini-trajectories", log, timings):
         rng = np.random.default_rng(int(seed))
