@@ -112,3 +112,99 @@ def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True):
     s = float((S * d).sum() / var_s) if with_scale else 1.0
     t = mu_d - s * R @ mu_s
     return s, R, t
+
+
+# ---------------------------------------------------------------- quaternion algebra
+# Added for the trajectory stage; all (..., 4) arrays in (w, x, y, z) order.
+
+def quat_conjugate(q: np.ndarray) -> np.ndarray:
+    """Conjugate (= inverse for unit quaternions), shape (..., 4)."""
+    q = np.asarray(q, dtype=np.float64)
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product a*b (rotation b first, then a), broadcasting over (..., 4)."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz,
+                     aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw], axis=-1)
+
+
+def quat_log(q: np.ndarray) -> np.ndarray:
+    """Rotation vector (..., 3) (axis * angle, angle in [0, pi]) of unit quaternions.
+
+    The sign of ``q`` is irrelevant (q and -q give the same result). Stable near
+    0 (series of angle/sin(angle/2)) and near pi (atan2, no arccos).
+    """
+    q = np.asarray(q, dtype=np.float64)
+    q = np.where(q[..., :1] < 0, -q, q)
+    w = q[..., 0]
+    v = q[..., 1:]
+    n = np.linalg.norm(v, axis=-1)
+    ang = 2.0 * np.arctan2(n, w)
+    small = n < 1e-8
+    # angle/n = 2*atan2(n, w)/n -> 2/w as n -> 0 (next term is O(n^2) < 1e-16)
+    safe_n = np.where(small, 1.0, n)
+    factor = np.where(small, 2.0 / np.where(small, w, 1.0), ang / safe_n)
+    return v * factor[..., None]
+
+
+def quat_exp(rotvec: np.ndarray) -> np.ndarray:
+    """Unit quaternions (..., 4) of rotation vectors (..., 3) (axis * angle, rad)."""
+    r = np.asarray(rotvec, dtype=np.float64)
+    ang = np.linalg.norm(r, axis=-1)
+    half = 0.5 * ang
+    small = ang < 1e-8
+    # sin(a/2)/a with its Taylor series near 0
+    k = np.where(small, 0.5 - ang * ang / 48.0, np.sin(half) / np.where(small, 1.0, ang))
+    return np.concatenate([np.cos(half)[..., None], r * k[..., None]], axis=-1)
+
+
+def quat_angle(q_a: np.ndarray, q_b: np.ndarray) -> np.ndarray:
+    """Geodesic angle (rad, [0, pi]) between the rotations of unit quaternions.
+
+    Uses 2*atan2(|imag|, |real|) of the relative quaternion: stable near 0 and pi
+    and independent of the signs of ``q_a`` and ``q_b``.
+    """
+    d = quat_multiply(quat_conjugate(q_a), q_b)
+    return 2.0 * np.arctan2(np.linalg.norm(d[..., 1:], axis=-1), np.abs(d[..., 0]))
+
+
+def quat_make_continuous(q: np.ndarray) -> np.ndarray:
+    """Flip signs along axis 0 of a (N, 4) sequence so that consecutive
+    quaternions have a non-negative dot product (no jumps to the antipode).
+
+    The first quaternion keeps its sign. Exactly orthogonal neighbours (a 180 deg
+    relative rotation) keep theirs: both choices are equally short.
+    """
+    q = np.asarray(q, dtype=np.float64)
+    if len(q) < 2:
+        return q.copy()
+    dots = np.einsum("ij,ij->i", q[1:], q[:-1])
+    flips = np.concatenate([[1.0], np.cumprod(np.where(dots < 0, -1.0, 1.0))])
+    return q * flips[:, None]
+
+
+def quat_mean(q: np.ndarray, weights: np.ndarray | None = None, axis: int = -2,
+              reference: np.ndarray | None = None) -> np.ndarray:
+    """Sign-aligned weighted quaternion average (the chordal L2 mean to 2nd order).
+
+    Each quaternion along ``axis`` is flipped onto the hemisphere of
+    ``reference`` (default: the first one), then the weighted sum is normalised.
+    ``q``: (..., K, 4) with the default ``axis=-2``. If the aligned sum vanishes
+    (rotations spread evenly over 180 deg, no unique mean) the reference is returned.
+    """
+    q = np.moveaxis(np.asarray(q, dtype=np.float64), axis, -2)
+    ref = q[..., :1, :] if reference is None else np.asarray(reference, np.float64)[..., None, :]
+    sgn = np.where(np.sum(q * ref, axis=-1, keepdims=True) < 0, -1.0, 1.0)
+    w = np.ones(q.shape[:-1] + (1,)) if weights is None else np.asarray(weights, np.float64)[..., None]
+    s = np.sum(q * sgn * w, axis=-2)
+    n = np.linalg.norm(s, axis=-1, keepdims=True)
+    ref0 = ref[..., 0, :]
+    ok = n > 1e-12
+    return np.where(ok, s / np.where(ok, n, 1.0), ref0 / np.linalg.norm(ref0, axis=-1, keepdims=True))

@@ -1,0 +1,112 @@
+"""The whole trajectory stage for one scene, without I/O.
+
+Base path (smoothing + velocity-controlled B-spline) timed by every preset in
+``speed_presets``, plus G mini-trajectories timed by ``mini_preset``.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from gs2e.common.errors import InputError
+from gs2e.common.log import timed
+from gs2e.io.scene import Scene
+from gs2e.trajectory.curve import pose_deltas
+from gs2e.trajectory.trajectory import (SampledPath, Trajectory, achieved_steps_fine,
+                                        build_base_path,
+                                        build_mini_paths, check_config, hermite_eval,
+                                        preset_duration_s, timed_trajectory, timestamps_us)
+from gs2e.trajectory.velocity import make_profile
+
+log = logging.getLogger("gs2e.trajectory")
+
+
+@dataclass
+class StageResult:
+    trajectories: dict[str, Trajectory]
+    input_c2w: np.ndarray          # (N, 4, 4) input poses
+    base: SampledPath
+
+
+def _intrinsics(scene: Scene) -> list[np.ndarray]:
+    Ks = [f.camera.K for f in scene.frames]
+    if any(f.camera.dist and any(abs(x) > 0 for x in f.camera.dist) for f in scene.frames):
+        log.warning("input cameras have distortion; trajectories use their pinhole part")
+    return Ks
+
+
+def _nearest_input(base: SampledPath, j: int) -> int:
+    """Index of the input frame nearest (in curve parameter) to dense pose j."""
+    if len(base.knot_index) == 1:
+        return int(base.knot_index[0])
+    u = float(hermite_eval(base.arc.L, base.arc.u, base.arc.du, np.array([base.s[j]]))[0])
+    k = int(np.argmin(np.abs(base.curve.breaks - u)))
+    return int(base.knot_index[min(k, len(base.knot_index) - 1)])
+
+
+def _speed_meta(path: SampledPath, alpha: float, beta_n: float) -> dict:
+    """Largest relative per-step deviation of the travelled arc length from the
+    requested one: measured along the path (sub-steps) and as frame-to-frame chords."""
+    req = np.diff(path.s)
+    out = {}
+    for key, got in (("max_rel_step_error", achieved_steps_fine(path, alpha, beta_n)),
+                     ("max_rel_step_error_chord", pose_deltas(path.c2w, alpha, beta_n))):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel = np.where(req > 0, np.abs(got / req - 1.0), 0.0)
+        out[key] = float(rel.max()) if rel.size else 0.0
+    return out
+
+
+def generate(scene: Scene, cfg: dict, seed: int, timings: dict | None = None) -> StageResult:
+    """All trajectories of one scene.
+
+    Parameters
+    ----------
+    scene : a posed scene (frames in sequence order, c2w in OpenCV axes).
+    cfg : validated ``trajectory`` config section.
+    seed : seed of the mini-trajectory draws (same seed, same output).
+    """
+    check_config(cfg)
+    if not scene.has_poses:
+        raise InputError("trajectory: scene has frames without poses (run sfm first)")
+    c2w_in = scene.c2w_array()
+    Ks = _intrinsics(scene)
+    if any(np.abs(K - Ks[0]).max() > 1e-6 * max(1.0, np.abs(Ks[0]).max()) for K in Ks):
+        log.info("input intrinsics differ between frames; base trajectory uses frame 0's")
+    profile = make_profile(cfg)
+    with timed("base trajectory", log, timings):
+        base = build_base_path(c2w_in, cfg, profile, what="scene poses")
+    alpha, beta_n = base.info["alpha"], base.info["beta_per_scene_unit"]
+    scale = base.info["translation_scale"]
+    common = {"alpha": alpha, "beta": float(cfg["beta"]), "translation_scale": scale,
+              "fps_base": float(cfg["fps_base"])}
+    out: dict[str, Trajectory] = {}
+    base_meta = {k: v for k, v in base.info.items() if k != "v"}
+    base_meta.update(common, kind="base", method=cfg["interpolation"],
+                     velocity=None if cfg.get("speed_list") else cfg["velocity"],
+                     speed_list=cfg.get("speed_list"), **_speed_meta(base, alpha, beta_n))
+    for name in cfg["speed_presets"]:
+        preset = cfg["presets"][name]
+        dur = preset_duration_s(base.c2w, preset, scale, cfg["fps_base"])
+        t_us = timestamps_us(dur, len(base.s))
+        # (the requested profile is not repeated here: diff(s) is proportional to v(t_j))
+        meta = dict(base_meta, preset=name, preset_values=dict(preset))
+        out[f"base_{name}"] = timed_trajectory(base, t_us, Ks[0], scene.width, scene.height, meta)
+    with timed("mini-trajectories", log, timings):
+        rng = np.random.default_rng(int(seed))
+        minis = build_mini_paths(base, cfg, rng, alpha, beta_n)
+        preset = cfg["presets"][cfg["mini_preset"]]
+        for g, (path, j0) in enumerate(minis):
+            dur = preset_duration_s(path.c2w, preset, scale, cfg["fps_base"])
+            t_us = timestamps_us(dur, len(path.s))
+            src = _nearest_input(base, j0)
+            meta = {k: v for k, v in path.info.items() if k != "v"}
+            meta.update(common, kind="mini", group=g, seed=int(seed), preset=cfg["mini_preset"],
+                        preset_values=dict(preset), intrinsics_from_frame=src,
+                        **_speed_meta(path, alpha, beta_n))
+            out[f"mini{g:02d}_{cfg['mini_preset']}"] = timed_trajectory(
+                path, t_us, Ks[src], scene.width, scene.height, meta)
+    return StageResult(out, c2w_in, base)
