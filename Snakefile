@@ -20,3 +20,5 @@ rule all:
 
 include: "workflow/rules/ingest.smk"
 include: "workflow/rules/sfm.smk"
+include: "workflow/rules/splat.smk"
+include: "workflow/rules/trajectory.smk"

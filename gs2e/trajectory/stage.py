@@ -15,6 +15,7 @@ from gs2e.common.errors import InputError
 from gs2e.common.log import timed
 from gs2e.io.scene import Scene
 from gs2e.trajectory.curve import pose_deltas
+from gs2e.trajectory.order import is_sequential, tour_order
 from gs2e.trajectory.trajectory import (SampledPath, Trajectory, achieved_steps_fine,
                                         build_base_path,
                                         build_mini_paths, check_config, hermite_eval,
@@ -74,6 +75,15 @@ def generate(scene: Scene, cfg: dict, seed: int, timings: dict | None = None) ->
         raise InputError("trajectory: scene has frames without poses (run sfm first)")
     c2w_in = scene.c2w_array()
     Ks = _intrinsics(scene)
+    method = cfg["view_order"]
+    if method == "auto":
+        method = "sequence" if is_sequential(scene) else "tour"
+    order = np.arange(len(c2w_in))
+    if method == "tour":
+        order = tour_order(c2w_in, float(cfg["alpha"]), float(cfg["beta"]), bool(cfg["normalize_translation"]))
+        c2w_in = c2w_in[order]
+        Ks = [Ks[i] for i in order]
+    log.info("view order: %s", method)
     if any(np.abs(K - Ks[0]).max() > 1e-6 * max(1.0, np.abs(Ks[0]).max()) for K in Ks):
         log.info("input intrinsics differ between frames; base trajectory uses frame 0's")
     profile = make_profile(cfg)
@@ -85,7 +95,8 @@ def generate(scene: Scene, cfg: dict, seed: int, timings: dict | None = None) ->
               "fps_base": float(cfg["fps_base"])}
     out: dict[str, Trajectory] = {}
     base_meta = {k: v for k, v in base.info.items() if k != "v"}
-    base_meta.update(common, kind="base", method=cfg["interpolation"],
+    base_meta.update(common, kind="base", method=cfg["interpolation"], view_order=method,
+                     view_order_names=[scene.frames[i].name for i in order],
                      velocity=None if cfg.get("speed_list") else cfg["velocity"],
                      speed_list=cfg.get("speed_list"), **_speed_meta(base, alpha, beta_n))
     for name in cfg["speed_presets"]:

@@ -206,7 +206,9 @@ def build_mini_paths(base: SampledPath, cfg: dict, rng: np.random.Generator, alp
     """Novel-view mini-trajectories (paper section 3.4.2).
 
     G groups of K keyframes are drawn without replacement from the dense base
-    poses (all G*K distinct when M >= G*K, else distinct within a group), sorted
+    poses (all G*K distinct when M >= G*K, else distinct within a group), or,
+    with ``mini_window`` < 1, each group from a random stretch covering that
+    fraction of the base poses (keeps novel views near the input ones); sorted
     by path order; each group is fitted by a cubic B-spline or a least-squares
     Bezier of random degree d in ``mini_degrees`` (capped at K-1) over its local
     cumulative displacement, and sampled at F poses uniform in true arc length.
@@ -218,10 +220,16 @@ def build_mini_paths(base: SampledPath, cfg: dict, rng: np.random.Generator, alp
         return []
     if M < K:
         raise InputError(f"mini-trajectories need at least mini_keyframes={K} base poses, got {M}")
-    if M >= G * K:
-        groups = rng.choice(M, size=G * K, replace=False).reshape(G, K)
-    else:
-        groups = np.stack([rng.choice(M, size=K, replace=False) for _ in range(G)])
+    window = float(cfg.get("mini_window", 1.0))
+    if window >= 1.0:  # the paper: keyframes from anywhere on the base path
+        if M >= G * K:
+            groups = rng.choice(M, size=G * K, replace=False).reshape(G, K)
+        else:
+            groups = np.stack([rng.choice(M, size=K, replace=False) for _ in range(G)])
+    else:  # keyframes from a random stretch of the path: stays near the input views
+        W = min(M, max(K, int(round(window * M))))
+        groups = np.stack([rng.integers(0, M - W + 1) + rng.choice(W, size=K, replace=False)
+                           for _ in range(G)])
     out = []
     for g in range(G):
         idx = np.sort(groups[g])

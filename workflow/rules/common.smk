@@ -47,4 +47,8 @@ def scene_source(wc):
 
 
 def all_targets():
-    return [res(sid, "sfm") for sid in SCENES]
+    """Every scene's final products (grows as stages are wired in)."""
+    out = []
+    for sid in SCENES:
+        out += [res(sid, "splat"), res(sid, "trajectories")]
+    return out

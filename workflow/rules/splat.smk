@@ -1,0 +1,24 @@
+rule train:
+    input:
+        rules.sfm.output,
+    output:
+        directory(res("{scene}", "splat")),
+    params:
+        cfg=stage_cfg("splat"),
+        seed=stage_seed("train"),
+        code=code_version("train"),
+        ckpt=res("{scene}", ".splat.ckpt"),
+    conda:
+        ENV
+    log:
+        res("{scene}", "logs", "train.log"),
+    benchmark:
+        res("{scene}", "benchmarks", "train.tsv")
+    threads: workflow.cores
+    resources:
+        mem_mb=6000,
+        runtime=240,
+    shell:
+        "python -m gs2e train --scene {input:q} --out {output:q} --seed {params.seed}"
+        " --threads {threads} --scene-id {wildcards.scene} --checkpoint-dir {params.ckpt:q}"
+        " --config-json {params.cfg:q} 2> {log:q}"

@@ -1,0 +1,22 @@
+rule trajectory:
+    input:
+        rules.sfm.output,
+    output:
+        directory(res("{scene}", "trajectories")),
+    params:
+        cfg=stage_cfg("trajectory"),
+        seed=stage_seed("trajectory"),
+        code=code_version("trajectory"),
+    conda:
+        ENV
+    log:
+        res("{scene}", "logs", "trajectory.log"),
+    benchmark:
+        res("{scene}", "benchmarks", "trajectory.tsv")
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,
+    shell:
+        "python -m gs2e trajectory --scene {input:q} --out {output:q} --seed {params.seed}"
+        " --config-json {params.cfg:q} 2> {log:q}"
