@@ -37,6 +37,15 @@ from gs2e.splat.strategy import PARAMS, Adam, DensifyConfig, GradStats, densify_
 log = get_logger("gs2e.splat")
 
 
+def set_threads(threads: int | None) -> None:
+    """CPU threads for torch and the numba kernels (None or <= 0: leave as is)."""
+    if threads and threads > 0:
+        import numba
+
+        torch.set_num_threads(threads)
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+
+
 # ----------------------------------------------------------------- data
 @dataclass
 class View:
@@ -175,11 +184,7 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     from gs2e.metrics.table import write_metrics
 
     scene_dir, out_dir = Path(scene_dir), Path(out_dir)
-    if threads and threads > 0:
-        import numba
-
-        torch.set_num_threads(threads)
-        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    set_threads(threads)
     scene = read_scene(scene_dir)
     t0 = time.perf_counter()
     schedule = cfg["resolution_schedule"]
@@ -282,7 +287,7 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
             ev = evaluate(p, test_v or train_v[:4], bg, sh_deg)
             curve.append({"iteration": n_it, "train_time_s": elapsed, "psnr": ev["psnr"],
                           "ssim": ev["ssim"], "n_gaussians": int(p["means"].shape[0]),
-                          "downscale": ds, "loss": float(loss)})
+                          "downscale": ds, "loss": float(loss.detach())})
             log.info("it %d: held-out PSNR %.2f dB, SSIM %.4f, %d Gaussians, %.1f s", n_it,
                      ev["psnr"], ev["ssim"], p["means"].shape[0], elapsed)
             full_res = downscale_at(schedule, n_it) == 1

@@ -1,0 +1,33 @@
+"""``gs2e render``: dataset frames along a trajectory."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from gs2e.cli import add_config_args
+
+    p = sub.add_parser(
+        "render", help="sharp and motion-blurred frames, depth and alpha along a trajectory",
+        description="Render a trained model (gs2e train output) along a trajectory file (gs2e "
+                    "trajectory output) at render.fps: rgb/, blur/, depth/, alpha/, frames.parquet, "
+                    "transforms.json.")
+    p.add_argument("--model", required=True, help="gs2e train output folder")
+    p.add_argument("--trajectory", required=True, help="trajectory .npz")
+    p.add_argument("--out", required=True, help="output folder (written atomically)")
+    p.add_argument("--scene-id", default=None)
+    p.add_argument("--threads", type=int, default=None)
+    add_config_args(p)
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from gs2e.config import load_section
+    from gs2e.render.dataset import render_dataset
+    from gs2e.splat.train import set_threads
+
+    cfg = load_section("render", args.config_json, args.config)
+    set_threads(args.threads)
+    render_dataset(args.model, args.trajectory, args.out, cfg, scene_id=args.scene_id)
+    return 0

@@ -1,0 +1,67 @@
+"""Rendering a trained Gaussian model along a timed trajectory."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from gs2e.common.color import luminance, srgb_to_linear
+from gs2e.common.errors import InputError
+from gs2e.splat.rasterize import SplatCamera
+from gs2e.splat.train import load_model, render
+from gs2e.trajectory import load_trajectory
+
+
+class TrajectoryRenderer:
+    """Renders the model in ``model_dir`` at any time of the trajectory file.
+
+    Images are (H, W, 3) float64 sRGB-encoded in [0, 1] (what 3DGS reproduces),
+    alpha (H, W) and expected depth (H, W, scene units, camera z).
+    """
+
+    def __init__(self, model_dir: str | Path, trajectory_path: str | Path, background=(0.0, 0.0, 0.0),
+                 scale: float = 1.0):
+        self.params, self.info = load_model(model_dir)
+        self.traj = load_trajectory(trajectory_path)
+        self.name = Path(trajectory_path).stem
+        K = np.asarray(self.traj.K, np.float64)
+        self.width = max(1, int(round(self.traj.width * scale)))
+        self.height = max(1, int(round(self.traj.height * scale)))
+        sx, sy = self.width / self.traj.width, self.height / self.traj.height
+        self.fx, self.fy, self.cx, self.cy = K[0, 0] * sx, K[1, 1] * sy, K[0, 2] * sx, K[1, 2] * sy
+        self.K = np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1.0]])
+        self.bg = torch.tensor(background, dtype=self.params["means"].dtype)
+        self.sh_degree = int(self.info["sh_degree"])
+        self.t0_us, self.t1_us = int(self.traj.t_us[0]), int(self.traj.t_us[-1])
+        self.renders = 0
+
+    def pose(self, t_us: float) -> np.ndarray:
+        if not self.t0_us <= t_us <= self.t1_us:
+            raise InputError(f"trajectory {self.name}: time {t_us} us outside [{self.t0_us}, {self.t1_us}]")
+        return self.traj.pose_at(np.array([float(t_us)]))[0]
+
+    def render_pose(self, c2w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        cam = SplatCamera.from_c2w(c2w, self.fx, self.fy, self.cx, self.cy, self.width, self.height)
+        with torch.no_grad():
+            img, alpha, depth, _ = render(self.params, cam, self.bg, self.sh_degree)
+        self.renders += 1
+        return (img.clamp(0, 1).double().numpy(), alpha.double().numpy(), depth.double().numpy())
+
+    def render_at(self, t_us: float):
+        return self.render_pose(self.pose(t_us))
+
+    def linear_luminance(self, t_us: float) -> np.ndarray:
+        """(H, W) float32 linear luminance in [0, 1] at time t_us."""
+        rgb = self.render_at(t_us)[0]
+        return luminance(srgb_to_linear(rgb)).astype(np.float32)
+
+    def gaussian_centres(self, min_opacity: float = 0.1, max_points: int = 20000, seed: int = 0) -> np.ndarray:
+        """Centres of opaque Gaussians (a subsample), for motion estimates."""
+        m = self.params["means"].numpy().astype(np.float64)
+        op = 1 / (1 + np.exp(-self.params["opacity_logits"].numpy().astype(np.float64)))
+        m = m[op >= min_opacity]
+        if len(m) > max_points:
+            m = m[np.random.default_rng(seed).choice(len(m), max_points, replace=False)]
+        return m

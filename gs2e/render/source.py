@@ -1,0 +1,82 @@
+"""The frame source the event simulator consumes, rendered on demand.
+
+Implements the gs2e.events frame-source protocol: iterating yields
+``(t_us int, frame float32 (H, W) linear luminance in [0, 1])`` with strictly
+increasing times; ``shape``, ``n_frames`` (None when adaptive) and ``name``.
+Nothing is stored: memory does not grow with the sequence length.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Iterator
+
+import numpy as np
+
+from gs2e.common.errors import ConfigError
+from gs2e.render.renderer import TrajectoryRenderer
+from gs2e.render.sampler import SamplerStats, adaptive_samples
+
+
+def fixed_times_us(t0_us: int, t1_us: int, fps: float) -> np.ndarray:
+    """Times at ``fps`` from t0 to t1 (t1 included), rounded to integer us."""
+    n = int(math.floor((t1_us - t0_us) * fps / 1e6 + 1e-9)) + 1
+    t = np.round(t0_us + np.arange(n) * 1e6 / fps).astype(np.int64)
+    if t[-1] < t1_us:
+        t = np.append(t, np.int64(t1_us))
+    return t
+
+
+class RenderedFrameSource:
+    """Linear luminance along a trajectory, at a fixed rate or adaptively.
+
+    mode : "adaptive" (see gs2e.render.sampler) or "fixed".
+    fps : rate of the fixed mode (the paper: 2400).
+    bound_log : adaptive bound on the per-pixel log-intensity change between
+        samples (e.g. 0.25 x the contrast threshold).
+    log_eps : log(L + log_eps) is the signal the bound applies to.
+    dt_min_us, dt_max_us : adaptive step limits.
+    """
+
+    def __init__(self, renderer: TrajectoryRenderer, mode: str = "adaptive", fps: float = 2400.0,
+                 bound_log: float = 0.25, log_eps: float = 1e-3, dt_min_us: int = 50,
+                 dt_max_us: int = 5000):
+        if mode not in ("adaptive", "fixed"):
+            raise ConfigError(f"render.sampling must be 'adaptive' or 'fixed', got {mode!r}")
+        if fps <= 0 or bound_log <= 0 or not 1 <= dt_min_us <= dt_max_us:
+            raise ConfigError("render: fps, bound and step limits must be positive with dt_min_us <= dt_max_us")
+        self.r = renderer
+        self.mode = mode
+        self.fps = fps
+        self.bound_log = bound_log
+        self.log_eps = log_eps
+        self.dt_min_us, self.dt_max_us = int(dt_min_us), int(dt_max_us)
+        self.shape = (renderer.height, renderer.width)
+        self.name = renderer.name
+        self.stats = SamplerStats()
+        self.n_frames = (len(fixed_times_us(renderer.t0_us, renderer.t1_us, fps))
+                         if mode == "fixed" else None)
+
+    def __iter__(self) -> Iterator[tuple[int, np.ndarray]]:
+        r = self.r
+        if self.mode == "fixed":
+            for t in fixed_times_us(r.t0_us, r.t1_us, self.fps):
+                self.stats.rendered += 1
+                self.stats.accepted += 1
+                yield int(t), r.linear_luminance(int(t))
+            return
+        cache: dict[int, np.ndarray] = {}
+
+        def render_log(t: int) -> np.ndarray:
+            lum = r.linear_luminance(t)
+            cache.clear()
+            cache[t] = lum  # the sampler yields log frames; keep the linear one
+            return np.log(lum.astype(np.float64) + self.log_eps)
+
+        dt0 = int(min(self.dt_max_us, max(self.dt_min_us, 1e6 / self.fps)))
+        for t, _ in adaptive_samples(render_log, r.t0_us, r.t1_us, self.bound_log, self.dt_min_us,
+                                     self.dt_max_us, dt0, self.stats):
+            lum = cache.get(t)
+            if lum is None:  # the last render was a rejected trial: render again
+                lum = r.linear_luminance(t)
+            yield int(t), lum

@@ -1,0 +1,232 @@
+"""Rendering along trajectories: motion blur, adaptive sampling, records."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gs2e.common.color import linear_to_srgb, srgb_to_linear
+from gs2e.common.errors import ConfigError, InputError
+from gs2e.config import load_config
+from gs2e.io.scene import Camera, Frame, Scene
+from gs2e.render.blur import average_srgb, subframe_times_us, subframes_needed
+from gs2e.render.sampler import SamplerStats, adaptive_samples
+
+W, H, F = 64, 48, 60.0
+DEPTH = 2.0
+
+
+def _plane_model(tmp: Path) -> Path:
+    """A textured plane z = DEPTH of small opaque Gaussians, as a gs2e model folder."""
+    from skimage import data
+
+    from gs2e.common.atomic import write_json_atomic
+    from gs2e.splat.init import rgb_to_sh_dc
+    from gs2e.splat.ply import write_ply
+
+    tex = data.astronaut()[::4, ::4] / 255.0  # 128 x 128
+    n = 128
+    xs = (np.arange(n) - n / 2 + 0.5) * 0.03
+    X, Y = np.meshgrid(xs, xs)
+    means = np.stack([X.ravel(), Y.ravel(), np.full(X.size, DEPTH)], 1)
+    quats = np.tile([1.0, 0, 0, 0], (len(means), 1))
+    log_scales = np.full((len(means), 3), np.log(0.02))
+    opac = np.full(len(means), 6.0)
+    sh = rgb_to_sh_dc(tex.reshape(-1, 3))[:, None, :]
+    model = tmp / "model"
+    write_ply(model / "pc.ply", means, quats, log_scales, opac, sh)
+    write_json_atomic(model / "model.json", {"format": "gs2e-splat", "version": 1, "ply": "pc.ply",
+                                             "iterations": 0, "sh_degree": 0})
+    return model
+
+
+def _straight_trajectory(tmp: Path, dx: float, n_in: int = 5) -> Path:
+    """Constant-velocity translation along +x over the plane, identity rotation."""
+    from gs2e.trajectory.io import save_trajectory
+    from gs2e.trajectory.stage import generate
+
+    frames = []
+    for i in range(n_in):
+        T = np.eye(4)
+        T[0, 3] = -dx / 2 + dx * i / (n_in - 1)
+        frames.append(Frame(f"{i}.png", Camera(F, F, W / 2, H / 2), T))
+    cfg = load_config({"trajectory": {"velocity": "1", "smooth_half_width": 0, "view_order": "sequence",
+                                      "interpolation": "linear", "speed_presets": ["medium"],
+                                      "mini_groups": 0, "plot": False}})["trajectory"]
+    tr = generate(Scene(W, H, frames, "test"), cfg, seed=0).trajectories["base_medium"]
+    path = tmp / "straight.npz"
+    save_trajectory(path, tr)
+    return path
+
+
+def test_subframe_rules():
+    np.testing.assert_allclose(subframe_times_us(1000.0, 400.0, 4), [850, 950, 1050, 1150])
+    assert subframes_needed(0.0, 1.0, 64) == 1
+    assert subframes_needed(10.2, 1.0, 64) == 11
+    assert subframes_needed(1e9, 1.0, 64) == 64
+    img = np.random.default_rng(0).random((5, 5, 3))
+    np.testing.assert_allclose(average_srgb([img, img, img]), img, atol=1e-12)
+    # averaging happens in linear light: black + white is not mid-grey in sRGB
+    mix = average_srgb([np.zeros((1, 1, 3)), np.ones((1, 1, 3))])
+    assert mix[0, 0, 0] == pytest.approx(linear_to_srgb(0.5), abs=1e-12) and mix[0, 0, 0] > 0.7
+
+
+def test_color_round_trip():
+    x = np.linspace(0, 1, 1001)
+    np.testing.assert_allclose(linear_to_srgb(srgb_to_linear(x)), x, atol=1e-12)
+
+
+def _ramp_sampler(rate: np.ndarray, bound: float, t1: int = 100_000, dt_min: int = 1, dt_max: int = 20_000):
+    """A per-pixel log-linear signal with piecewise rates (per us)."""
+    calls = []
+
+    def render_log(t):
+        calls.append(t)
+        # rate changes at t = 50_000: quiet, then fast
+        return np.where(t < 50_000, rate[0] * t, rate[0] * 50_000 + rate[1] * (t - 50_000)) * np.ones(4)
+
+    st = SamplerStats()
+    out = list(adaptive_samples(render_log, 0, t1, bound, dt_min, dt_max, 100, st))
+    return out, st, calls
+
+
+def test_adaptive_sampler_never_exceeds_bound_and_idles_when_static():
+    out, st, calls = _ramp_sampler(np.array([0.0, 1e-4]), bound=0.1)
+    ts = [t for t, _ in out]
+    assert ts[0] == 0 and ts[-1] == 100_000 and np.all(np.diff(ts) > 0)
+    diffs = [np.max(np.abs(b - a)) for (_, a), (_, b) in zip(out, out[1:])]
+    assert max(diffs) <= 0.1 + 1e-12
+    assert st.forced == 0
+    quiet = [t for t in ts if t < 50_000]
+    assert len(quiet) < 12, "static half should take few, growing steps"
+    # fast half: 5 log units over 50 ms at <= 0.1 per step needs >= 50 steps
+    assert 50 <= len(ts) - len(quiet) <= 80
+    assert st.rendered == len(calls) and st.rendered < 1.3 * len(ts)
+
+
+def test_adaptive_sampler_random_signals_respect_bound():
+    rng = np.random.default_rng(0)
+    for trial in range(5):
+        knots = np.sort(rng.integers(0, 200_000, 8))
+        vals = rng.normal(size=(8, 16)) * 2
+
+        def render_log(t):
+            return np.array([np.interp(t, knots, vals[:, j]) for j in range(16)])
+
+        out = list(adaptive_samples(render_log, 0, 200_000, 0.05, 1, 10_000, 50))
+        diffs = [np.max(np.abs(b - a)) for (_, a), (_, b) in zip(out, out[1:])]
+        assert max(diffs) <= 0.05 + 1e-9
+
+
+def test_sampler_rejects_bad_arguments():
+    with pytest.raises(ValueError):
+        list(adaptive_samples(lambda t: np.zeros(1), 10, 0, 0.1, 1, 10))
+
+
+@pytest.fixture(scope="module")
+def plane(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("plane")
+    return _plane_model(tmp), tmp
+
+
+def test_static_camera_blur_equals_sharp(plane, tmp_path):
+    from gs2e.render.dataset import render_dataset
+
+    model, _ = plane
+    traj = _straight_trajectory(tmp_path, dx=1e-9)  # degenerate path: the camera does not move
+    cfg = load_config({"render": {"fps": 10.0, "exposure_us": 50_000.0, "write_depth": False}})["render"]
+    render_dataset(model, traj, tmp_path / "out", cfg)
+    import imageio.v3 as iio
+
+    for f in sorted((tmp_path / "out" / "rgb").glob("*.png")):
+        assert np.array_equal(iio.imread(f), iio.imread(tmp_path / "out" / "blur" / f.name))
+
+
+def test_constant_velocity_pan_matches_box_filter(plane, tmp_path):
+    """Blur of a fronto-parallel textured plane under constant-velocity
+    translation = the sharp image box-filtered along x over the exposure's
+    image motion (computed here independently by sub-pixel shifting)."""
+    import cv2
+
+    from gs2e.render.blur import average_srgb
+    from gs2e.render.renderer import TrajectoryRenderer
+
+    model, _ = plane
+    traj = _straight_trajectory(tmp_path, dx=0.6)
+    r = TrajectoryRenderer(model, traj)
+    t_mid = (r.t0_us + r.t1_us) // 2
+    E = (r.t1_us - r.t0_us) * 0.4
+    xa, xb = r.pose(t_mid - E / 2)[0, 3], r.pose(t_mid + E / 2)[0, 3]
+    motion_px = F * (xb - xa) / DEPTH  # image shift over the exposure (camera +x -> image -x)
+    assert 4 < motion_px < 40
+    n = int(np.ceil(motion_px / 0.5))
+    blur = average_srgb([r.render_at(t)[0] for t in subframe_times_us(t_mid, E, n)])
+    sharp = srgb_to_linear(r.render_at(t_mid)[0])
+    shifts = np.linspace(-motion_px / 2, motion_px / 2, 400)
+    box = np.mean([cv2.warpAffine(sharp, np.float64([[1, 0, s], [0, 1, 0]]), (W, H),
+                                  flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT) for s in shifts], axis=0)
+    box = linear_to_srgb(box)
+    m = int(np.ceil(motion_px / 2)) + 2
+    err = np.abs(blur - box)[:, m:-m]
+    ghost = np.abs(average_srgb([r.render_at(t)[0] for t in subframe_times_us(t_mid, E, 3)]) - box)[:, m:-m]
+    assert err.mean() < 0.01 and np.percentile(err, 99) < 0.04
+    assert ghost.mean() > 2 * err.mean(), "3 ghost copies should be clearly worse than true blur"
+
+
+def test_dataset_records_round_trip(plane, tmp_path):
+    import pandas as pd
+
+    from gs2e.render.dataset import read_frames_table, render_dataset
+    from gs2e.trajectory import load_trajectory
+
+    model, _ = plane
+    traj_path = _straight_trajectory(tmp_path, dx=0.3)
+    cfg = load_config({"render": {"fps": 20.0, "exposure_us": 10_000.0}})["render"]
+    stats = render_dataset(model, traj_path, tmp_path / "out", cfg, scene_id="plane")
+    df = read_frames_table(tmp_path / "out")
+    tr = load_trajectory(traj_path)
+    assert df["t_us"].dtype == np.int64 and np.all(np.diff(df["t_us"]) > 0)
+    for _, row in df.iterrows():
+        np.testing.assert_array_equal(row["c2w"], tr.pose_at(np.array([float(row["t_us"])]))[0])
+    tj = json.loads((tmp_path / "out" / "transforms.json").read_text())
+    assert len(tj["frames"]) == len(df) == stats["n_frames"]
+    assert (tmp_path / "out" / "depth" / "000000.npz").exists()
+    m = pd.read_parquet(tmp_path / "out" / "metrics.parquet")
+    assert m.loc[0, "scene_id"] == "plane"
+
+
+def test_exposure_longer_than_frame_interval_rejected(plane, tmp_path):
+    from gs2e.render.dataset import render_dataset
+
+    model, _ = plane
+    traj = _straight_trajectory(tmp_path, dx=0.3)
+    cfg = load_config({"render": {"fps": 100.0, "exposure_us": 20_000.0}})["render"]
+    with pytest.raises(ConfigError, match="render.exposure_us"):
+        render_dataset(model, traj, tmp_path / "out", cfg)
+    assert not (tmp_path / "out").exists()
+
+
+def test_empty_view_rejected(plane, tmp_path):
+    """A camera looking away from the model: clear error, no output."""
+    from gs2e.render.dataset import render_dataset
+    from gs2e.trajectory.io import save_trajectory
+    from gs2e.trajectory.stage import generate
+
+    model, _ = plane
+    frames = []
+    for i in range(4):
+        T = np.eye(4)
+        T[:3, :3] = np.diag([-1.0, 1.0, -1.0])  # turned around: looks at -z
+        T[0, 3] = 0.1 * i
+        frames.append(Frame(f"{i}.png", Camera(F, F, W / 2, H / 2), T))
+    cfg_t = load_config({"trajectory": {"speed_presets": ["medium"], "mini_groups": 0, "plot": False,
+                                        "view_order": "sequence"}})["trajectory"]
+    tr = generate(Scene(W, H, frames, "t"), cfg_t, seed=0).trajectories["base_medium"]
+    save_trajectory(tmp_path / "away.npz", tr)
+    cfg = load_config({})["render"]
+    with pytest.raises(InputError, match="empty"):
+        render_dataset(model, tmp_path / "away.npz", tmp_path / "out", cfg)
+    assert not (tmp_path / "out").exists()
