@@ -19,6 +19,7 @@ shell.prefix(f'export PYTHONPATH="{workflow.basedir}${{{{PYTHONPATH:+:$PYTHONPAT
 
 wildcard_constraints:
     scene="[A-Za-z0-9][A-Za-z0-9_.-]*",
+    traj="[A-Za-z0-9_.-]+",
 
 
 def res(*parts):
@@ -51,4 +52,5 @@ def all_targets():
     out = []
     for sid in SCENES:
         out += [res(sid, "splat"), res(sid, "trajectories")]
+        out += [res(sid, "frames", t) for t in SCENE_CFG[sid]["render"]["trajectories"]]
     return out

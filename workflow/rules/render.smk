@@ -1,0 +1,24 @@
+rule render:
+    input:
+        model=res("{scene}", "splat"),
+        trajectories=res("{scene}", "trajectories"),
+    output:
+        directory(res("{scene}", "frames", "{traj}")),
+    params:
+        cfg=stage_cfg("render"),
+        code=code_version("render"),
+        trajectory=lambda wc, input: str(Path(input.trajectories, f"{wc.traj}.npz")),
+    conda:
+        ENV
+    log:
+        res("{scene}", "logs", "render_{traj}.log"),
+    benchmark:
+        res("{scene}", "benchmarks", "render_{traj}.tsv")
+    threads: workflow.cores
+    resources:
+        mem_mb=3000,
+        runtime=120,
+    shell:
+        "python -m gs2e render --model {input.model:q} --trajectory {params.trajectory:q}"
+        " --out {output:q} --threads {threads} --scene-id {wildcards.scene}"
+        " --config-json {params.cfg:q} 2> {log:q}"
