@@ -84,6 +84,30 @@ def bin_kernel(order, means2d, radii, width, height, tile):
     return counts, gids
 
 
+@njit(cache=True, fastmath=False)
+def _row_extent(la, lb, lc):
+    """Half height (px) of each 3-sigma ellipse, slightly enlarged: a safe
+    pre-filter (the exact test is the Mahalanobis distance per pixel)."""
+    m = la.shape[0]
+    ry = np.empty(m)
+    for k in range(m):
+        det = la[k] * lc[k] - lb[k] * lb[k]
+        syy = la[k] / det if det > 0.0 else np.inf  # y variance = Q_xx / det(Q)
+        ry[k] = 3.0 * math.sqrt(syy) * (1.0 + 1e-6) + 1e-3
+    return ry
+
+
+@njit(cache=True, fastmath=False)
+def _row_list(lv, lry, py, rl):
+    """Indices (in depth order) of tile Gaussians whose ellipse spans row py."""
+    mr = 0
+    for k in range(lv.shape[0]):
+        if abs(lv[k] - py) <= lry[k]:
+            rl[mr] = k
+            mr += 1
+    return mr
+
+
 @njit(parallel=True, cache=True, fastmath=False)
 def raster_forward_kernel(offsets, gids, means2d, conics, opac, feats, bg,
                           width, height, tile, out, out_T, n_contrib):
@@ -115,16 +139,20 @@ def raster_forward_kernel(offsets, gids, means2d, conics, opac, feats, bg,
             lo[k] = opac[g]
             for c in range(C):
                 lf[k, c] = feats[g, c]
+        lry = _row_extent(la, lb, lc)
+        rl = np.empty(m, dtype=np.int64)
         acc = np.empty(C)
         for i in range(ty * tile, min(height, (ty + 1) * tile)):
             py = i + 0.5
+            mr = _row_list(lv, lry, py, rl)
             for j in range(tx * tile, min(width, (tx + 1) * tile)):
                 px = j + 0.5
                 T = 1.0
                 for c in range(C):
                     acc[c] = 0.0
                 last = m
-                for k in range(m):
+                for r in range(mr):
+                    k = rl[r]
                     dx = lu[k] - px
                     dy = lv[k] - py
                     power = -0.5 * (la[k] * dx * dx + lc[k] * dy * dy) - lb[k] * dx * dy
@@ -178,10 +206,13 @@ def raster_backward_kernel(offsets, gids, means2d, conics, opac, feats,
             lo[k] = opac[g]
             for c in range(C):
                 lf[k, c] = feats[g, c]
+        lry = _row_extent(la, lb, lc)
+        rl = np.empty(m, dtype=np.int64)
         S = np.empty(C)
         go = np.empty(C)
         for i in range(ty * tile, min(height, (ty + 1) * tile)):
             py = i + 0.5
+            mr = _row_list(lv, lry, py, rl)
             for j in range(tx * tile, min(width, (tx + 1) * tile)):
                 px = j + 0.5
                 T_final = float(out_T[i, j])
@@ -190,7 +221,11 @@ def raster_backward_kernel(offsets, gids, means2d, conics, opac, feats,
                 for c in range(C):
                     S[c] = 0.0
                     go[c] = g_out[i, j, c]
-                for k in range(n_contrib[i, j] - 1, -1, -1):
+                last = n_contrib[i, j]
+                for r in range(mr - 1, -1, -1):
+                    k = rl[r]
+                    if k >= last:
+                        continue
                     dx = lu[k] - px
                     dy = lv[k] - py
                     power = -0.5 * (la[k] * dx * dx + lc[k] * dy * dy) - lb[k] * dx * dy
