@@ -26,16 +26,36 @@ void raster_fwd(const int64_t *offsets, const int32_t *gids, const float *means2
             lo[k] = opac[g];
             for (int c = 0; c < C; c++) lf[k * C + c] = feats[g * C + c];
         }
+        double *rx = malloc(sizeof(double) * (m + 1)), *ry = malloc(sizeof(double) * (m + 1));
+        int64_t *rl = malloc(sizeof(int64_t) * (m + 1)), *sl = malloc(sizeof(int64_t) * (m + 1));
+        for (int64_t k = 0; k < m; k++) {
+            double det = la[k] * lc[k] - lb[k] * lb[k];
+            rx[k] = det > 0 ? 3.0 * sqrt(lc[k] / det) * (1.0 + 1e-6) + 1e-3 : INFINITY;
+            ry[k] = det > 0 ? 3.0 * sqrt(la[k] / det) * (1.0 + 1e-6) + 1e-3 : INFINITY;
+        }
         double acc[16];
+        int64_t mr = 0, ms = 0;
         int i1 = (ty + 1) * tile < height ? (ty + 1) * tile : height;
         int j1 = (tx + 1) * tile < width ? (tx + 1) * tile : width;
         for (int i = ty * tile; i < i1; i++) {
             double py = i + 0.5;
+            mr = 0;
+            for (int64_t k = 0; k < m; k++) { rl[mr] = k; mr += fabs(lv[k] - py) <= ry[k]; }
             for (int j = tx * tile; j < j1; j++) {
+                if ((j - tx * tile) % 4 == 0) {
+                    double x0 = j + 0.5, x1 = (j + 4 < j1 ? j + 4 : j1) - 0.5;
+                    ms = 0;
+                    for (int64_t r = 0; r < mr; r++) {
+                        int64_t k = rl[r];
+                        sl[ms] = k;
+                        ms += (lu[k] + rx[k] >= x0) && (lu[k] - rx[k] <= x1);
+                    }
+                }
                 double px = j + 0.5, T = 1.0;
                 for (int c = 0; c < C; c++) acc[c] = 0.0;
                 int64_t last = m;
-                for (int64_t k = 0; k < m; k++) {
+                for (int64_t r = 0; r < ms; r++) {
+                    int64_t k = sl[r];
                     double dx = lu[k] - px, dy = lv[k] - py;
                     double power = -0.5 * (la[k] * dx * dx + lc[k] * dy * dy) - lb[k] * dx * dy;
                     if (power > 0.0 || power < -4.5) continue;
@@ -53,6 +73,6 @@ void raster_fwd(const int64_t *offsets, const int32_t *gids, const float *means2
                 n_contrib[(int64_t)i * width + j] = (int32_t)last;
             }
         }
-        free(l);
+        free(l); free(rx); free(ry); free(rl); free(sl);
     }
 }

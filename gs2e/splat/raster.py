@@ -11,6 +11,10 @@ Rules (3DGS, REFERENCE.md section 5):
 - compositing stops before the Gaussian that would bring the transmittance
   below 1e-4 (that Gaussian is not applied).
 
+Per tile, each pixel row and each CHUNK-pixel segment of it first compacts
+(branch-free) the candidates whose 3-sigma ellipse reaches it; the exact
+per-pixel test then decides, so this pre-filter never changes the result.
+
 Channels: any number C of per-Gaussian features are composited together
 (RGB plus camera depth, so expected depth comes for free).
 
@@ -84,28 +88,44 @@ def bin_kernel(order, means2d, radii, width, height, tile):
     return counts, gids
 
 
+CHUNK = 4  # pixels per row segment sharing one candidate list
+
+
 @njit(cache=True, fastmath=False)
-def _row_extent(la, lb, lc):
-    """Half height (px) of each 3-sigma ellipse, slightly enlarged: a safe
-    pre-filter (the exact test is the Mahalanobis distance per pixel)."""
-    m = la.shape[0]
-    ry = np.empty(m)
-    for k in range(m):
+def _extents(la, lb, lc, rx, ry):
+    """Half width / height (px) of each 3-sigma ellipse, slightly enlarged: a
+    safe pre-filter (the exact test is the Mahalanobis distance per pixel)."""
+    for k in range(la.shape[0]):
         det = la[k] * lc[k] - lb[k] * lb[k]
-        syy = la[k] / det if det > 0.0 else np.inf  # y variance = Q_xx / det(Q)
-        ry[k] = 3.0 * math.sqrt(syy) * (1.0 + 1e-6) + 1e-3
-    return ry
+        if det > 0.0:
+            # covariance = inverse conic: var_x = c / det, var_y = a / det
+            rx[k] = 3.0 * math.sqrt(lc[k] / det) * (1.0 + 1e-6) + 1e-3
+            ry[k] = 3.0 * math.sqrt(la[k] / det) * (1.0 + 1e-6) + 1e-3
+        else:
+            rx[k] = np.inf
+            ry[k] = np.inf
 
 
 @njit(cache=True, fastmath=False)
 def _row_list(lv, lry, py, rl):
-    """Indices (in depth order) of tile Gaussians whose ellipse spans row py."""
+    """Indices (in depth order) of tile Gaussians whose ellipse spans row py.
+    Branch-free compaction: the test outcome is unpredictable."""
     mr = 0
     for k in range(lv.shape[0]):
-        if abs(lv[k] - py) <= lry[k]:
-            rl[mr] = k
-            mr += 1
+        rl[mr] = k
+        mr += abs(lv[k] - py) <= lry[k]
     return mr
+
+
+@njit(cache=True, fastmath=False)
+def _seg_list(lu, lrx, rl, mr, x0, x1, sl):
+    """Entries of the row list whose ellipse reaches pixel centres in [x0, x1]."""
+    ms = 0
+    for r in range(mr):
+        k = rl[r]
+        sl[ms] = k
+        ms += (lu[k] + lrx[k] >= x0) and (lu[k] - lrx[k] <= x1)
+    return ms
 
 
 @njit(parallel=True, cache=True, fastmath=False)
@@ -139,20 +159,26 @@ def raster_forward_kernel(offsets, gids, means2d, conics, opac, feats, bg,
             lo[k] = opac[g]
             for c in range(C):
                 lf[k, c] = feats[g, c]
-        lry = _row_extent(la, lb, lc)
-        rl = np.empty(m, dtype=np.int64)
+        lrx = np.empty(m)
+        lry = np.empty(m)
+        _extents(la, lb, lc, lrx, lry)
+        rl = np.empty(m + 1, dtype=np.int64)
+        sl = np.empty(m + 1, dtype=np.int64)
         acc = np.empty(C)
+        jend = min(width, (tx + 1) * tile)
         for i in range(ty * tile, min(height, (ty + 1) * tile)):
             py = i + 0.5
             mr = _row_list(lv, lry, py, rl)
-            for j in range(tx * tile, min(width, (tx + 1) * tile)):
+            for j in range(tx * tile, jend):
+                if (j - tx * tile) % CHUNK == 0:
+                    ms = _seg_list(lu, lrx, rl, mr, j + 0.5, min(j + CHUNK, jend) - 0.5, sl)
                 px = j + 0.5
                 T = 1.0
                 for c in range(C):
                     acc[c] = 0.0
                 last = m
-                for r in range(mr):
-                    k = rl[r]
+                for r in range(ms):
+                    k = sl[r]
                     dx = lu[k] - px
                     dy = lv[k] - py
                     power = -0.5 * (la[k] * dx * dx + lc[k] * dy * dy) - lb[k] * dx * dy
@@ -206,14 +232,20 @@ def raster_backward_kernel(offsets, gids, means2d, conics, opac, feats,
             lo[k] = opac[g]
             for c in range(C):
                 lf[k, c] = feats[g, c]
-        lry = _row_extent(la, lb, lc)
-        rl = np.empty(m, dtype=np.int64)
+        lrx = np.empty(m)
+        lry = np.empty(m)
+        _extents(la, lb, lc, lrx, lry)
+        rl = np.empty(m + 1, dtype=np.int64)
+        sl = np.empty(m + 1, dtype=np.int64)
         S = np.empty(C)
         go = np.empty(C)
+        jend = min(width, (tx + 1) * tile)
         for i in range(ty * tile, min(height, (ty + 1) * tile)):
             py = i + 0.5
             mr = _row_list(lv, lry, py, rl)
-            for j in range(tx * tile, min(width, (tx + 1) * tile)):
+            for j in range(tx * tile, jend):
+                if (j - tx * tile) % CHUNK == 0:
+                    ms = _seg_list(lu, lrx, rl, mr, j + 0.5, min(j + CHUNK, jend) - 0.5, sl)
                 px = j + 0.5
                 T_final = float(out_T[i, j])
                 T = T_final
@@ -222,8 +254,8 @@ def raster_backward_kernel(offsets, gids, means2d, conics, opac, feats,
                     S[c] = 0.0
                     go[c] = g_out[i, j, c]
                 last = n_contrib[i, j]
-                for r in range(mr - 1, -1, -1):
-                    k = rl[r]
+                for r in range(ms - 1, -1, -1):
+                    k = sl[r]
                     if k >= last:
                         continue
                     dx = lu[k] - px
