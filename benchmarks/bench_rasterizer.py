@@ -15,9 +15,13 @@ is the headline.
 
 from __future__ import annotations
 
+import os
+
+# before numpy/torch/numba load OpenMP: no spin-waiting on a shared machine
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 import argparse
 import ctypes
-import os
 import shutil
 import subprocess
 import sys
@@ -134,7 +138,8 @@ def main(argv=None):
     out_dir.mkdir(parents=True, exist_ok=True)
     import numba
     threads = numba.get_num_threads()
-    print(f"cores: {os.cpu_count()}, numba threads: {threads}, torch threads: {torch.get_num_threads()}")
+    print(f"cores: {os.cpu_count()}, numba threads: {threads}, torch threads: {torch.get_num_threads()}, "
+          f"OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY')}")
 
     # warm-up: compile or load the numba cache
     t0 = time.perf_counter()
@@ -150,7 +155,9 @@ def main(argv=None):
                          **t, n_pairs=meta["n_pairs"]))
 
     # the dense reference: the largest scene it holds in reasonable time/memory
-    dense = [(64, 64, 1000)] if args.quick else [(64, 64, 1000), (128, 128, 2000)]
+    # 128x128/2000 needs ~3 GB of autograd buffers: the largest we allow
+    # ourselves on a machine shared with other jobs
+    dense = [(64, 64, 1000), (128, 128, 2000)]
     ratio = {}
     for (w, h, n) in dense:
         p, cam = make_scene(n, w, h, seed=2)
@@ -162,6 +169,10 @@ def main(argv=None):
         rows.append(dict(scene=sc, width=w, height=h, n=n, backend="gs2e-numba",
                          **t, n_pairs=meta["n_pairs"]))
         ratio[sc] = (td["fwd_bwd_s"] / t["fwd_bwd_s"], td["fwd_bwd_min_s"] / t["fwd_bwd_min_s"])
+        dense_ns = td["fwd_bwd_min_s"] / (w * h * n) * 1e9
+        dense_pairs = w * h * n
+    import resource
+    peak_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # kB -> GB
 
     cmp = c_vs_numba(reps if args.quick else 9, args.quick)
     if cmp is not None:
@@ -186,6 +197,12 @@ def main(argv=None):
               f"{cmp['c_min_s'] * 1e3:.1f} ms (min ratio C/numba {cmp['c_min_s'] / cmp['numba_min_s']:.2f}, "
               f"gcc build {cmp['c_build_s']:.1f} s, max |diff| {cmp['max_abs_diff']:.1e}, "
               f"same stop indices: {cmp['same_ncontrib']})")
+    print(f"peak resident memory of this run: {peak_gb:.1f} GB (dense reference buffers)")
+    big_pairs = rows[0]["width"] * rows[0]["height"] * rows[0]["n"]
+    extra = big_pairs * dense_ns * 1e-9
+    print(f"dense reference extrapolated to 256x256/50k ({dense_ns:.0f} ns per pixel-Gaussian "
+          f"pair, ~{peak_gb * big_pairs / dense_pairs:.0f} GB would be needed): {extra:.0f} s, i.e. "
+          f"{extra / rows[0]['fwd_bwd_min_s']:.0f}x slower (extrapolated, not measured)")
     for sc, (r_med, r_min) in ratio.items():
         print(f"dense torch reference {sc}: {r_med:.0f}x (median) / {r_min:.0f}x (min) slower "
               "than gs2e, forward+backward")
