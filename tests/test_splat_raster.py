@@ -7,7 +7,7 @@ import torch
 
 from splat_scenes import KEYS, _loss, _render, compare, look_at_camera, random_scene, rel_err
 from gs2e.splat import raster as R
-from gs2e.splat.rasterize import rasterize
+from gs2e.splat.rasterize import densify_stats, rasterize
 
 
 @pytest.mark.parametrize("seed,degree", [(0, 3), (1, 0), (2, 1)])
@@ -100,3 +100,39 @@ def test_empty_scene_gives_background():
     g = torch.autograd.grad(img.sum(), [p["means"], p["background"]])
     assert float(g[0].abs().max()) == 0.0
     assert torch.allclose(g[1], torch.full((3,), 64.0 * 48, dtype=torch.float64))
+
+
+def test_same_bits_whatever_the_thread_count():
+    import numba
+    p = random_scene(300, seed=12, dtype=torch.float32)
+    cam = look_at_camera()
+    res = []
+    n0 = numba.get_num_threads()
+    try:
+        for nt in sorted({1, n0}):
+            numba.set_num_threads(nt)
+            out = _render(rasterize, p, cam)
+            res.append([*out[:3], *torch.autograd.grad(_loss(out), [p[k] for k in KEYS])])
+    finally:
+        numba.set_num_threads(n0)
+    for a, b in zip(res[0], res[-1]):
+        assert torch.equal(a, b)
+
+
+def test_no_gaussians():
+    p = random_scene(0, seed=0)
+    img, alpha, depth, meta = _render(rasterize, p, look_at_camera())
+    assert torch.equal(img, p["background"].detach().expand_as(img))
+    g = torch.autograd.grad(img.sum(), [p["means"], p["sh"]])
+    assert g[0].shape == (0, 3) and g[1].shape == (0, 16, 3)
+
+
+def test_densify_stats_in_ndc_units():
+    p = random_scene(200, seed=13)
+    cam = look_at_camera()
+    out = _render(rasterize, p, cam)
+    _loss(out).backward()
+    norm, vis = densify_stats(out[3], cam.width, cam.height)
+    g = out[3]["grad2d"]
+    assert torch.allclose(norm, torch.sqrt((g[:, 0] * 32) ** 2 + (g[:, 1] * 24) ** 2))
+    assert bool((norm[~vis] == 0).all()) and float(norm[vis].max()) > 0

@@ -246,3 +246,16 @@ def rasterize(means: torch.Tensor, quats: torch.Tensor, log_scales: torch.Tensor
                                                background, cam, int(sh_degree), meta)
     depth = depth_acc / alpha.clamp_min(1e-10)
     return image, alpha, depth, meta
+
+
+def densify_stats(meta: dict, width: int, height: int):
+    """Screen-space statistics of one render for adaptive density control.
+
+    Call after ``backward``. Returns (grad_ndc_norm (N,) float64, visible (N,)
+    bool): the norm of the loss gradient w.r.t. each Gaussian's 2D mean in
+    normalised device coordinates (pixel gradient times (W/2, H/2), the unit
+    of the official 2e-4 densification threshold), and whether it was rendered.
+    """
+    g = meta["grad2d"]
+    scale = torch.tensor([0.5 * width, 0.5 * height], dtype=g.dtype)
+    return (g * scale).norm(dim=1), meta["radii"] > 0
