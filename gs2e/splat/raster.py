@@ -237,7 +237,6 @@ def raster_backward_kernel(offsets, gids, means2d, conics, opac, feats,
         _extents(la, lb, lc, lrx, lry)
         rl = np.empty(m + 1, dtype=np.int64)
         sl = np.empty(m + 1, dtype=np.int64)
-        S = np.empty(C)
         go = np.empty(C)
         jend = min(width, (tx + 1) * tile)
         for i in range(ty * tile, min(height, (ty + 1) * tile)):
@@ -250,8 +249,8 @@ def raster_backward_kernel(offsets, gids, means2d, conics, opac, feats,
                 T_final = float(out_T[i, j])
                 T = T_final
                 gT = float(g_T[i, j])
+                Sg = 0.0  # sum over Gaussians behind of w_j * (f_j . g_out)
                 for c in range(C):
-                    S[c] = 0.0
                     go[c] = g_out[i, j, c]
                 last = n_contrib[i, j]
                 for r in range(ms - 1, -1, -1):
@@ -268,14 +267,16 @@ def raster_backward_kernel(offsets, gids, means2d, conics, opac, feats,
                     alpha = min(ALPHA_MAX, a_raw)
                     if alpha < ALPHA_MIN:
                         continue
-                    om = 1.0 - alpha
-                    T = T / om  # transmittance in front of this Gaussian
+                    inv_om = 1.0 / (1.0 - alpha)
+                    T = T * inv_om  # transmittance in front of this Gaussian
                     w = alpha * T
-                    g_alpha = -gT * T_final / om
+                    dotf = 0.0
                     for c in range(C):
-                        g_alpha += go[c] * (lf[k, c] * T - S[c] / om)
+                        dotf += go[c] * lf[k, c]
                         lg[k, 6 + c] += w * go[c]
-                        S[c] += lf[k, c] * w
+                    # dL/dalpha = T f.g - (sum_{behind} w_j f_j.g + gT T_final) / (1 - alpha)
+                    g_alpha = T * dotf - (Sg + gT * T_final) * inv_om
+                    Sg += w * dotf
                     if a_raw > ALPHA_MAX:
                         continue  # clamped: no gradient to opacity or shape
                     lg[k, 5] += G * g_alpha
