@@ -28,10 +28,15 @@ void raster_fwd(const int64_t *offsets, const int32_t *gids, const float *means2
         }
         double *rx = malloc(sizeof(double) * (m + 1)), *ry = malloc(sizeof(double) * (m + 1));
         int64_t *rl = malloc(sizeof(int64_t) * (m + 1)), *sl = malloc(sizeof(int64_t) * (m + 1));
+        double *lpm = malloc(sizeof(double) * (m + 1));
         for (int64_t k = 0; k < m; k++) {
             double det = la[k] * lc[k] - lb[k] * lb[k];
-            rx[k] = det > 0 ? 3.0 * sqrt(lc[k] / det) * (1.0 + 1e-6) + 1e-3 : INFINITY;
-            ry[k] = det > 0 ? 3.0 * sqrt(la[k] / det) * (1.0 + 1e-6) + 1e-3 : INFINITY;
+            if (lo[k] < 1.0 / 255.0 || !(det > 0.0)) { lpm[k] = 1.0; rx[k] = -1.0; ry[k] = -1.0; continue; }
+            double t = log((1.0 / 255.0) / lo[k]);
+            lpm[k] = (t > -4.5 ? t : -4.5) - 1e-6;
+            double m2 = -2.0 * lpm[k];
+            rx[k] = sqrt(m2 * lc[k] / det) * (1.0 + 1e-6) + 1e-3;
+            ry[k] = sqrt(m2 * la[k] / det) * (1.0 + 1e-6) + 1e-3;
         }
         double acc[16];
         int64_t mr = 0, ms = 0;
@@ -58,7 +63,8 @@ void raster_fwd(const int64_t *offsets, const int32_t *gids, const float *means2
                     int64_t k = sl[r];
                     double dx = lu[k] - px, dy = lv[k] - py;
                     double power = -0.5 * (la[k] * dx * dx + lc[k] * dy * dy) - lb[k] * dx * dy;
-                    if (power > 0.0 || power < -4.5) continue;
+                    if (power > 0.0 || power < lpm[k]) continue;
+                    if (power < -4.5) continue;
                     double alpha = lo[k] * exp(power);
                     if (alpha > 0.99) alpha = 0.99;
                     if (alpha < 1.0 / 255.0) continue;
@@ -73,6 +79,6 @@ void raster_fwd(const int64_t *offsets, const int32_t *gids, const float *means2
                 n_contrib[(int64_t)i * width + j] = (int32_t)last;
             }
         }
-        free(l); free(rx); free(ry); free(rl); free(sl);
+        free(l); free(lpm); free(rx); free(ry); free(rl); free(sl);
     }
 }

@@ -92,18 +92,26 @@ CHUNK = 4  # pixels per row segment sharing one candidate list
 
 
 @njit(cache=True, fastmath=False)
-def _extents(la, lb, lc, rx, ry):
-    """Half width / height (px) of each 3-sigma ellipse, slightly enlarged: a
-    safe pre-filter (the exact test is the Mahalanobis distance per pixel)."""
+def _extents(la, lb, lc, lo, rx, ry, lpm):
+    """Per Gaussian: lpm, the power below which it cannot pass (the 3-sigma cut
+    or alpha < 1/255, whichever is tighter, minus a margin), and the half width
+    / height (px) of the ellipse power >= lpm, slightly enlarged.
+
+    These only pre-filter; the exact tests still run per pixel, so results do
+    not depend on them. Low-opacity Gaussians get much smaller footprints.
+    """
     for k in range(la.shape[0]):
         det = la[k] * lc[k] - lb[k] * lb[k]
-        if det > 0.0:
-            # covariance = inverse conic: var_x = c / det, var_y = a / det
-            rx[k] = 3.0 * math.sqrt(lc[k] / det) * (1.0 + 1e-6) + 1e-3
-            ry[k] = 3.0 * math.sqrt(la[k] / det) * (1.0 + 1e-6) + 1e-3
-        else:
-            rx[k] = np.inf
-            ry[k] = np.inf
+        if lo[k] < ALPHA_MIN or not det > 0.0:
+            lpm[k] = 1.0  # alpha < 1/255 everywhere (or degenerate): never used
+            rx[k] = -1.0
+            ry[k] = -1.0
+            continue
+        lpm[k] = max(POWER_MIN, math.log(ALPHA_MIN / lo[k])) - 1e-6
+        m2 = -2.0 * lpm[k]  # squared Mahalanobis radius
+        # covariance = inverse conic: var_x = c / det, var_y = a / det
+        rx[k] = math.sqrt(m2 * lc[k] / det) * (1.0 + 1e-6) + 1e-3
+        ry[k] = math.sqrt(m2 * la[k] / det) * (1.0 + 1e-6) + 1e-3
 
 
 @njit(cache=True, fastmath=False)
@@ -161,7 +169,8 @@ def raster_forward_kernel(offsets, gids, means2d, conics, opac, feats, bg,
                 lf[k, c] = feats[g, c]
         lrx = np.empty(m)
         lry = np.empty(m)
-        _extents(la, lb, lc, lrx, lry)
+        lpm = np.empty(m)
+        _extents(la, lb, lc, lo, lrx, lry, lpm)
         rl = np.empty(m + 1, dtype=np.int64)
         sl = np.empty(m + 1, dtype=np.int64)
         acc = np.empty(C)
@@ -182,7 +191,9 @@ def raster_forward_kernel(offsets, gids, means2d, conics, opac, feats, bg,
                     dx = lu[k] - px
                     dy = lv[k] - py
                     power = -0.5 * (la[k] * dx * dx + lc[k] * dy * dy) - lb[k] * dx * dy
-                    if power > 0.0 or power < POWER_MIN:
+                    if power > 0.0 or power < lpm[k]:
+                        continue  # cheap pre-test; the exact tests follow
+                    if power < POWER_MIN:
                         continue
                     alpha = min(ALPHA_MAX, lo[k] * math.exp(power))
                     if alpha < ALPHA_MIN:
@@ -234,7 +245,8 @@ def raster_backward_kernel(offsets, gids, means2d, conics, opac, feats,
                 lf[k, c] = feats[g, c]
         lrx = np.empty(m)
         lry = np.empty(m)
-        _extents(la, lb, lc, lrx, lry)
+        lpm = np.empty(m)
+        _extents(la, lb, lc, lo, lrx, lry, lpm)
         rl = np.empty(m + 1, dtype=np.int64)
         sl = np.empty(m + 1, dtype=np.int64)
         go = np.empty(C)
@@ -260,7 +272,9 @@ def raster_backward_kernel(offsets, gids, means2d, conics, opac, feats,
                     dx = lu[k] - px
                     dy = lv[k] - py
                     power = -0.5 * (la[k] * dx * dx + lc[k] * dy * dy) - lb[k] * dx * dy
-                    if power > 0.0 or power < POWER_MIN:
+                    if power > 0.0 or power < lpm[k]:
+                        continue  # cheap pre-test; the exact tests follow
+                    if power < POWER_MIN:
                         continue
                     G = math.exp(power)
                     a_raw = lo[k] * G
@@ -300,11 +314,23 @@ def reduce_pairs_kernel(gids, pair_grad, out):
             out[g, c] += pair_grad[p, c]
 
 
-def bin_gaussians(means2d, depths, radii, width, height, tile=16):
-    """Tile lists sorted by depth. Returns (offsets (n_tiles+1,), gids (n_pairs,))."""
-    vis = np.flatnonzero(radii > 0)
+def bin_gaussians(means2d, depths, radii, width, height, tile=16, opac=None):
+    """Tile lists sorted by depth. Returns (offsets (n_tiles+1,), gids (n_pairs,)).
+
+    radii (N,) are the 3-sigma radii (0 = culled). With ``opac`` (N,) the box
+    shrinks to where alpha can reach 1/255 (fewer tile pairs, same image: the
+    per-pixel tests are exact); Gaussians with opacity < 1/255 are dropped.
+    """
+    r = radii.astype(np.float64)
+    if opac is not None:
+        o = np.asarray(opac, dtype=np.float64)
+        with np.errstate(divide="ignore"):
+            m2 = np.clip(2.0 * np.log(np.maximum(o, 1e-300) / ALPHA_MIN), 0.0, 9.0)
+        r = np.where(o >= ALPHA_MIN, r * np.sqrt(m2 / 9.0) * (1.0 + 1e-6) + 1e-3, 0.0)
+        r[radii <= 0] = 0.0
+    vis = np.flatnonzero(r > 0)
     order = vis[np.argsort(depths[vis], kind="stable")].astype(np.int64)
-    return bin_kernel(order, means2d, radii, int(width), int(height), int(tile))
+    return bin_kernel(order, means2d, r, int(width), int(height), int(tile))
 
 
 def rasterize_forward(means2d, conics, opac, feats, bg, width, height, offsets, gids, tile=16):

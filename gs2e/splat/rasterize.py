@@ -117,7 +117,7 @@ class _Rasterize(torch.autograd.Function):
         feats = np.ascontiguousarray(np.concatenate([colors, depths[:, None]], axis=1), dtype=ndt)
         bg4 = np.zeros(4, dtype=ndt)
         bg4[:3] = _np(background)
-        offsets, gids = _raster.bin_gaussians(means2d, depths, radii, W, H, TILE)
+        offsets, gids = _raster.bin_gaussians(means2d, depths, radii, W, H, TILE, opac)
         m2 = means2d.astype(ndt)
         cn = conics.astype(ndt)
         op = opac.astype(ndt)
