@@ -271,3 +271,38 @@ def densify_stats(meta: dict, width: int, height: int):
     g = meta["grad2d"]
     scale = torch.tensor([0.5 * width, 0.5 * height], dtype=g.dtype)
     return (g * scale).norm(dim=1), meta["radii"] > 0
+
+
+class DensifyStats:
+    """Accumulates, over renders, what adaptive density control needs.
+
+    After each render's backward call ``update(meta, width, height)``; then
+    ``mean_grad()`` is the mean NDC 2D-mean gradient norm over the views in
+    which each Gaussian was visible (compare with the official 2e-4),
+    ``count`` the number of those views and ``max_radius`` the largest screen
+    radius (px) seen. ``select(mask)`` keeps rows after pruning/cloning.
+    """
+
+    def __init__(self, n: int):
+        self.grad_sum = torch.zeros(n, dtype=torch.float64)
+        self.count = torch.zeros(n, dtype=torch.int64)
+        self.max_radius = torch.zeros(n, dtype=torch.int64)
+
+    def update(self, meta: dict, width: int, height: int) -> None:
+        norm, vis = densify_stats(meta, width, height)
+        if norm.shape[0] != self.count.shape[0]:
+            raise ValueError(f"stats hold {self.count.shape[0]} Gaussians, render had {norm.shape[0]}")
+        self.grad_sum += torch.where(vis, norm, torch.zeros_like(norm))
+        self.count += vis.to(torch.int64)
+        self.max_radius = torch.maximum(self.max_radius, meta["radii"].to(torch.int64))
+
+    def mean_grad(self) -> torch.Tensor:
+        return self.grad_sum / self.count.clamp_min(1)
+
+    def select(self, index) -> "DensifyStats":
+        """Stats restricted/reordered by a boolean mask or index tensor."""
+        out = DensifyStats(0)
+        out.grad_sum = self.grad_sum[index]
+        out.count = self.count[index]
+        out.max_radius = self.max_radius[index]
+        return out
