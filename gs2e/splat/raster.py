@@ -2,8 +2,9 @@
 
 Rules (3DGS, REFERENCE.md section 5):
 - the image is cut in ``tile`` x ``tile`` pixel tiles; each tile holds the list
-  of Gaussians whose 3-sigma box overlaps it, in increasing depth (ties by
-  index: the sort is stable), built once per render;
+  of Gaussians whose box (3 sigma, shrunk to where alpha can reach 1/255)
+  overlaps it, in increasing depth (ties by index: the sort is stable), built
+  once per render;
 - pixel (column j, row i) is evaluated at (j + 0.5, i + 0.5);
 - a Gaussian contributes to a pixel only inside its 3-sigma ellipse
   (Mahalanobis^2 <= 9, so the result does not depend on the tile size);
@@ -12,8 +13,9 @@ Rules (3DGS, REFERENCE.md section 5):
   below 1e-4 (that Gaussian is not applied).
 
 Per tile, each pixel row and each CHUNK-pixel segment of it first compacts
-(branch-free) the candidates whose 3-sigma ellipse reaches it; the exact
-per-pixel test then decides, so this pre-filter never changes the result.
+(branch-free) the candidates whose ellipse (3 sigma, or smaller where a low
+opacity keeps alpha under 1/255) reaches it; the exact per-pixel tests then
+decide, so these pre-filters never change the result (tested).
 
 Channels: any number C of per-Gaussian features are composited together
 (RGB plus camera depth, so expected depth comes for free).
