@@ -7,7 +7,7 @@ import torch
 
 from splat_scenes import KEYS, _loss, _render, compare, look_at_camera, random_scene, rel_err
 from gs2e.splat import raster as R
-from gs2e.splat.rasterize import DensifyStats, densify_stats, rasterize
+from gs2e.splat.rasterize import rasterize
 
 
 @pytest.mark.parametrize("seed,degree", [(0, 3), (1, 0), (2, 1)])
@@ -134,36 +134,3 @@ def test_no_gaussians():
     g = torch.autograd.grad(img.sum(), [p["means"], p["sh"]])
     assert g[0].shape == (0, 3) and g[1].shape == (0, 16, 3)
 
-
-def test_densify_stats_in_ndc_units():
-    p = random_scene(200, seed=13)
-    cam = look_at_camera()
-    out = _render(rasterize, p, cam)
-    _loss(out).backward()
-    norm, vis = densify_stats(out[3], cam.width, cam.height)
-    g = out[3]["grad2d"]
-    assert torch.allclose(norm, torch.sqrt((g[:, 0] * 32) ** 2 + (g[:, 1] * 24) ** 2))
-    assert bool((norm[~vis] == 0).all()) and float(norm[vis].max()) > 0
-
-
-def test_densify_stats_accumulate_over_views():
-    p = random_scene(200, seed=14, extent=2.5)
-    stats = DensifyStats(200)
-    norms, viss = [], []
-    for eye in [(0.0, 0.0, -4.0), (1.5, 0.0, -3.5)]:
-        cam = look_at_camera(eye=eye)
-        out = _render(rasterize, p, cam)
-        _loss(out).backward()
-        stats.update(out[3], cam.width, cam.height)
-        nv = densify_stats(out[3], cam.width, cam.height)
-        norms.append(nv[0])
-        viss.append(nv[1])
-    both = viss[0] & viss[1]
-    one = viss[0] ^ viss[1]
-    assert both.any() and one.any()
-    expect = (norms[0] * viss[0] + norms[1] * viss[1]) / (viss[0].long() + viss[1].long()).clamp_min(1)
-    assert torch.allclose(stats.mean_grad(), expect)
-    assert torch.equal(stats.count, viss[0].long() + viss[1].long())
-    keep = stats.count > 0
-    sub = stats.select(keep)
-    assert sub.count.shape[0] == int(keep.sum()) and bool((sub.count > 0).all())
