@@ -161,7 +161,7 @@ def main(argv=None):
     ratio = {}
     for (w, h, n) in dense:
         p, cam = make_scene(n, w, h, seed=2)
-        td, _ = time_render(render_reference, p, cam, 2 if args.quick else 3)
+        td, _ = time_render(render_reference, p, cam, 1 if args.quick else 3)
         t, meta = time_render(rasterize, p, cam, 3 * reps)
         sc = f"{w}x{h}/{n}"
         rows.append(dict(scene=sc, width=w, height=h, n=n, backend="dense-torch",
