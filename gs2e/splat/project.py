@@ -76,7 +76,7 @@ def _cov_cam(quat, logscale, V, Rq, M, S3, Sc):
 
 @njit(parallel=True, cache=True, fastmath=False)
 def project_forward_kernel(means, quats, logscales, viewmat, fx, fy, cx, cy,
-                           width, height, near, far, tile,
+                           width, height, near, far,
                            means2d, conics, depths, radii):
     n = means.shape[0]
     V = np.empty((3, 3))
@@ -330,7 +330,7 @@ def project_backward_kernel(means, quats, logscales, viewmat, fx, fy, cx, cy,
 
 
 def project(means, quats, logscales, viewmat, fx, fy, cx, cy, width, height,
-            near=0.01, far=1.0e10, tile=16):
+            near=0.01, far=1.0e10):
     """Project Gaussians; numpy in, float64 numpy out.
 
     Parameters
@@ -355,7 +355,7 @@ def project(means, quats, logscales, viewmat, fx, fy, cx, cy, width, height,
                            np.ascontiguousarray(viewmat, dtype=np.float64),
                            float(fx), float(fy), float(cx), float(cy),
                            float(width), float(height), float(near), float(far),
-                           int(tile), means2d, conics, depths, radii)
+                           means2d, conics, depths, radii)
     return means2d, conics, depths, radii
 
 

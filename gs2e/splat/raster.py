@@ -2,14 +2,20 @@
 
 Rules (3DGS, REFERENCE.md section 5):
 - the image is cut in ``tile`` x ``tile`` pixel tiles; each tile holds the list
-  of Gaussians whose 3-sigma box overlaps it, in increasing depth (ties by
-  index: the sort is stable), built once per render;
+  of Gaussians whose box (3 sigma, shrunk to where alpha can reach 1/255)
+  overlaps it, in increasing depth (ties by index: the sort is stable), built
+  once per render;
 - pixel (column j, row i) is evaluated at (j + 0.5, i + 0.5);
 - a Gaussian contributes to a pixel only inside its 3-sigma ellipse
   (Mahalanobis^2 <= 9, so the result does not depend on the tile size);
 - alpha = min(0.99, opacity * exp(-d^T Q d / 2)); alpha < 1/255 is skipped;
 - compositing stops before the Gaussian that would bring the transmittance
   below 1e-4 (that Gaussian is not applied).
+
+Per tile, each pixel row and each CHUNK-pixel segment of it first compacts
+(branch-free) the candidates whose ellipse (3 sigma, or smaller where a low
+opacity keeps alpha under 1/255) reaches it; the exact per-pixel tests then
+decide, so these pre-filters never change the result (tested).
 
 Channels: any number C of per-Gaussian features are composited together
 (RGB plus camera depth, so expected depth comes for free).
@@ -84,6 +90,54 @@ def bin_kernel(order, means2d, radii, width, height, tile):
     return counts, gids
 
 
+CHUNK = 4  # pixels per row segment sharing one candidate list
+
+
+@njit(cache=True, fastmath=False)
+def _extents(la, lb, lc, lo, rx, ry, lpm):
+    """Per Gaussian: lpm, the power below which it cannot pass (the 3-sigma cut
+    or alpha < 1/255, whichever is tighter, minus a margin), and the half width
+    / height (px) of the ellipse power >= lpm, slightly enlarged.
+
+    These only pre-filter; the exact tests still run per pixel, so results do
+    not depend on them. Low-opacity Gaussians get much smaller footprints.
+    """
+    for k in range(la.shape[0]):
+        det = la[k] * lc[k] - lb[k] * lb[k]
+        if lo[k] < ALPHA_MIN or not det > 0.0:
+            lpm[k] = 1.0  # alpha < 1/255 everywhere (or degenerate): never used
+            rx[k] = -1.0
+            ry[k] = -1.0
+            continue
+        lpm[k] = max(POWER_MIN, math.log(ALPHA_MIN / lo[k])) - 1e-6
+        m2 = -2.0 * lpm[k]  # squared Mahalanobis radius
+        # covariance = inverse conic: var_x = c / det, var_y = a / det
+        rx[k] = math.sqrt(m2 * lc[k] / det) * (1.0 + 1e-6) + 1e-3
+        ry[k] = math.sqrt(m2 * la[k] / det) * (1.0 + 1e-6) + 1e-3
+
+
+@njit(cache=True, fastmath=False)
+def _row_list(lv, lry, py, rl):
+    """Indices (in depth order) of tile Gaussians whose ellipse spans row py.
+    Branch-free compaction: the test outcome is unpredictable."""
+    mr = 0
+    for k in range(lv.shape[0]):
+        rl[mr] = k
+        mr += abs(lv[k] - py) <= lry[k]
+    return mr
+
+
+@njit(cache=True, fastmath=False)
+def _seg_list(lu, lrx, rl, mr, x0, x1, sl):
+    """Entries of the row list whose ellipse reaches pixel centres in [x0, x1]."""
+    ms = 0
+    for r in range(mr):
+        k = rl[r]
+        sl[ms] = k
+        ms += (lu[k] + lrx[k] >= x0) and (lu[k] - lrx[k] <= x1)
+    return ms
+
+
 @njit(parallel=True, cache=True, fastmath=False)
 def raster_forward_kernel(offsets, gids, means2d, conics, opac, feats, bg,
                           width, height, tile, out, out_T, n_contrib):
@@ -115,20 +169,33 @@ def raster_forward_kernel(offsets, gids, means2d, conics, opac, feats, bg,
             lo[k] = opac[g]
             for c in range(C):
                 lf[k, c] = feats[g, c]
+        lrx = np.empty(m)
+        lry = np.empty(m)
+        lpm = np.empty(m)
+        _extents(la, lb, lc, lo, lrx, lry, lpm)
+        rl = np.empty(m + 1, dtype=np.int64)
+        sl = np.empty(m + 1, dtype=np.int64)
         acc = np.empty(C)
+        jend = min(width, (tx + 1) * tile)
         for i in range(ty * tile, min(height, (ty + 1) * tile)):
             py = i + 0.5
-            for j in range(tx * tile, min(width, (tx + 1) * tile)):
+            mr = _row_list(lv, lry, py, rl)
+            for j in range(tx * tile, jend):
+                if (j - tx * tile) % CHUNK == 0:
+                    ms = _seg_list(lu, lrx, rl, mr, j + 0.5, min(j + CHUNK, jend) - 0.5, sl)
                 px = j + 0.5
                 T = 1.0
                 for c in range(C):
                     acc[c] = 0.0
                 last = m
-                for k in range(m):
+                for r in range(ms):
+                    k = sl[r]
                     dx = lu[k] - px
                     dy = lv[k] - py
                     power = -0.5 * (la[k] * dx * dx + lc[k] * dy * dy) - lb[k] * dx * dy
-                    if power > 0.0 or power < POWER_MIN:
+                    if power > 0.0 or power < lpm[k]:
+                        continue  # cheap pre-test; the exact tests follow
+                    if power < POWER_MIN:
                         continue
                     alpha = min(ALPHA_MAX, lo[k] * math.exp(power))
                     if alpha < ALPHA_MIN:
@@ -178,37 +245,54 @@ def raster_backward_kernel(offsets, gids, means2d, conics, opac, feats,
             lo[k] = opac[g]
             for c in range(C):
                 lf[k, c] = feats[g, c]
-        S = np.empty(C)
+        lrx = np.empty(m)
+        lry = np.empty(m)
+        lpm = np.empty(m)
+        _extents(la, lb, lc, lo, lrx, lry, lpm)
+        rl = np.empty(m + 1, dtype=np.int64)
+        sl = np.empty(m + 1, dtype=np.int64)
         go = np.empty(C)
+        jend = min(width, (tx + 1) * tile)
         for i in range(ty * tile, min(height, (ty + 1) * tile)):
             py = i + 0.5
-            for j in range(tx * tile, min(width, (tx + 1) * tile)):
+            mr = _row_list(lv, lry, py, rl)
+            for j in range(tx * tile, jend):
+                if (j - tx * tile) % CHUNK == 0:
+                    ms = _seg_list(lu, lrx, rl, mr, j + 0.5, min(j + CHUNK, jend) - 0.5, sl)
                 px = j + 0.5
                 T_final = float(out_T[i, j])
                 T = T_final
                 gT = float(g_T[i, j])
+                Sg = 0.0  # sum over Gaussians behind of w_j * (f_j . g_out)
                 for c in range(C):
-                    S[c] = 0.0
                     go[c] = g_out[i, j, c]
-                for k in range(n_contrib[i, j] - 1, -1, -1):
+                last = n_contrib[i, j]
+                for r in range(ms - 1, -1, -1):
+                    k = sl[r]
+                    if k >= last:
+                        continue
                     dx = lu[k] - px
                     dy = lv[k] - py
                     power = -0.5 * (la[k] * dx * dx + lc[k] * dy * dy) - lb[k] * dx * dy
-                    if power > 0.0 or power < POWER_MIN:
+                    if power > 0.0 or power < lpm[k]:
+                        continue  # cheap pre-test; the exact tests follow
+                    if power < POWER_MIN:
                         continue
                     G = math.exp(power)
                     a_raw = lo[k] * G
                     alpha = min(ALPHA_MAX, a_raw)
                     if alpha < ALPHA_MIN:
                         continue
-                    om = 1.0 - alpha
-                    T = T / om  # transmittance in front of this Gaussian
+                    inv_om = 1.0 / (1.0 - alpha)
+                    T = T * inv_om  # transmittance in front of this Gaussian
                     w = alpha * T
-                    g_alpha = -gT * T_final / om
+                    dotf = 0.0
                     for c in range(C):
-                        g_alpha += go[c] * (lf[k, c] * T - S[c] / om)
+                        dotf += go[c] * lf[k, c]
                         lg[k, 6 + c] += w * go[c]
-                        S[c] += lf[k, c] * w
+                    # dL/dalpha = T f.g - (sum_{behind} w_j f_j.g + gT T_final) / (1 - alpha)
+                    g_alpha = T * dotf - (Sg + gT * T_final) * inv_om
+                    Sg += w * dotf
                     if a_raw > ALPHA_MAX:
                         continue  # clamped: no gradient to opacity or shape
                     lg[k, 5] += G * g_alpha
@@ -232,11 +316,23 @@ def reduce_pairs_kernel(gids, pair_grad, out):
             out[g, c] += pair_grad[p, c]
 
 
-def bin_gaussians(means2d, depths, radii, width, height, tile=16):
-    """Tile lists sorted by depth. Returns (offsets (n_tiles+1,), gids (n_pairs,))."""
-    vis = np.flatnonzero(radii > 0)
+def bin_gaussians(means2d, depths, radii, width, height, tile=16, opac=None):
+    """Tile lists sorted by depth. Returns (offsets (n_tiles+1,), gids (n_pairs,)).
+
+    radii (N,) are the 3-sigma radii (0 = culled). With ``opac`` (N,) the box
+    shrinks to where alpha can reach 1/255 (fewer tile pairs, same image: the
+    per-pixel tests are exact); Gaussians with opacity < 1/255 are dropped.
+    """
+    r = radii.astype(np.float64)
+    if opac is not None:
+        o = np.asarray(opac, dtype=np.float64)
+        with np.errstate(divide="ignore"):
+            m2 = np.clip(2.0 * np.log(np.maximum(o, 1e-300) / ALPHA_MIN), 0.0, 9.0)
+        r = np.where(o >= ALPHA_MIN, r * np.sqrt(m2 / 9.0) * (1.0 + 1e-6) + 1e-3, 0.0)
+        r[radii <= 0] = 0.0
+    vis = np.flatnonzero(r > 0)
     order = vis[np.argsort(depths[vis], kind="stable")].astype(np.int64)
-    return bin_kernel(order, means2d, radii, int(width), int(height), int(tile))
+    return bin_kernel(order, means2d, r, int(width), int(height), int(tile))
 
 
 def rasterize_forward(means2d, conics, opac, feats, bg, width, height, offsets, gids, tile=16):
