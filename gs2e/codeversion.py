@@ -21,9 +21,9 @@ STAGE_DEPS: dict[str, tuple[str, ...]] = {
     "ingest": ("io", "common", "config.py"),
     "sfm": ("sfm", "io", "common", "metrics"),
     "train": ("splat", "io", "common", "metrics"),
-    "trajectory": ("trajectory", "io", "common"),
-    "render": ("render", "splat", "trajectory", "io", "common"),
-    "events": ("events", "render", "splat", "trajectory", "io", "common"),
+    "trajectory": ("trajectory", "io", "common", "config.py"),
+    "render": ("render", "splat", "trajectory", "io", "common", "metrics"),
+    "events": ("events", "render", "splat", "trajectory", "io", "common", "metrics"),
     "metrics": ("metrics", "io", "common"),
 }
 
