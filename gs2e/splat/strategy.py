@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 import torch
 
+from gs2e.common.so3 import quat_to_rotmat
+
 PARAMS = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
 
 
@@ -110,12 +112,8 @@ class DensifyConfig:
 
 
 def _quat_rotmat(q: torch.Tensor) -> torch.Tensor:
-    q = q / q.norm(dim=1, keepdim=True)
-    w, x, y, z = q.unbind(1)
-    return torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], 1).view(-1, 3, 3)
+    """(N, 4) wxyz quaternions (any norm) -> (N, 3, 3), via gs2e.common.so3."""
+    return torch.from_numpy(quat_to_rotmat(q.detach().double().numpy())).to(q.dtype)
 
 
 def densify_and_prune(params: dict[str, torch.Tensor], opt: Adam, stats: GradStats,
