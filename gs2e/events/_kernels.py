@@ -1,0 +1,452 @@
+"""Compiled (numba) kernels of the event models.
+
+Everything per pixel is computed in float64; times are float64 microseconds
+internally and int64 microseconds on output.
+
+Random numbers: a counter-based stream per (seed, frame index, pixel, purpose)
+(SplitMix64 seeded by a hash of the key), so the events do not depend on the
+number of threads or on the order in which rows are processed: same seed, same
+bytes.
+
+Rows are processed in parallel (``prange``) over a BATCH of frames (one
+parallel region per batch, not per frame: pixels are independent, so a thread
+runs its rows through all frames of the batch). Every row writes its events
+into its own slice of a buffer (``cap`` events per row and batch) and counts
+them per frame in ``fn[b, row]``. A row that overflows its slice reports how
+many it needed; the caller re-runs the batch with a larger slice (state is read
+from ``*_in`` and written to ``*_out`` arrays, so a re-run sees the same input
+state and produces the same events).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_M2 = np.uint64(0x94D049BB133111EB)
+_K_FRAME = np.uint64(0xD1B54A32D192ED03)
+_K_SALT = np.uint64(0x8CB92BA72F3D8DD7)
+_S30 = np.uint64(30)
+_S27 = np.uint64(27)
+_S31 = np.uint64(31)
+_S11 = np.uint64(11)
+_INV53 = 1.0 / 9007199254740992.0  # 2**-53
+_TWO_PI = 2.0 * math.pi
+
+# Purposes of random streams (salts), so signal and noise never share draws.
+SALT_SIGNAL = 1
+SALT_NOISE = 2
+
+
+@njit(inline="always", cache=True)
+def _mix64(z):
+    z = (z ^ (z >> _S30)) * _M1
+    z = (z ^ (z >> _S27)) * _M2
+    return z ^ (z >> _S31)
+
+
+@njit(inline="always", cache=True)
+def stream_state(seed, frame_idx, pixel, salt):
+    """Initial SplitMix64 state of the stream keyed by (seed, frame, pixel, salt)."""
+    s = _mix64(np.uint64(seed) ^ (np.uint64(salt) * _K_SALT))
+    s = _mix64(s ^ (np.uint64(frame_idx) * _K_FRAME))
+    return _mix64(s ^ (np.uint64(pixel) * _GOLDEN))
+
+
+@njit(inline="always", cache=True)
+def _next(state):
+    state = state + _GOLDEN
+    return state, _mix64(state)
+
+
+@njit(inline="always", cache=True)
+def uniform_open(state):
+    """Uniform in (0, 1) (never 0 or 1), 53-bit resolution."""
+    state, z = _next(state)
+    return state, (float(z >> _S11) + 0.5) * _INV53
+
+
+@njit(inline="always", cache=True)
+def normal_pair(state):
+    """Two independent standard normals (Box-Muller)."""
+    state, u1 = uniform_open(state)
+    state, u2 = uniform_open(state)
+    r = math.sqrt(-2.0 * math.log(u1))
+    a = _TWO_PI * u2
+    return state, r * math.cos(a), r * math.sin(a)
+
+
+@njit(inline="always", cache=True)
+def p_on_two_barrier(mu, sigma, a, b):
+    """Probability that drifted Brownian motion (drift ``mu``, diffusion
+    ``sigma``) started between barriers leaves through the upper one, which is
+    ``a`` above, before the lower one, ``b`` below (a, b > 0).
+
+    p = (exp(z b) - 1) / (exp(z b) - exp(-z a)),  z = 2 mu / sigma^2,
+    evaluated with expm1 in a form that never overflows; the mu -> 0 limit is
+    b / (a + b) (not 1/2 unless the residual is 0).
+    """
+    if sigma <= 0.0:
+        if mu > 0.0:
+            return 1.0
+        if mu < 0.0:
+            return 0.0
+        return b / (a + b)
+    z = 2.0 * mu / (sigma * sigma)
+    w = a + b
+    if abs(z) * w < 1e-12:
+        return b / w
+    if z > 0.0:
+        # multiply numerator and denominator by exp(-z b)
+        return math.expm1(-z * b) / math.expm1(-z * w)
+    # z < 0: multiply by exp(z a)
+    return math.exp(z * a) * (math.expm1(z * b) / math.expm1(z * w))
+
+
+@njit(inline="always", cache=True)
+def first_passage_time(nu2, u, eps, c, sigma):
+    """First-passage time of Brownian motion with drift magnitude ``c`` >= 0
+    towards a barrier at distance ``eps`` > 0, diffusion ``sigma``.
+
+    ``nu2`` is a chi-square(1) variate (a squared standard normal) and ``u`` a
+    uniform in (0, 1). c > 0: inverse Gaussian IG(mean eps/c, shape
+    (eps/sigma)^2) by Michael-Schucany-Haas, written without cancellation
+    (x = 4 m / (sqrt(q) + sqrt(q + 4))^2, q = m nu2 / shape). c == 0: Levy with
+    scale (eps/sigma)^2, i.e. shape / nu2. Drift away from the barrier is
+    handled by the caller passing |drift| (the law conditional on hitting, see
+    gs2e/events/models.py). Returns +inf when the barrier is never reached.
+    """
+    if sigma <= 0.0:
+        if c > 0.0:
+            return eps / c
+        return math.inf
+    lam = (eps / sigma) ** 2
+    if c <= 0.0:
+        if nu2 <= 0.0:
+            return math.inf
+        return lam / nu2
+    m = eps / c
+    q = m * nu2 / lam
+    x = 4.0 * m / (math.sqrt(q) + math.sqrt(q + 4.0)) ** 2
+    if u * (m + x) <= m:
+        return x
+    return (m / x) * m
+
+
+@njit(inline="always", cache=True)
+def poisson_small(state, lam):
+    """Poisson(lam) by inversion (meant for small lam, as noise per frame)."""
+    state, u = uniform_open(state)
+    k = 0
+    p = math.exp(-lam)
+    s = p
+    while u > s and k < 100000:
+        k += 1
+        p *= lam / k
+        s += p
+        if p == 0.0:
+            break
+    return state, k
+
+
+@njit(inline="always", cache=True)
+def normal_polar(state):
+    """Marsaglia polar method: returns (state, n1^2, n2) with n1, n2 independent
+    standard normals (n1 only squared, which saves a sqrt)."""
+    while True:
+        state, u = uniform_open(state)
+        state, w = uniform_open(state)
+        u = 2.0 * u - 1.0
+        w = 2.0 * w - 1.0
+        s = u * u + w * w
+        if s < 1.0 and s > 0.0:
+            break
+    f = -2.0 * math.log(s) / s
+    return state, u * u * f, w * math.sqrt(f)
+
+
+@njit(cache=True, parallel=True)
+def voltmeter_batch(L, ts_us, frame_idx0, seed, k, tu_us, th_on, th_off, res_in,
+                    ready_in, res_out, ready_out, refractory_us, max_events_px, cap,
+                    ev_t, ev_x, ev_p, fn):
+    """DVS-Voltmeter pixel model over a batch of frame intervals.
+
+    Parameters
+    ----------
+    L : (B + 1, H, W) float64 intensity in the preset's units; L[0] is the
+        previous frame, interval b runs from L[b] to L[b + 1].
+    ts_us : (B + 1,) float64 frame times in microseconds (absolute).
+    frame_idx0 : index of frame L[1] in the sequence (keys the random streams).
+    k : (6,) float64, k1..k6 in the preset's units (time unit ``tu_us`` us).
+    th_on, th_off : (H, W) float64, barrier heights (normalised voltage, > 0).
+    res_in, ready_in : (H, W) float64 state: residual voltage and the time (us)
+        until which the pixel is held after its last event (refractory).
+    cap : events per row reserved in ``ev_t`` (float64 us), ``ev_x`` (int32),
+        ``ev_p`` (int8, +1/-1); ``fn[b, y]`` receives the number of events of
+        row y in interval b (a row total above ``cap`` means overflow).
+    Returns the number of pixel-intervals whose event count hit ``max_events_px``.
+
+    Given the polarity (two-barrier probability), the voltage moves towards
+    the chosen barrier (distance eps) as Brownian motion with drift c = |mu|
+    (the law conditional on hitting it, see models.py), so its first passage
+    is IG(eps / c, eps^2 / sigma^2). It is simulated exactly per interval by
+    its end point: y ~ N(c s, sigma^2 s) over the remaining time s; the path
+    crossed if y >= eps, else with the bridge probability
+    exp(-2 eps (eps - y) / (sigma^2 s)). Given a crossing, the crossing time of
+    the bridge is tau = s U / (s + U) with U the first passage of level eps by
+    Brownian motion with drift |eps - y| / s (time change of the bridge), so
+    U ~ IG(eps s / |eps - y|, eps^2 / sigma^2). Without a crossing the
+    residual is the end point itself.
+    """
+    B = L.shape[0] - 1
+    H = L.shape[1]
+    W = L.shape[2]
+    k1, k2, k3, k4, k5, k6 = k[0], k[1], k[2], k[3], k[4], k[5]
+    capped = np.zeros(H, np.int64)
+    for y in prange(H):
+        n = 0
+        base = y * cap
+        for x in range(W):
+            res_out[y, x] = res_in[y, x]
+            ready_out[y, x] = ready_in[y, x]
+        for bi in range(B):
+            t0_us = ts_us[bi]
+            t1_us = ts_us[bi + 1]
+            dt_m = (t1_us - t0_us) / tu_us
+            n_frame0 = n
+            fidx = frame_idx0 + bi
+            for x in range(W):
+                a0 = L[bi, y, x]
+                a1 = L[bi + 1, y, x]
+                lbar = 0.5 * (a0 + a1)
+                den = 1.0 / (lbar + k2)
+                mu = k1 * (a1 - a0) / dt_m * den + k4 + k5 * lbar
+                sg = k3 * math.sqrt(max(lbar, 0.0)) * den + k6
+                ton = th_on[y, x]
+                toff = th_off[y, x]
+                v = res_out[y, x]
+                t = max(t0_us, ready_out[y, x])
+                st = stream_state(seed, fidx, y * W + x, SALT_SIGNAL)
+                cm = abs(mu)
+                sg2 = sg * sg
+                if sg > 0.0:
+                    z2 = 2.0 * mu / sg2
+                else:
+                    z2 = math.inf if mu > 0 else -math.inf
+                npx = 0
+                while t < t1_us:
+                    a = ton - v
+                    b = toff + v
+                    # |z| min(a, b) > 38 decides the polarity exactly at the
+                    # 2^-54 resolution of our uniforms: no draw needed then
+                    if z2 * b > 38.0:
+                        on = True
+                    elif z2 * a < -38.0:
+                        on = False
+                    else:
+                        pon = p_on_two_barrier(mu, sg, a, b)
+                        st, u = uniform_open(st)
+                        on = u < pon
+                    eps = a if on else b
+                    s = (t1_us - t) / tu_us
+                    st, nu2, zn = normal_polar(st)
+                    yv = cm * s + sg * math.sqrt(s) * zn
+                    d = eps - yv
+                    if d > 0.0:
+                        e = 2.0 * eps * d / (sg2 * s) if sg > 0.0 else math.inf
+                        if e > 38.0:
+                            cross = False
+                        else:
+                            st, u = uniform_open(st)
+                            cross = u < math.exp(-e)
+                    else:
+                        cross = True
+                    if not cross:
+                        v = v + yv if on else v - yv
+                        # the model fixes the polarity first, so the end point
+                        # may lie past the other barrier: keep it in the band
+                        lo = -toff * (1.0 - 1e-9)
+                        hi = ton * (1.0 - 1e-9)
+                        if v < lo:
+                            v = lo
+                        elif v > hi:
+                            v = hi
+                        break
+                    st, u = uniform_open(st)
+                    U = first_passage_time(nu2, u, eps, abs(d) / s, sg)
+                    tau = s if not math.isfinite(U) else s * (U / (s + U))
+                    te = t + tau * tu_us
+                    if te > t1_us:
+                        te = t1_us
+                    if n < cap:
+                        ev_t[base + n] = te
+                        ev_x[base + n] = x
+                        ev_p[base + n] = 1 if on else -1
+                    n += 1
+                    npx += 1
+                    v = 0.0
+                    t = te + refractory_us
+                    if npx >= max_events_px:
+                        capped[y] += 1
+                        break
+                res_out[y, x] = v
+                ready_out[y, x] = t if t > t1_us else -math.inf
+            fn[bi, y] = n - n_frame0
+    return capped.sum()
+
+
+@njit(cache=True, parallel=True)
+def ideal_batch(G, ts_us, th_on, th_off, ref_in, last_in, ref_out, last_out,
+                refractory_us, max_events_px, cap, ev_t, ev_x, ev_p, fn):
+    """Ideal (ESIM-style) model over a batch of frame intervals.
+
+    G : (B + 1, H, W) float64 log intensity (linear in time within an interval).
+    ref_in : reference log intensity per pixel (level of the last crossing).
+    last_in : time (us) of the last emitted event per pixel (-inf if none).
+    Crossings of ref + theta_on (upward) / ref - theta_off (downward) are timed
+    by linear interpolation; an event within ``refractory_us`` of the previous
+    emitted one is dropped but the reference still advances (as ESIM).
+    Buffers as in ``voltmeter_batch``.
+    """
+    B = G.shape[0] - 1
+    H = G.shape[1]
+    W = G.shape[2]
+    capped = np.zeros(H, np.int64)
+    for y in prange(H):
+        n = 0
+        base = y * cap
+        for x in range(W):
+            ref_out[y, x] = ref_in[y, x]
+            last_out[y, x] = last_in[y, x]
+        for bi in range(B):
+            t0_us = ts_us[bi]
+            dt = ts_us[bi + 1] - t0_us
+            n_frame0 = n
+            for x in range(W):
+                g0 = G[bi, y, x]
+                g1 = G[bi + 1, y, x]
+                ref = ref_out[y, x]
+                last = last_out[y, x]
+                d = g1 - g0
+                npx = 0
+                if d != 0.0:
+                    up = d > 0.0
+                    th = th_on[y, x] if up else th_off[y, x]
+                    while (g1 - ref >= th) if up else (ref - g1 >= th):
+                        lev = ref + th if up else ref - th
+                        te = t0_us + (lev - g0) / d * dt
+                        if te < t0_us:
+                            te = t0_us
+                        ref = lev
+                        if refractory_us <= 0.0 or te - last >= refractory_us:
+                            if n < cap:
+                                ev_t[base + n] = te
+                                ev_x[base + n] = x
+                                ev_p[base + n] = 1 if up else -1
+                            n += 1
+                            last = te
+                        npx += 1
+                        if npx >= max_events_px:
+                            capped[y] += 1
+                            ref = g1
+                            break
+                ref_out[y, x] = ref
+                last_out[y, x] = last
+            fn[bi, y] = n - n_frame0
+    return capped.sum()
+
+
+@njit(cache=True, parallel=True)
+def noise_batch(Lnorm, ts_us, frame_idx0, seed, leak_rate_hz, shot_rate_hz,
+                shot_on_fraction, cap, row0, ev_t, ev_x, ev_p, fn):
+    """Noise events over a batch of frame intervals (v2e-like, Poisson per pixel).
+
+    Lnorm : (B + 1, H, W) linear luminance in [0, 1].
+    Leak events: ON, rate ``leak_rate_hz`` per pixel. Shot noise: rate
+    ``shot_rate_hz`` per pixel scaled by 2 (1 - L) for the pixel's mean linear
+    luminance L over the interval (more in the dark; the mean over a uniform
+    histogram is the nominal rate), ON with probability ``shot_on_fraction``.
+    Times uniform in the interval. Row y uses buffer row ``row0 + y`` and
+    ``fn[b, row0 + y]``; otherwise as ``voltmeter_batch``.
+    """
+    B = Lnorm.shape[0] - 1
+    H = Lnorm.shape[1]
+    W = Lnorm.shape[2]
+    for y in prange(H):
+        n = 0
+        base = (row0 + y) * cap
+        for bi in range(B):
+            t0_us = ts_us[bi]
+            t1_us = ts_us[bi + 1]
+            dt_s = (t1_us - t0_us) * 1e-6
+            lam_leak = leak_rate_hz * dt_s
+            n_frame0 = n
+            for x in range(W):
+                st = stream_state(seed, frame_idx0 + bi, y * W + x, SALT_NOISE)
+                lval = min(max(0.5 * (Lnorm[bi, y, x] + Lnorm[bi + 1, y, x]), 0.0), 1.0)
+                lam_shot = shot_rate_hz * 2.0 * (1.0 - lval) * dt_s
+                lam = lam_leak + lam_shot
+                st, kk = poisson_small(st, lam)
+                for _ in range(kk):
+                    st, u = uniform_open(st)
+                    st, u2 = uniform_open(st)
+                    if u2 * lam < lam_leak:
+                        sgn = 1
+                    else:
+                        st, u3 = uniform_open(st)
+                        sgn = 1 if u3 < shot_on_fraction else -1
+                    if n < cap:
+                        ev_t[base + n] = t0_us + u * (t1_us - t0_us)
+                        ev_x[base + n] = x
+                        ev_p[base + n] = sgn
+                    n += 1
+            fn[bi, row0 + y] = n - n_frame0
+    return 0
+
+
+@njit(cache=True)
+def gather_batch(ts_us_i, H, cap, fn, ev_t, ev_x, ev_p, out_t, out_x, out_y, out_p):
+    """Collect the batch's events into ``out_*``, sorted by integer time.
+
+    Per interval b: counting sort over its microseconds (ties keep buffer-row
+    order, then per-pixel order, so the output is deterministic). Buffer row r
+    holds image row r % H (signal rows, then noise rows). Times are rounded to
+    the nearest microsecond and clamped to the interval. Returns the count.
+    """
+    B = fn.shape[0]
+    R = fn.shape[1]
+    start = np.zeros(R, np.int64)  # next unread event of each buffer row
+    n_out = 0
+    for bi in range(B):
+        t0 = ts_us_i[bi]
+        dt = ts_us_i[bi + 1] - t0
+        counts = np.zeros(dt + 2, np.int64)
+        total = 0
+        for r in range(R):
+            total += fn[bi, r]
+            b0 = r * cap + start[r]
+            for i in range(fn[bi, r]):
+                off = np.int64(math.floor(ev_t[b0 + i] + 0.5)) - t0
+                off = min(max(off, 0), dt)
+                counts[off + 1] += 1
+        for j in range(dt + 1):
+            counts[j + 1] += counts[j]
+        for r in range(R):
+            b0 = r * cap + start[r]
+            y = r % H
+            for i in range(fn[bi, r]):
+                off = np.int64(math.floor(ev_t[b0 + i] + 0.5)) - t0
+                off = min(max(off, 0), dt)
+                j = n_out + counts[off]
+                counts[off] += 1
+                out_t[j] = t0 + off
+                out_x[j] = ev_x[b0 + i]
+                out_y[j] = y
+                out_p[j] = 1 if ev_p[b0 + i] > 0 else 0
+            start[r] += fn[bi, r]
+        n_out += total
+    return n_out
