@@ -50,11 +50,22 @@ def _mix64(z):
 
 
 @njit(inline="always", cache=True)
+def frame_key(seed, frame_idx, salt):
+    """Key of the streams of one frame interval (hash of seed, frame, salt)."""
+    s = _mix64(np.uint64(seed) ^ (np.uint64(salt) * _K_SALT))
+    return _mix64(s ^ (np.uint64(frame_idx) * _K_FRAME))
+
+
+@njit(inline="always", cache=True)
+def pixel_state(key, pixel):
+    """Initial SplitMix64 state of one pixel's stream within a frame key."""
+    return _mix64(key ^ (np.uint64(pixel) * _GOLDEN))
+
+
+@njit(inline="always", cache=True)
 def stream_state(seed, frame_idx, pixel, salt):
     """Initial SplitMix64 state of the stream keyed by (seed, frame, pixel, salt)."""
-    s = _mix64(np.uint64(seed) ^ (np.uint64(salt) * _K_SALT))
-    s = _mix64(s ^ (np.uint64(frame_idx) * _K_FRAME))
-    return _mix64(s ^ (np.uint64(pixel) * _GOLDEN))
+    return pixel_state(frame_key(seed, frame_idx, salt), pixel)
 
 
 @njit(inline="always", cache=True)
@@ -78,6 +89,66 @@ def normal_pair(state):
     r = math.sqrt(-2.0 * math.log(u1))
     a = _TWO_PI * u2
     return state, r * math.cos(a), r * math.sin(a)
+
+
+def _ziggurat_tables(n=256, r=3.6541528853610088, v=0.00492867323399):
+    """Marsaglia-Tsang ziggurat tables for the standard normal, 52-bit version
+    (layer i spans x in [0, w_i 2^52]; fast acceptance if |draw| < k_i)."""
+    m = 2.0 ** 52
+    ki = np.zeros(n, np.uint64)
+    wi = np.zeros(n)
+    fi = np.zeros(n)
+    dn = tn = r
+    q = v / math.exp(-0.5 * dn * dn)
+    ki[0] = np.uint64((dn / q) * m)
+    wi[0] = q / m
+    wi[n - 1] = dn / m
+    fi[0] = 1.0
+    fi[n - 1] = math.exp(-0.5 * dn * dn)
+    for i in range(n - 2, 0, -1):
+        dn = math.sqrt(-2.0 * math.log(v / dn + math.exp(-0.5 * dn * dn)))
+        ki[i + 1] = np.uint64((dn / tn) * m)
+        tn = dn
+        fi[i] = math.exp(-0.5 * dn * dn)
+        wi[i] = dn / m
+    return ki, wi, fi
+
+
+_ZK, _ZW, _ZF = _ziggurat_tables()
+_ZR = 3.6541528853610088
+_MASK52 = np.uint64((1 << 52) - 1)
+_S8 = np.uint64(8)
+_S9 = np.uint64(9)
+_ONE = np.uint64(1)
+_B255 = np.uint64(255)
+
+
+@njit(inline="always", cache=True)
+def normal_zig(state):
+    """Standard normal by the ziggurat method (one 64-bit draw ~99 % of the time)."""
+    while True:
+        state, r = _next(state)
+        idx = np.int64(r & _B255)
+        neg = ((r >> _S8) & _ONE) == _ONE
+        rabs = (r >> _S9) & _MASK52
+        x = float(rabs) * _ZW[idx]
+        if neg:
+            x = -x
+        if rabs < _ZK[idx]:
+            return state, x
+        if idx == 0:
+            # tail beyond r (Marsaglia's method)
+            while True:
+                state, u1 = uniform_open(state)
+                state, u2 = uniform_open(state)
+                xx = -math.log(u1) / _ZR
+                yy = -math.log(u2)
+                if yy + yy > xx * xx:
+                    break
+            return state, (-(_ZR + xx) if neg else _ZR + xx)
+        state, u = uniform_open(state)
+        if _ZF[idx] + u * (_ZF[idx - 1] - _ZF[idx]) < math.exp(-0.5 * x * x):
+            return state, x
 
 
 @njit(inline="always", cache=True)
@@ -170,15 +241,16 @@ def normal_polar(state):
 
 
 @njit(cache=True, parallel=True)
-def voltmeter_batch(L, ts_us, frame_idx0, seed, k, tu_us, th_on, th_off, res_in,
+def voltmeter_batch(Lp, Lb, scale, ts_us, frame_idx0, seed, k, tu_us, th_on, th_off, res_in,
                     ready_in, res_out, ready_out, refractory_us, max_events_px, cap,
                     ev_t, ev_x, ev_p, fn):
     """DVS-Voltmeter pixel model over a batch of frame intervals.
 
     Parameters
     ----------
-    L : (B + 1, H, W) float64 intensity in the preset's units; L[0] is the
-        previous frame, interval b runs from L[b] to L[b + 1].
+    Lp, Lb : (H, W) previous frame and (B, H, W) new frames, linear luminance
+        in [0, 1] (float32 or float64); interval b runs from frame b - 1 (Lp for
+        b = 0) to Lb[b]. ``scale`` converts to the preset's intensity unit.
     ts_us : (B + 1,) float64 frame times in microseconds (absolute).
     frame_idx0 : index of frame L[1] in the sequence (keys the random streams).
     k : (6,) float64, k1..k6 in the preset's units (time unit ``tu_us`` us).
@@ -202,9 +274,9 @@ def voltmeter_batch(L, ts_us, frame_idx0, seed, k, tu_us, th_on, th_off, res_in,
     U ~ IG(eps s / |eps - y|, eps^2 / sigma^2). Without a crossing the
     residual is the end point itself.
     """
-    B = L.shape[0] - 1
-    H = L.shape[1]
-    W = L.shape[2]
+    B = Lb.shape[0]
+    H = Lb.shape[1]
+    W = Lb.shape[2]
     k1, k2, k3, k4, k5, k6 = k[0], k[1], k[2], k[3], k[4], k[5]
     capped = np.zeros(H, np.int64)
     for y in prange(H):
@@ -216,26 +288,32 @@ def voltmeter_batch(L, ts_us, frame_idx0, seed, k, tu_us, th_on, th_off, res_in,
         for bi in range(B):
             t0_us = ts_us[bi]
             t1_us = ts_us[bi + 1]
-            dt_m = (t1_us - t0_us) / tu_us
+            inv_dt_m = tu_us / (t1_us - t0_us)
+            sqrt_dt_m = math.sqrt(1.0 / inv_dt_m)
+            inv_tu = 1.0 / tu_us
             n_frame0 = n
-            fidx = frame_idx0 + bi
+            key = frame_key(seed, frame_idx0 + bi, SALT_SIGNAL)
             for x in range(W):
-                a0 = L[bi, y, x]
-                a1 = L[bi + 1, y, x]
+                if bi == 0:
+                    a0 = scale * Lp[y, x]
+                else:
+                    a0 = scale * Lb[bi - 1, y, x]
+                a1 = scale * Lb[bi, y, x]
                 lbar = 0.5 * (a0 + a1)
                 den = 1.0 / (lbar + k2)
-                mu = k1 * (a1 - a0) / dt_m * den + k4 + k5 * lbar
+                mu = k1 * (a1 - a0) * inv_dt_m * den + k4 + k5 * lbar
                 sg = k3 * math.sqrt(max(lbar, 0.0)) * den + k6
                 ton = th_on[y, x]
                 toff = th_off[y, x]
                 v = res_out[y, x]
                 t = max(t0_us, ready_out[y, x])
-                st = stream_state(seed, fidx, y * W + x, SALT_SIGNAL)
+                st = pixel_state(key, y * W + x)
                 cm = abs(mu)
-                sg2 = sg * sg
                 if sg > 0.0:
-                    z2 = 2.0 * mu / sg2
+                    inv_sg2 = 1.0 / (sg * sg)
+                    z2 = 2.0 * mu * inv_sg2
                 else:
+                    inv_sg2 = math.inf
                     z2 = math.inf if mu > 0 else -math.inf
                 npx = 0
                 while t < t1_us:
@@ -252,12 +330,19 @@ def voltmeter_batch(L, ts_us, frame_idx0, seed, k, tu_us, th_on, th_off, res_in,
                         st, u = uniform_open(st)
                         on = u < pon
                     eps = a if on else b
-                    s = (t1_us - t) / tu_us
-                    st, nu2, zn = normal_polar(st)
-                    yv = cm * s + sg * math.sqrt(s) * zn
+                    if t == t0_us:
+                        s = 1.0 / inv_dt_m
+                        sq = sqrt_dt_m
+                        inv_s = inv_dt_m
+                    else:
+                        s = (t1_us - t) * inv_tu
+                        sq = math.sqrt(s)
+                        inv_s = 1.0 / s
+                    st, zn = normal_zig(st)
+                    yv = cm * s + sg * sq * zn
                     d = eps - yv
                     if d > 0.0:
-                        e = 2.0 * eps * d / (sg2 * s) if sg > 0.0 else math.inf
+                        e = 2.0 * eps * d * inv_sg2 * inv_s
                         if e > 38.0:
                             cross = False
                         else:
@@ -276,8 +361,9 @@ def voltmeter_batch(L, ts_us, frame_idx0, seed, k, tu_us, th_on, th_off, res_in,
                         elif v > hi:
                             v = hi
                         break
+                    st, zu = normal_zig(st)
                     st, u = uniform_open(st)
-                    U = first_passage_time(nu2, u, eps, abs(d) / s, sg)
+                    U = first_passage_time(zu * zu, u, eps, abs(d) * inv_s, sg)
                     tau = s if not math.isfinite(U) else s * (U / (s + U))
                     te = t + tau * tu_us
                     if te > t1_us:
@@ -300,11 +386,12 @@ def voltmeter_batch(L, ts_us, frame_idx0, seed, k, tu_us, th_on, th_off, res_in,
 
 
 @njit(cache=True, parallel=True)
-def ideal_batch(G, ts_us, th_on, th_off, ref_in, last_in, ref_out, last_out,
-                refractory_us, max_events_px, cap, ev_t, ev_x, ev_p, fn):
+def ideal_batch(Gp, Gb, ts_us, th_on, th_off, ref_in, last_in, ref_out,
+                last_out, refractory_us, max_events_px, cap, ev_t, ev_x, ev_p, fn):
     """Ideal (ESIM-style) model over a batch of frame intervals.
 
-    G : (B + 1, H, W) float64 log intensity (linear in time within an interval).
+    Gp, Gb : previous (H, W) and new (B, H, W) log intensities (float64),
+        taken as linear in time within an interval.
     ref_in : reference log intensity per pixel (level of the last crossing).
     last_in : time (us) of the last emitted event per pixel (-inf if none).
     Crossings of ref + theta_on (upward) / ref - theta_off (downward) are timed
@@ -312,9 +399,9 @@ def ideal_batch(G, ts_us, th_on, th_off, ref_in, last_in, ref_out, last_out,
     emitted one is dropped but the reference still advances (as ESIM).
     Buffers as in ``voltmeter_batch``.
     """
-    B = G.shape[0] - 1
-    H = G.shape[1]
-    W = G.shape[2]
+    B = Gb.shape[0]
+    H = Gb.shape[1]
+    W = Gb.shape[2]
     capped = np.zeros(H, np.int64)
     for y in prange(H):
         n = 0
@@ -327,8 +414,8 @@ def ideal_batch(G, ts_us, th_on, th_off, ref_in, last_in, ref_out, last_out,
             dt = ts_us[bi + 1] - t0_us
             n_frame0 = n
             for x in range(W):
-                g0 = G[bi, y, x]
-                g1 = G[bi + 1, y, x]
+                g0 = Gp[y, x] if bi == 0 else Gb[bi - 1, y, x]
+                g1 = Gb[bi, y, x]
                 ref = ref_out[y, x]
                 last = last_out[y, x]
                 d = g1 - g0
@@ -361,11 +448,11 @@ def ideal_batch(G, ts_us, th_on, th_off, ref_in, last_in, ref_out, last_out,
 
 
 @njit(cache=True, parallel=True)
-def noise_batch(Lnorm, ts_us, frame_idx0, seed, leak_rate_hz, shot_rate_hz,
+def noise_batch(Lp, Lb, ts_us, frame_idx0, seed, leak_rate_hz, shot_rate_hz,
                 shot_on_fraction, cap, row0, ev_t, ev_x, ev_p, fn):
     """Noise events over a batch of frame intervals (v2e-like, Poisson per pixel).
 
-    Lnorm : (B + 1, H, W) linear luminance in [0, 1].
+    Lp, Lb : previous (H, W) and new (B, H, W) frames, linear luminance in [0, 1].
     Leak events: ON, rate ``leak_rate_hz`` per pixel. Shot noise: rate
     ``shot_rate_hz`` per pixel scaled by 2 (1 - L) for the pixel's mean linear
     luminance L over the interval (more in the dark; the mean over a uniform
@@ -373,9 +460,9 @@ def noise_batch(Lnorm, ts_us, frame_idx0, seed, leak_rate_hz, shot_rate_hz,
     Times uniform in the interval. Row y uses buffer row ``row0 + y`` and
     ``fn[b, row0 + y]``; otherwise as ``voltmeter_batch``.
     """
-    B = Lnorm.shape[0] - 1
-    H = Lnorm.shape[1]
-    W = Lnorm.shape[2]
+    B = Lb.shape[0]
+    H = Lb.shape[1]
+    W = Lb.shape[2]
     for y in prange(H):
         n = 0
         base = (row0 + y) * cap
@@ -387,7 +474,8 @@ def noise_batch(Lnorm, ts_us, frame_idx0, seed, leak_rate_hz, shot_rate_hz,
             n_frame0 = n
             for x in range(W):
                 st = stream_state(seed, frame_idx0 + bi, y * W + x, SALT_NOISE)
-                lval = min(max(0.5 * (Lnorm[bi, y, x] + Lnorm[bi + 1, y, x]), 0.0), 1.0)
+                l0 = Lp[y, x] if bi == 0 else Lb[bi - 1, y, x]
+                lval = min(max(0.5 * (l0 + Lb[bi, y, x]), 0.0), 1.0)
                 lam_shot = shot_rate_hz * 2.0 * (1.0 - lval) * dt_s
                 lam = lam_leak + lam_shot
                 st, kk = poisson_small(st, lam)
@@ -450,3 +538,30 @@ def gather_batch(ts_us_i, H, cap, fn, ev_t, ev_x, ev_p, out_t, out_x, out_y, out
             start[r] += fn[bi, r]
         n_out += total
     return n_out
+
+
+@njit(cache=True, parallel=True)
+def frame_ranges(F):
+    """Per-frame (min, max) of a (B, H, W) stack; NaN propagates into both."""
+    B = F.shape[0]
+    lo = np.empty(B)
+    hi = np.empty(B)
+    for b in prange(B):
+        mn = math.inf
+        mx = -math.inf
+        bad = False
+        for y in range(F.shape[1]):
+            for x in range(F.shape[2]):
+                v = float(F[b, y, x])
+                if v != v:
+                    bad = True
+                if v < mn:
+                    mn = v
+                if v > mx:
+                    mx = v
+        if bad:
+            mn = math.nan
+            mx = math.nan
+        lo[b] = mn
+        hi[b] = mx
+    return lo, hi

@@ -230,13 +230,15 @@ class _StreamingModel:
                              f"{self.shape} (H, W), one per timestamp")
         if not np.issubdtype(f.dtype, np.number) or np.issubdtype(f.dtype, np.complexfloating):
             raise InputError(f"{self.source}: frames are not real numbers ({f.dtype})")
-        f = f.astype(np.float64)
-        finite = np.isfinite(f).all(axis=(1, 2))
+        if f.dtype not in (np.float32, np.float64):
+            f = f.astype(np.float32)
+        f = np.ascontiguousarray(f)
+        lo, hi = K.frame_ranges(f)
+        finite = np.isfinite(lo) & np.isfinite(hi)
         if not finite.all():
             i = int(np.argmin(finite))
             raise InputError(f"{self.source}: frame {first + i} (t={ts[i]} us) has NaN or "
                              f"infinite values")
-        lo, hi = f.min(axis=(1, 2)), f.max(axis=(1, 2))
         bad = (lo < 0.0) | (hi > 1.0 + 1e-6)
         if bad.any():
             i = int(np.argmax(bad))
@@ -248,7 +250,8 @@ class _StreamingModel:
             i = int(np.argmax(dif <= 0))
             raise InputError(f"{self.source}: timestamps must increase strictly; got "
                              f"t={prev[i + 1]} us after t={prev[i]} us")
-        np.minimum(f, 1.0, out=f)
+        if (hi > 1.0).any():
+            f = np.minimum(f, 1.0)
         return ts, f
 
     def process(self, t_us: int, frame: np.ndarray) -> Events:
@@ -263,20 +266,19 @@ class _StreamingModel:
         ts, f = self._check(ts_us, frames)
         if self.prev is None:
             self._init_state(f[0])
-            self.prev, self.t_prev = f[0], int(ts[0])
+            self.prev, self.t_prev = f[0].copy(), int(ts[0])
             self.n_frames = 1
             ts, f = ts[1:], f[1:]
             if len(ts) == 0:
                 return Events.empty()
         B, (H, W) = len(ts), self.shape
-        stack = np.concatenate([self.prev[None], f], axis=0)
         tsb = np.concatenate([[self.t_prev], ts]).astype(np.int64)
         fn = np.zeros((B, 2 * H), np.int64)
         self._ensure(max(64, B * W // 2))
         while True:
-            n_cap = self._run_signal(stack, tsb.astype(np.float64), fn)
+            n_cap = self._run_signal(self.prev, f, tsb.astype(np.float64), fn)
             if self.noise_on:
-                K.noise_batch(stack, tsb.astype(np.float64), self.n_frames, self.seed,
+                K.noise_batch(self.prev, f, tsb.astype(np.float64), self.n_frames, self.seed,
                               self.leak_rate_hz, self.shot_noise_rate_hz,
                               self.shot_noise_on_fraction, self.cap, H, self._ev_t,
                               self._ev_x, self._ev_p, fn)
@@ -293,7 +295,7 @@ class _StreamingModel:
                     np.empty(n, np.uint8))
         K.gather_batch(tsb, H, self.cap, fn, self._ev_t, self._ev_x, self._ev_p,
                        ev.t, ev.x, ev.y, ev.p)
-        self.prev, self.t_prev = f[-1], int(ts[-1])
+        self.prev, self.t_prev = f[-1].copy(), int(ts[-1])
         self.n_frames += B
         return ev
 
@@ -321,7 +323,7 @@ class _StreamingModel:
 
     # subclass hooks
     def _init_state(self, f: np.ndarray) -> None: ...
-    def _run_signal(self, stack, ts, fn) -> int: ...
+    def _run_signal(self, prev, frames, ts, fn) -> int: ...
     def _commit(self) -> None: ...
 
 
@@ -345,10 +347,8 @@ class VoltmeterModel(_StreamingModel):
         self._res2 = np.zeros(self.shape)
         self._ready2 = np.full(self.shape, -np.inf)
 
-    def _run_signal(self, stack, ts, fn):
-        s = self.preset.intensity_scale
-        L = stack * s if s != 1.0 else stack
-        return K.voltmeter_batch(L, ts, self.n_frames, self.seed, self.k,
+    def _run_signal(self, prev, frames, ts, fn):
+        return K.voltmeter_batch(prev, frames, self.preset.intensity_scale, ts, self.n_frames, self.seed, self.k,
                                  self.preset.time_unit_us, self.th_on, self.th_off,
                                  self.res, self.ready, self._res2, self._ready2,
                                  self.refractory_us, self.max_events_per_pixel, self.cap,
@@ -382,13 +382,16 @@ class IdealModel(_StreamingModel):
         self.last = np.full(self.shape, -np.inf)
         self._ref2 = np.zeros(self.shape)
         self._last2 = np.full(self.shape, -np.inf)
+        self._g_prev = None
 
     def _init_state(self, f):
-        self.ref = np.log(f + self.log_eps)
+        self.ref = np.log(f.astype(np.float64) + self.log_eps)
 
-    def _run_signal(self, stack, ts, fn):
-        G = np.log(stack + self.log_eps)
-        return K.ideal_batch(G, ts, self.th_on, self.th_off, self.ref, self.last,
+    def _run_signal(self, prev, frames, ts, fn):
+        if self._g_prev is None:
+            self._g_prev = np.log(prev.astype(np.float64) + self.log_eps)
+        self._g_new = np.log(frames.astype(np.float64) + self.log_eps)
+        return K.ideal_batch(self._g_prev, self._g_new, ts, self.th_on, self.th_off, self.ref, self.last,
                              self._ref2, self._last2, self.refractory_us,
                              self.max_events_per_pixel, self.cap, self._ev_t, self._ev_x,
                              self._ev_p, fn)
@@ -396,6 +399,7 @@ class IdealModel(_StreamingModel):
     def _commit(self):
         self.ref, self._ref2 = self._ref2, self.ref
         self.last, self._last2 = self._last2, self.last
+        self._g_prev = self._g_new[-1].copy()
 
     def metadata(self) -> dict:
         d = super().metadata()
