@@ -340,8 +340,10 @@ class VoltmeterModel(_StreamingModel):
         super().__init__(shape, **kw)
         self.preset = get_preset(preset) if isinstance(preset, str) else preset
         self.k = np.asarray(self.preset.k, dtype=np.float64)
-        if not np.all(np.isfinite(self.k)) or self.k[1] <= 0 or np.any(self.k[2:] < 0):
-            raise ConfigError(f"events: invalid k values {list(self.k)} (need k2 > 0, k3..k6 >= 0)")
+        k = self.k
+        if not np.all(np.isfinite(k)) or k[1] <= 0 or k[2] < 0 or k[5] < 0:
+            raise ConfigError(f"events: invalid k values {list(k)} (need finite k, k2 > 0, "
+                              f"k3 >= 0, k6 >= 0; k4, k5 may have either sign)")
         self.res = np.zeros(self.shape)
         self.ready = np.full(self.shape, -np.inf)
         self._res2 = np.zeros(self.shape)
