@@ -58,7 +58,7 @@ def test_refractory_drops_but_reference_advances():
         # kept: every 3rd crossing (15228 us apart); the reference still advanced
         assert len(t) == 7
         assert np.all(np.isin(t, free.t[free.x == x]))
-    assert np.allclose(m.ref, np.log(fr[-1] + eps), atol=th)
+    assert np.allclose(m.ref_log, np.log(fr[-1] + eps), atol=th)
 
 
 def test_black_saturated_constant_and_bad_input():

@@ -386,22 +386,26 @@ def voltmeter_batch(Lp, Lb, scale, ts_us, frame_idx0, seed, k, tu_us, th_on, th_
 
 
 @njit(cache=True, parallel=True)
-def ideal_batch(Gp, Gb, ts_us, th_on, th_off, ref_in, last_in, ref_out,
+def ideal_batch(Lp, Lb, log_eps, ts_us, th_on, th_off, ref_in, last_in, ref_out,
                 last_out, refractory_us, max_events_px, cap, ev_t, ev_x, ev_p, fn):
     """Ideal (ESIM-style) model over a batch of frame intervals.
 
-    Gp, Gb : previous (H, W) and new (B, H, W) log intensities (float64),
-        taken as linear in time within an interval.
-    ref_in : reference log intensity per pixel (level of the last crossing).
+    Lp, Lb : previous (H, W) and new (B, H, W) frames, linear luminance in
+        [0, 1]; the log intensity G = log(L + log_eps) is taken as linear in
+        time within an interval.
+    ref_in : reference per pixel as LINEAR value exp(G_ref) (level of the last
+        crossing), so that the common no-crossing case needs no logarithm:
+        a crossing exists iff L + log_eps >= ref e^theta_on (or <= ref
+        e^-theta_off); only then are the logs taken.
     last_in : time (us) of the last emitted event per pixel (-inf if none).
-    Crossings of ref + theta_on (upward) / ref - theta_off (downward) are timed
-    by linear interpolation; an event within ``refractory_us`` of the previous
-    emitted one is dropped but the reference still advances (as ESIM).
-    Buffers as in ``voltmeter_batch``.
+    Crossings of G_ref + theta_on (upward) / G_ref - theta_off (downward) are
+    timed by linear interpolation of G; an event within ``refractory_us`` of
+    the previous emitted one is dropped but the reference still advances (as
+    ESIM). Buffers as in ``voltmeter_batch``.
     """
-    B = Gb.shape[0]
-    H = Gb.shape[1]
-    W = Gb.shape[2]
+    B = Lb.shape[0]
+    H = Lb.shape[1]
+    W = Lb.shape[2]
     capped = np.zeros(H, np.int64)
     for y in prange(H):
         n = 0
@@ -414,21 +418,35 @@ def ideal_batch(Gp, Gb, ts_us, th_on, th_off, ref_in, last_in, ref_out,
             dt = ts_us[bi + 1] - t0_us
             n_frame0 = n
             for x in range(W):
-                g0 = Gp[y, x] if bi == 0 else Gb[bi - 1, y, x]
-                g1 = Gb[bi, y, x]
-                ref = ref_out[y, x]
+                x1 = Lb[bi, y, x] + log_eps
+                rl = ref_out[y, x]
+                ton = th_on[y, x]
+                toff = th_off[y, x]
+                up = x1 > rl
+                # no-crossing certificates without exp/log (e^th >= 1 + th):
+                # most pixels do not move by a threshold in one interval
+                if up:
+                    if x1 < rl * (1.0 + ton):
+                        continue
+                elif x1 * (1.0 + toff) > rl:
+                    continue
+                x0 = (Lp[y, x] if bi == 0 else Lb[bi - 1, y, x]) + log_eps
+                g0 = math.log(x0)
+                g1 = math.log(x1)
+                ref = math.log(rl)
                 last = last_out[y, x]
                 d = g1 - g0
+                th = ton if up else toff
                 npx = 0
+                moved = False
                 if d != 0.0:
-                    up = d > 0.0
-                    th = th_on[y, x] if up else th_off[y, x]
                     while (g1 - ref >= th) if up else (ref - g1 >= th):
                         lev = ref + th if up else ref - th
                         te = t0_us + (lev - g0) / d * dt
                         if te < t0_us:
                             te = t0_us
                         ref = lev
+                        moved = True
                         if refractory_us <= 0.0 or te - last >= refractory_us:
                             if n < cap:
                                 ev_t[base + n] = te
@@ -441,8 +459,9 @@ def ideal_batch(Gp, Gb, ts_us, th_on, th_off, ref_in, last_in, ref_out,
                             capped[y] += 1
                             ref = g1
                             break
-                ref_out[y, x] = ref
-                last_out[y, x] = last
+                if moved:
+                    ref_out[y, x] = math.exp(ref)
+                    last_out[y, x] = last
             fn[bi, y] = n - n_frame0
     return capped.sum()
 

@@ -370,7 +370,9 @@ class IdealModel(_StreamingModel):
     """Ideal (ESIM-style) log-intensity crossing model.
 
     Log intensity G = log(L + log_eps) with L linear luminance in [0, 1];
-    thresholds are log-intensity steps.
+    thresholds are log-intensity steps. State: the reference level per pixel
+    (kept as the linear value exp(G_ref); :attr:`ref_log` gives G_ref) and
+    the time of the last event (refractory).
     """
 
     name = "ideal"
@@ -380,28 +382,27 @@ class IdealModel(_StreamingModel):
         if not log_eps > 0:
             raise ConfigError(f"events.log_eps must be > 0, got {log_eps}")
         self.log_eps = float(log_eps)
-        self.ref = np.zeros(self.shape)
+        self.ref = np.ones(self.shape)
         self.last = np.full(self.shape, -np.inf)
-        self._ref2 = np.zeros(self.shape)
+        self._ref2 = np.ones(self.shape)
         self._last2 = np.full(self.shape, -np.inf)
-        self._g_prev = None
+
+    @property
+    def ref_log(self) -> np.ndarray:
+        return np.log(self.ref)
 
     def _init_state(self, f):
-        self.ref = np.log(f.astype(np.float64) + self.log_eps)
+        self.ref = f.astype(np.float64) + self.log_eps
 
     def _run_signal(self, prev, frames, ts, fn):
-        if self._g_prev is None:
-            self._g_prev = np.log(prev.astype(np.float64) + self.log_eps)
-        self._g_new = np.log(frames.astype(np.float64) + self.log_eps)
-        return K.ideal_batch(self._g_prev, self._g_new, ts, self.th_on, self.th_off, self.ref, self.last,
-                             self._ref2, self._last2, self.refractory_us,
+        return K.ideal_batch(prev, frames, self.log_eps, ts, self.th_on, self.th_off, self.ref,
+                             self.last, self._ref2, self._last2, self.refractory_us,
                              self.max_events_per_pixel, self.cap, self._ev_t, self._ev_x,
                              self._ev_p, fn)
 
     def _commit(self):
         self.ref, self._ref2 = self._ref2, self.ref
         self.last, self._last2 = self._last2, self.last
-        self._g_prev = self._g_new[-1].copy()
 
     def metadata(self) -> dict:
         d = super().metadata()
