@@ -95,3 +95,22 @@ def test_make_model_theta_sampling_and_mismatch():
     cfg2 = dict(cfg, theta_mismatch_sigma=1.0, theta_sampling="fixed", theta_on=0.2)
     m4, _ = make_model(cfg2, (50, 60), seed=1)
     assert m4.th_on.min() >= 0.01 - 1e-12
+
+
+def test_noise_off_by_default_and_calibrated_rates():
+    H, W, T = 40, 50, 2_000_000
+    ts = np.arange(0, T + 1, 20_000)
+    fr = np.full((len(ts), H, W), 0.5, np.float32)
+    assert len(IdealModel((H, W)).process_batch(ts, fr)) == 0
+    m = IdealModel((H, W), shot_noise_rate_hz=0.56, shot_noise_on_fraction=0.54,
+                   leak_rate_hz=0.2, seed=2)
+    ev = m.process_batch(ts, fr)
+    # luminance 0.5: shot rate x 2 (1 - 0.5) = nominal; leak events are ON
+    lam = (0.56 + 0.2) * H * W * T * 1e-6
+    assert abs(len(ev) - lam) < 5 * np.sqrt(lam)
+    on_expected = (0.2 + 0.56 * 0.54) / 0.76
+    assert abs(ev.p.mean() - on_expected) < 5 * np.sqrt(0.25 / len(ev))
+    assert np.all(np.diff(ev.t) >= 0)
+    ev2 = IdealModel((H, W), shot_noise_rate_hz=0.56, shot_noise_on_fraction=0.54,
+                     leak_rate_hz=0.2, seed=2).process_batch(ts, fr)
+    assert np.array_equal(ev.t, ev2.t) and np.array_equal(ev.x, ev2.x)
