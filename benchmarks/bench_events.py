@@ -122,7 +122,13 @@ def child_memory(n_frames: int, out: str) -> None:
     src = IterSource(standard_sequence(n_frames=n_frames), shape=(260, 346),
                      n_frames=n_frames, name="standard")
     st = simulate_to_folder(src, cfg, out, seed=0)
-    rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    # VmHWM (peak RSS of this process image); ru_maxrss would include the
+    # parent's RSS at fork time, which Linux keeps across exec
+    try:
+        with open("/proc/self/status") as fh:
+            rss_mb = next(int(ln.split()[1]) for ln in fh if ln.startswith("VmHWM")) / 1024
+    except (OSError, StopIteration):
+        rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(json.dumps({"n_frames": n_frames, "peak_rss_mb": rss_mb, "n_events": st["n_events"]}))
 
 

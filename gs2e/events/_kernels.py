@@ -251,13 +251,15 @@ def voltmeter_batch(Lp, Lb, scale, ts_us, frame_idx0, seed, k, tu_us, th_on, th_
     Lp, Lb : (H, W) previous frame and (B, H, W) new frames, linear luminance
         in [0, 1] (float32 or float64); interval b runs from frame b - 1 (Lp for
         b = 0) to Lb[b]. ``scale`` converts to the preset's intensity unit.
-    ts_us : (B + 1,) float64 frame times in microseconds (absolute).
+    ts_us : (B + 1,) int64 frame times in microseconds (absolute).
     frame_idx0 : index of frame L[1] in the sequence (keys the random streams).
     k : (6,) float64, k1..k6 in the preset's units (time unit ``tu_us`` us).
     th_on, th_off : (H, W) float64, barrier heights (normalised voltage, > 0).
-    res_in, ready_in : (H, W) float64 state: residual voltage and the time (us)
-        until which the pixel is held after its last event (refractory).
-    cap : events per row reserved in ``ev_t`` (float64 us), ``ev_x`` (int32),
+    res_in, ready_in : (H, W) float64 state: residual voltage and the time (us,
+        relative to the batch's first frame) until which the pixel is held
+        after its last event (refractory; -inf if not held).
+    cap : events per row reserved in ``ev_t`` (float64 us relative to the
+        start of the event's interval), ``ev_x`` (int32),
         ``ev_p`` (int8, +1/-1); ``fn[b, y]`` receives the number of events of
         row y in interval b (a row total above ``cap`` means overflow).
     Returns the number of pixel-intervals whose event count hit ``max_events_px``.
@@ -289,9 +291,11 @@ def voltmeter_batch(Lp, Lb, scale, ts_us, frame_idx0, seed, k, tu_us, th_on, th_
             res_out[y, x] = res_in[y, x]
             ready_out[y, x] = ready_in[y, x]
         for bi in range(B):
-            t0_us = ts_us[bi]
-            t1_us = ts_us[bi + 1]
-            inv_dt_m = tu_us / (t1_us - t0_us)
+            # times within an interval are float64 us RELATIVE to its start
+            # (small numbers: exact and shift-invariant at any absolute time)
+            t0_us = 0.0
+            t1_us = float(ts_us[bi + 1] - ts_us[bi])
+            inv_dt_m = tu_us / t1_us
             # drift and diffusion of the row first (a branch-free loop the
             # compiler vectorises), then the sampling loop
             if bi == 0:
@@ -395,7 +399,7 @@ def voltmeter_batch(Lp, Lb, scale, ts_us, frame_idx0, seed, k, tu_us, th_on, th_
                         capped[y] += 1
                         break
                 res_out[y, x] = v
-                ready_out[y, x] = t if t > t1_us else -math.inf
+                ready_out[y, x] = t - t1_us if t > t1_us else -math.inf
             fn[bi, y] = n - n_frame0
     return capped.sum()
 
@@ -412,7 +416,8 @@ def ideal_batch(Lp, Lb, log_eps, ts_us, th_on, th_off, ref_in, last_in, ref_out,
         crossing), so that the common no-crossing case needs no logarithm:
         a crossing exists iff L + log_eps >= ref e^theta_on (or <= ref
         e^-theta_off); only then are the logs taken.
-    last_in : time (us) of the last emitted event per pixel (-inf if none).
+    last_in : time (us, relative to the batch's first frame) of the last
+        emitted event per pixel (-inf if none).
     Crossings of G_ref + theta_on (upward) / G_ref - theta_off (downward) are
     timed by linear interpolation of G; an event within ``refractory_us`` of
     the previous emitted one is dropped but the reference still advances (as
@@ -429,8 +434,8 @@ def ideal_batch(Lp, Lb, log_eps, ts_us, th_on, th_off, ref_in, last_in, ref_out,
             ref_out[y, x] = ref_in[y, x]
             last_out[y, x] = last_in[y, x]
         for bi in range(B):
-            t0_us = ts_us[bi]
-            dt = ts_us[bi + 1] - t0_us
+            t0_us = 0.0  # relative times, as in voltmeter_batch
+            dt = float(ts_us[bi + 1] - ts_us[bi])
             n_frame0 = n
             for x in range(W):
                 x1 = Lb[bi, y, x] + log_eps
@@ -477,6 +482,8 @@ def ideal_batch(Lp, Lb, log_eps, ts_us, th_on, th_off, ref_in, last_in, ref_out,
                 if moved:
                     ref_out[y, x] = math.exp(ref)
                     last_out[y, x] = last
+            for x in range(W):
+                last_out[y, x] -= dt  # relative to the next interval's start
             fn[bi, y] = n - n_frame0
     return capped.sum()
 
@@ -501,9 +508,8 @@ def noise_batch(Lp, Lb, ts_us, frame_idx0, seed, leak_rate_hz, shot_rate_hz,
         n = 0
         base = (row0 + y) * cap
         for bi in range(B):
-            t0_us = ts_us[bi]
-            t1_us = ts_us[bi + 1]
-            dt_s = (t1_us - t0_us) * 1e-6
+            dt_us = float(ts_us[bi + 1] - ts_us[bi])
+            dt_s = dt_us * 1e-6
             lam_leak = leak_rate_hz * dt_s
             n_frame0 = n
             for x in range(W):
@@ -522,7 +528,7 @@ def noise_batch(Lp, Lb, ts_us, frame_idx0, seed, leak_rate_hz, shot_rate_hz,
                         st, u3 = uniform_open(st)
                         sgn = 1 if u3 < shot_on_fraction else -1
                     if n < cap:
-                        ev_t[base + n] = t0_us + u * (t1_us - t0_us)
+                        ev_t[base + n] = u * dt_us
                         ev_x[base + n] = x
                         ev_p[base + n] = sgn
                     n += 1
@@ -536,8 +542,10 @@ def gather_batch(ts_us_i, H, cap, fn, ev_t, ev_x, ev_p, out_t, out_x, out_y, out
 
     Per interval b: counting sort over its microseconds (ties keep buffer-row
     order, then per-pixel order, so the output is deterministic). Buffer row r
-    holds image row r % H (signal rows, then noise rows). Times are rounded to
-    the nearest microsecond and clamped to the interval. Returns the count.
+    holds image row r % H (signal rows, then noise rows). Event times (float
+    us relative to the interval start) are rounded to the nearest microsecond,
+    clamped to the interval and added to its integer start time. Returns the
+    count.
     """
     B = fn.shape[0]
     R = fn.shape[1]
@@ -552,7 +560,7 @@ def gather_batch(ts_us_i, H, cap, fn, ev_t, ev_x, ev_p, out_t, out_x, out_y, out
             total += fn[bi, r]
             b0 = r * cap + start[r]
             for i in range(fn[bi, r]):
-                off = np.int64(math.floor(ev_t[b0 + i] + 0.5)) - t0
+                off = np.int64(math.floor(ev_t[b0 + i] + 0.5))
                 off = min(max(off, 0), dt)
                 counts[off + 1] += 1
         for j in range(dt + 1):
@@ -561,7 +569,7 @@ def gather_batch(ts_us_i, H, cap, fn, ev_t, ev_x, ev_p, out_t, out_x, out_y, out
             b0 = r * cap + start[r]
             y = r % H
             for i in range(fn[bi, r]):
-                off = np.int64(math.floor(ev_t[b0 + i] + 0.5)) - t0
+                off = np.int64(math.floor(ev_t[b0 + i] + 0.5))
                 off = min(max(off, 0), dt)
                 j = n_out + counts[off]
                 counts[off] += 1

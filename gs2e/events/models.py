@@ -276,9 +276,9 @@ class _StreamingModel:
         fn = np.zeros((B, 2 * H), np.int64)
         self._ensure(max(64, B * W // 2))
         while True:
-            n_cap = self._run_signal(self.prev, f, tsb.astype(np.float64), fn)
+            n_cap = self._run_signal(self.prev, f, tsb, fn)
             if self.noise_on:
-                K.noise_batch(self.prev, f, tsb.astype(np.float64), self.n_frames, self.seed,
+                K.noise_batch(self.prev, f, tsb, self.n_frames, self.seed,
                               self.leak_rate_hz, self.shot_noise_rate_hz,
                               self.shot_noise_on_fraction, self.cap, H, self._ev_t,
                               self._ev_x, self._ev_p, fn)
