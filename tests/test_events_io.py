@@ -148,7 +148,7 @@ def test_cli_image_folder_end_to_end(tmp_path):
                "--set", "theta_off=0.3"])
     assert rc == 0
     assert {p.name for p in out.iterdir()} == {"events.h5", "events.txt", "events.npz",
-                                               "preview.mp4", "stats.json"}
+                                               "preview.mp4", "stats.json", "stats.parquet"}
     ev, attrs = read_h5(out / "events.h5")
     assert len(ev) > 100 and attrs["t_offset"] == 5 and ev.t.min() >= 5 and ev.t.max() <= ts[-1]
     md = json.loads(attrs["metadata"])
@@ -195,3 +195,22 @@ def test_preview_from_memory(tmp_path):
     ev = _random_events(3000, 16, 12, 0, 10_000)
     n = write_preview(tmp_path / "p.mp4", zip(ts, fr), ev, every=2)
     assert n == 5 and (tmp_path / "p.mp4").stat().st_size > 0
+
+
+def test_video_source_and_presets_command(tmp_path, capsys):
+    from gs2e.events.frames import open_frame_source
+
+    path = tmp_path / "v.avi"
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 50.0, (32, 24))
+    for i in range(8):
+        vw.write(np.full((24, 32, 3), 30 * i, np.uint8))
+    vw.release()
+    src = open_frame_source(path)
+    items = list(src)
+    assert len(items) == 8 and src.shape == (24, 32)
+    assert [t for t, _ in items] == [20_000 * i for i in range(8)]
+    assert items[0][1].dtype == np.float32 and items[-1][1].mean() > items[1][1].mean()
+    assert main(["events", str(path), "-o", str(tmp_path / "o"), "--set", "model=ideal"]) == 0
+    assert main(["events-presets"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert {r["preset"] for r in rows} == {"dvs346", "dvs240", "gs2e_paper"}

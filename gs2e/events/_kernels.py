@@ -240,6 +240,17 @@ def normal_polar(state):
     return state, u * u * f, w * math.sqrt(f)
 
 
+@njit(cache=True)
+def row_order(H):
+    """Rows in golden-ratio order, so that the equal contiguous chunks of
+    iterations each thread gets cover the whole image (event load is uneven
+    across the image). Only the processing order changes, not the output."""
+    key = np.empty(H)
+    for y in range(H):
+        key[y] = (y * 0.6180339887498949) % 1.0
+    return np.argsort(key)
+
+
 @njit(cache=True, parallel=True)
 def voltmeter_batch(Lp, Lb, scale, ts_us, frame_idx0, seed, k, tu_us, th_on, th_off, res_in,
                     ready_in, res_out, ready_out, refractory_us, max_events_px, cap,
@@ -281,7 +292,9 @@ def voltmeter_batch(Lp, Lb, scale, ts_us, frame_idx0, seed, k, tu_us, th_on, th_
     W = Lb.shape[2]
     k1, k2, k3, k4, k5, k6 = k[0], k[1], k[2], k[3], k[4], k[5]
     capped = np.zeros(H, np.int64)
-    for y in prange(H):
+    order = row_order(H)
+    for i in prange(H):
+        y = order[i]
         n = 0
         base = y * cap
         mu_r = np.empty(W)
@@ -427,7 +440,9 @@ def ideal_batch(Lp, Lb, log_eps, ts_us, th_on, th_off, ref_in, last_in, ref_out,
     H = Lb.shape[1]
     W = Lb.shape[2]
     capped = np.zeros(H, np.int64)
-    for y in prange(H):
+    order = row_order(H)
+    for i in prange(H):
+        y = order[i]
         n = 0
         base = y * cap
         for x in range(W):
@@ -536,37 +551,42 @@ def noise_batch(Lp, Lb, ts_us, frame_idx0, seed, leak_rate_hz, shot_rate_hz,
     return 0
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def gather_batch(ts_us_i, H, cap, fn, ev_t, ev_x, ev_p, out_t, out_x, out_y, out_p):
     """Collect the batch's events into ``out_*``, sorted by integer time.
 
-    Per interval b: counting sort over its microseconds (ties keep buffer-row
-    order, then per-pixel order, so the output is deterministic). Buffer row r
-    holds image row r % H (signal rows, then noise rows). Event times (float
-    us relative to the interval start) are rounded to the nearest microsecond,
-    clamped to the interval and added to its integer start time. Returns the
-    count.
+    Per interval b (in parallel; each has its own output range): counting sort
+    over its microseconds (ties keep buffer-row order, then per-pixel order,
+    so the output is deterministic). Buffer row r holds image row r % H
+    (signal rows, then noise rows). Event times (float us relative to the
+    interval start) are rounded to the nearest microsecond, clamped to the
+    interval and added to its integer start time. Returns the count.
     """
     B = fn.shape[0]
     R = fn.shape[1]
-    start = np.zeros(R, np.int64)  # next unread event of each buffer row
-    n_out = 0
+    start = np.zeros((B + 1, R), np.int64)  # first event of interval b in row r
+    out0 = np.zeros(B + 1, np.int64)        # first output index of interval b
     for bi in range(B):
+        tot = 0
+        for r in range(R):
+            start[bi + 1, r] = start[bi, r] + fn[bi, r]
+            tot += fn[bi, r]
+        out0[bi + 1] = out0[bi] + tot
+    for bi in prange(B):
         t0 = ts_us_i[bi]
         dt = ts_us_i[bi + 1] - t0
         counts = np.zeros(dt + 2, np.int64)
-        total = 0
         for r in range(R):
-            total += fn[bi, r]
-            b0 = r * cap + start[r]
+            b0 = r * cap + start[bi, r]
             for i in range(fn[bi, r]):
                 off = np.int64(math.floor(ev_t[b0 + i] + 0.5))
                 off = min(max(off, 0), dt)
                 counts[off + 1] += 1
         for j in range(dt + 1):
             counts[j + 1] += counts[j]
+        n_out = out0[bi]
         for r in range(R):
-            b0 = r * cap + start[r]
+            b0 = r * cap + start[bi, r]
             y = r % H
             for i in range(fn[bi, r]):
                 off = np.int64(math.floor(ev_t[b0 + i] + 0.5))
@@ -577,9 +597,7 @@ def gather_batch(ts_us_i, H, cap, fn, ev_t, ev_x, ev_p, out_t, out_x, out_y, out
                 out_x[j] = ev_x[b0 + i]
                 out_y[j] = y
                 out_p[j] = 1 if ev_p[b0 + i] > 0 else 0
-            start[r] += fn[bi, r]
-        n_out += total
-    return n_out
+    return out0[B]
 
 
 @njit(cache=True, parallel=True)

@@ -42,6 +42,13 @@ def register(subparsers) -> None:
     q.add_argument("-o", "--out", help="write the JSON here instead of stdout")
     q.set_defaults(func=run_stats)
 
+    r = subparsers.add_parser(
+        "events-presets", help="list the DVS-Voltmeter presets and their effective thresholds",
+        description="k1..k6 of each preset, their units, and the relative-intensity change "
+                    "dL/L that crosses a threshold theta at several luminances.")
+    r.add_argument("--theta", type=float, default=1.0, help="threshold (normalised voltage)")
+    r.set_defaults(func=run_presets)
+
 
 def _section(args) -> dict:
     import json
@@ -96,4 +103,16 @@ def run_stats(args) -> int:
         write_json_atomic(args.out, out)
     else:
         print(json.dumps(out, indent=2, default=float))
+    return 0
+
+
+def run_presets(args) -> int:
+    import json
+
+    from gs2e.events.presets import PRESETS, effective_threshold_report
+
+    rows = effective_threshold_report(args.theta)
+    for r in rows:
+        r["k"] = list(PRESETS[r["preset"]].k)
+    print(json.dumps(rows, indent=2))
     return 0

@@ -4,6 +4,7 @@ Output folder (written as a whole, atomically)::
 
     events.h5      DSEC-layout events + metadata (see gs2e.events.io)
     stats.json     event statistics (gs2e.events.stats) + timings + metadata
+    stats.parquet  the same statistics as one row (for the scene's metrics table)
     preview.mp4    events over the frames (optional)
     events.txt     't x y p' text (optional)
     events.npz     arrays (optional)
@@ -160,6 +161,9 @@ def simulate_to_folder(source, cfg: dict, out_dir: str | Path, seed: int,
                      theta_on=info["theta_on_nominal"], theta_off=info["theta_off_nominal"],
                      pixel_frames_per_s=(n_frames - 1) * H * W / max(timings["simulate_s"], 1e-9),
                      **timings)
+        import pandas as pd
+        row = {k: v for k, v in stats.items() if not isinstance(v, (dict, list))}
+        pd.DataFrame([row]).to_parquet(tmp / "stats.parquet", index=False)
         write_json_atomic(tmp / "stats.json", {"stats": stats, "metadata": json.loads(
             json.dumps(meta, default=lambda o: o.item() if isinstance(o, np.generic) else str(o)))})
     log.info("events: %d frames (%dx%d) -> %d events (%.3f Mev/s, ON %.2f) in %.2f s",
