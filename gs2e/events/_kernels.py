@@ -329,7 +329,8 @@ def voltmeter_batch(Lp, Lb, scale, ts_us, frame_idx0, seed, k, tu_us, th_on, th_
                     sg_r[x] = k3 * math.sqrt(max(lbar, 0.0)) * den + k6
             for x in range(W):
                 is_r[x] = 1.0 / (sg_r[x] * sg_r[x])  # inf when sigma = 0
-            sqrt_dt_m = math.sqrt(1.0 / inv_dt_m)
+            s_full = 1.0 / inv_dt_m
+            sqrt_dt_m = math.sqrt(s_full)
             inv_tu = 1.0 / tu_us
             n_frame0 = n
             key = frame_key(seed, frame_idx0 + bi, SALT_SIGNAL)
@@ -363,23 +364,23 @@ def voltmeter_batch(Lp, Lb, scale, ts_us, frame_idx0, seed, k, tu_us, th_on, th_
                         on = u < pon
                     eps = a if on else b
                     if t == t0_us:
-                        s = 1.0 / inv_dt_m
+                        s = s_full
                         sq = sqrt_dt_m
-                        inv_s = inv_dt_m
                     else:
                         s = (t1_us - t) * inv_tu
                         sq = math.sqrt(s)
-                        inv_s = 1.0 / s
                     st, zn = normal_zig(st)
                     yv = cm * s + sg * sq * zn
                     d = eps - yv
                     if d > 0.0:
-                        e = 2.0 * eps * d * inv_sg2 * inv_s
-                        if e > 38.0:
+                        # bridge crossing probability exp(-e), e = 2 eps d / (sigma^2 s);
+                        # e > 38 is decided without a draw (and without dividing)
+                        e_s = 2.0 * eps * d * inv_sg2
+                        if e_s > 38.0 * s:
                             cross = False
                         else:
                             st, u = uniform_open(st)
-                            cross = u < math.exp(-e)
+                            cross = u < math.exp(-e_s / s)
                     else:
                         cross = True
                     if not cross:
@@ -393,10 +394,26 @@ def voltmeter_batch(Lp, Lb, scale, ts_us, frame_idx0, seed, k, tu_us, th_on, th_
                         elif v > hi:
                             v = hi
                         break
+                    # crossing time of the bridge: tau = s U / (s + U), U ~ IG(m,
+                    # eps^2 / sigma^2), m = eps s / |d| (first_passage_time with
+                    # c = |d| / s, written here with two divisions in all)
                     st, zu = normal_zig(st)
                     st, u = uniform_open(st)
-                    U = first_passage_time(zu * zu, u, eps, abs(d) * inv_s, sg)
-                    tau = s if not math.isfinite(U) else s * (U / (s + U))
+                    ad = abs(d)
+                    if ad > 0.0 and sg > 0.0:
+                        r1e = 1.0 / (ad * eps)
+                        m = eps * eps * s * r1e
+                        q = s * zu * zu * sg * sg * r1e
+                        S = (math.sqrt(q) + math.sqrt(q + 4.0)) ** 2
+                        if u * (S + 4.0) <= S:       # keep x = 4 m / S
+                            tau = 4.0 * s * m / (s * S + 4.0 * m)
+                        else:                        # take m^2 / x = m S / 4
+                            tau = s * m * S / (4.0 * s + m * S)
+                        if not (tau >= 0.0 and tau <= s):
+                            tau = s  # m or S overflowed: the crossing is at the end
+                    else:
+                        U = first_passage_time(zu * zu, u, eps, ad / s, sg)
+                        tau = s if not math.isfinite(U) else s * (U / (s + U))
                     te = t + tau * tu_us
                     if te > t1_us:
                         te = t1_us
