@@ -174,7 +174,12 @@ def test_cli_array_and_errors(tmp_path, capsys):
     np.save(tmp_path / "a.npy", fr)
     assert main(["events", str(tmp_path / "a.npy"), "--fps", "1000", "-o", str(tmp_path / "o"),
                  "--set", "model=ideal", "--set", "theta_on=0.2", "--set", "theta_off=0.2"]) == 0
-    assert len(read_h5(tmp_path / "o" / "events.h5")[0]) > 0
+    ev_o, attrs_o = read_h5(tmp_path / "o" / "events.h5")
+    assert len(ev_o) > 0 and attrs_o["model"] == "ideal"
+    # the workflow passes the section as JSON
+    assert main(["events", str(tmp_path / "a.npy"), "--fps", "1000", "-o", str(tmp_path / "oj"),
+                 "--config-json", '{"model": "ideal", "theta_on": 0.2, "theta_off": 0.2}']) == 0
+    assert np.array_equal(read_h5(tmp_path / "oj" / "events.h5")[0].t, ev_o.t)
     # non-increasing timestamps: clear error naming the file, no output
     np.savez(tmp_path / "b.npz", frames=fr, t_us=np.array([0, 10, 20, 20, 30, 40]))
     assert main(["events", str(tmp_path / "b.npz"), "-o", str(tmp_path / "o2")]) == 2

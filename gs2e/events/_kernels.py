@@ -530,7 +530,10 @@ def noise_batch(Lp, Lb, ts_us, frame_idx0, seed, leak_rate_hz, shot_rate_hz,
     ``shot_rate_hz`` per pixel scaled by 2 (1 - L) for the pixel's mean linear
     luminance L over the interval (more in the dark; the mean over a uniform
     histogram is the nominal rate), ON with probability ``shot_on_fraction``.
-    Times uniform in the interval. Row y uses buffer row ``row0 + y`` and
+    Times uniform in the interval. Noise events are independent of the pixel
+    model's state (they neither reset it nor obey its refractory period, as
+    they stand for activity outside the modelled signal path). Row y uses
+    buffer row ``row0 + y`` and
     ``fn[b, row0 + y]``; otherwise as ``voltmeter_batch``.
     """
     B = Lb.shape[0]
