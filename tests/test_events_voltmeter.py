@@ -329,3 +329,71 @@ def test_two_barrier_conditional_exit_time_is_not_inverse_gaussian():
     res_ig = stats.kstest(t_up, _ig(a / mu, a**2 / sigma**2).cdf)
     assert res_series.pvalue > 1e-3, res_series
     assert res_ig.pvalue < 1e-8, res_ig
+
+
+def _series_cdf_up(a, b, mu, sigma, t_max=40.0, n=400_001):
+    """CDF (unnormalised, ends at p_on) of the two-barrier exit time through
+    the upper barrier, from the image series."""
+    w = a + b
+    grid = np.linspace(1e-4, t_max, n)
+
+    def g_up(tt):
+        k = np.arange(-30, 31)[:, None]
+        c = a + 2 * k * w
+        dens = (c / (sigma * np.sqrt(2 * np.pi * tt**3)) * np.exp(-c**2 / (2 * sigma**2 * tt))).sum(0)
+        return dens * np.exp(mu * a / sigma**2 - mu**2 * tt / (2 * sigma**2))
+
+    cdf = np.concatenate([[0], np.cumsum(0.5 * (g_up(grid[1:]) + g_up(grid[:-1])) * np.diff(grid))])
+    return grid, cdf
+
+
+def _first_events_tu(mu, sigma, exit_law, ts, n_side=80, seed=2):
+    """First event per pixel; model time unit 1e5 us (so mu, sigma are per 0.1 s)."""
+    pr = Preset("t", (0.0, 1.0, 0.0, mu, 0.0, sigma), 1.0, 1e5, "test")
+    m = VoltmeterModel((n_side, n_side), preset=pr, exit_law=exit_law, max_events_per_pixel=1,
+                       seed=seed)
+    f = np.full((n_side, n_side), 0.5, np.float32)
+    out = []
+    for i in range(0, len(ts), 256):
+        out.append(m.process_batch(ts[i:i + 256], np.repeat(f[None], len(ts[i:i + 256]), 0)))
+    ev = Events.concat(out)
+    # max_events_per_pixel is per interval: keep each pixel's first event
+    pix = ev.y.astype(np.int64) * n_side + ev.x
+    _, first = np.unique(pix, return_index=True)
+    return Events(ev.t[first], ev.x[first], ev.y[first], ev.p[first]), n_side * n_side
+
+
+def test_two_barrier_exit_law_is_exact():
+    mu, sigma, a = 0.5, 1.0, 1.0
+    ts = np.array([0, 4_000_000], np.int64)  # 40 model units
+    ev, n = _first_events_tu(mu, sigma, "two_barrier", ts)
+    z = 2 * mu / sigma**2
+    p_on = (math.exp(z) - 1) / (math.exp(z) - math.exp(-z))
+    assert len(ev) > 0.999 * n
+    assert abs(ev.p.mean() - p_on) < 5 * math.sqrt(p_on * (1 - p_on) / len(ev))
+    grid, cdf = _series_cdf_up(a, a, mu, sigma)
+    t_on = ev.t[ev.p == 1] / 1e5
+    res = stats.kstest(t_on, lambda x: np.interp(x, grid, cdf / cdf[-1]))
+    assert res.pvalue > 1e-3, res
+    assert stats.kstest(t_on, _ig(a / mu, a**2 / sigma**2).cdf).pvalue < 1e-8
+
+
+@pytest.mark.parametrize("exit_law", ["single_barrier", "two_barrier"])
+def test_frame_splitting(exit_law):
+    """One long interval vs 400 short ones. The exact two-barrier law does not
+    depend on how time is cut into frames. DVS-Voltmeter's law does: it draws
+    the polarity anew in every interval and then lets the voltage drift towards
+    the chosen barrier, so with drift against the noise (here mu < 0) short
+    frames give earlier first events. This test documents that defect."""
+    mu, sigma = -0.3, 1.0
+    long_ev, _ = _first_events_tu(mu, sigma, exit_law, np.array([0, 2_000_000]), n_side=60)
+    ts = np.linspace(0, 2_000_000, 401).astype(np.int64)
+    short_ev, _ = _first_events_tu(mu, sigma, exit_law, ts, n_side=60, seed=9)
+    p_same = stats.ks_2samp(long_ev.t, short_ev.t).pvalue
+    if exit_law == "two_barrier":
+        assert p_same > 1e-3
+        pl, ps = long_ev.p.mean(), short_ev.p.mean()
+        assert abs(pl - ps) < 5 * math.sqrt(pl * (1 - pl) * (1 / len(long_ev) + 1 / len(short_ev)))
+    else:
+        assert p_same < 1e-10
+        assert np.median(short_ev.t) < 0.8 * np.median(long_ev.t)

@@ -240,6 +240,68 @@ def normal_polar(state):
     return state, u * u * f, w * math.sqrt(f)
 
 
+@njit(inline="always", cache=True)
+def _n_images(var, w):
+    """Image terms per side needed for series with exponents ~ -k^2 w^2 / var."""
+    return 3 + int(math.sqrt(max(var, 0.0)) / w * 6.0)
+
+
+@njit(cache=True)
+def bridge_stay_probability(x, y, lo, hi, var):
+    """P(a Brownian bridge from x to y with variance ``var`` (sigma^2 s) stays
+    in (lo, hi)), by the method of images:
+    sum_k exp(-2 k w (y - x + k w) / var) - exp(-2 (k w - A)(k w - B) / var),
+    w = hi - lo, A = hi - x, B = hi - y."""
+    w = hi - lo
+    A = hi - x
+    B = hi - y
+    dl = y - x
+    K = _n_images(var, w)
+    p = 0.0
+    for k in range(-K, K + 1):
+        kw = k * w
+        p += math.exp(-2.0 * kw * (dl + kw) / var) - math.exp(-2.0 * (kw - A) * (kw - B) / var)
+    return min(max(p, 0.0), 1.0)
+
+
+@njit(cache=True)
+def two_barrier_ratio(a, w, var_tau):
+    """g_two(tau) / g_single(tau): density of exiting through a barrier at
+    distance a at time tau with the other barrier at distance w - a, relative
+    to the single-barrier first-passage density (drift-free; ``var_tau`` =
+    sigma^2 tau): sum_k (1 + 2 k w / a) exp(-2 k w (a + k w) / var_tau)."""
+    K = _n_images(var_tau, w)
+    r = 0.0
+    for k in range(-K, K + 1):
+        kw = k * w
+        r += (1.0 + 2.0 * kw / a) * math.exp(-2.0 * kw * (a + kw) / var_tau)
+    return min(max(r, 0.0), 1.0)
+
+
+@njit(inline="always", cache=True)
+def bridge_crossing_time(s, eps, d, nu2, u, sg):
+    """Time (in [0, s]) at which a bridge that moves towards a barrier at
+    distance eps and ends d short of it (d < 0: beyond) first reaches it,
+    given that it does: tau = s U / (s + U) with U ~ IG(eps s / |d|,
+    eps^2 / sigma^2) (time change of the bridge). nu2: chi-square(1), u:
+    uniform. Written with two divisions."""
+    ad = abs(d)
+    if ad > 0.0 and sg > 0.0:
+        r1e = 1.0 / (ad * eps)
+        m = eps * eps * s * r1e
+        q = s * nu2 * sg * sg * r1e
+        S = (math.sqrt(q) + math.sqrt(q + 4.0)) ** 2
+        if u * (S + 4.0) <= S:       # keep x = 4 m / S
+            tau = 4.0 * s * m / (s * S + 4.0 * m)
+        else:                        # take m^2 / x = m S / 4
+            tau = s * m * S / (4.0 * s + m * S)
+        if not (tau >= 0.0 and tau <= s):
+            tau = s  # m or S overflowed: the crossing is at the end
+        return tau
+    U = first_passage_time(nu2, u, eps, ad / s, sg)
+    return s if not math.isfinite(U) else s * (U / (s + U))
+
+
 @njit(cache=True)
 def row_order(H):
     """Rows in golden-ratio order, so that the equal contiguous chunks of
@@ -254,7 +316,7 @@ def row_order(H):
 @njit(cache=True, parallel=True)
 def voltmeter_batch(Lp, Lb, scale, ts_us, frame_idx0, seed, k, tu_us, th_on, th_off, res_in,
                     ready_in, res_out, ready_out, refractory_us, max_events_px, cap,
-                    ev_t, ev_x, ev_p, fn):
+                    ev_t, ev_x, ev_p, fn, two_barrier=False):
     """DVS-Voltmeter pixel model over a batch of frame intervals.
 
     Parameters
@@ -273,6 +335,9 @@ def voltmeter_batch(Lp, Lb, scale, ts_us, frame_idx0, seed, k, tu_us, th_on, th_
         start of the event's interval), ``ev_x`` (int32),
         ``ev_p`` (int8, +1/-1); ``fn[b, y]`` receives the number of events of
         row y in interval b (a row total above ``cap`` means overflow).
+    two_barrier : False = DVS-Voltmeter's law (below); True = the exact exit of
+        the drift-diffusion from the band (-theta_off, theta_on) (see the
+        in-line comments and gs2e/events/models.py).
     Returns the number of pixel-intervals whose event count hit ``max_events_px``.
 
     Given the polarity (two-barrier probability), the voltage moves towards
@@ -350,6 +415,72 @@ def voltmeter_batch(Lp, Lb, scale, ts_us, frame_idx0, seed, k, tu_us, th_on, th_
                     z2 = math.inf if mu > 0 else -math.inf
                 npx = 0
                 while t < t1_us:
+                    if two_barrier:
+                        # exact two-barrier exit of the free drift-diffusion
+                        if t == t0_us:
+                            s = s_full
+                            sq = sqrt_dt_m
+                        else:
+                            s = (t1_us - t) * inv_tu
+                            sq = math.sqrt(s)
+                        st, zn = normal_zig(st)
+                        yend = v + mu * s + sg * sq * zn
+                        A = ton - v
+                        Bv = ton - yend
+                        C = v + toff
+                        D = yend + toff
+                        if Bv <= 0.0 or D <= 0.0:
+                            cross = True
+                        else:
+                            eu = 2.0 * A * Bv * inv_sg2
+                            ed = 2.0 * C * D * inv_sg2
+                            if eu > 40.0 * s and ed > 40.0 * s:
+                                cross = False  # 1 - P(stay) < 2^-54
+                            else:
+                                st, u = uniform_open(st)
+                                cross = u >= bridge_stay_probability(v, yend, -toff, ton,
+                                                                     sg * sg * s)
+                        if not cross:
+                            v = min(max(yend, -toff * (1.0 - 1e-9)), ton * (1.0 - 1e-9))
+                            break
+                        # exit side and time given the bridge: propose from the
+                        # single-barrier bridge laws (weights = their crossing
+                        # probabilities), accept with g_two / g_single
+                        p_up = 1.0 if Bv <= 0.0 else math.exp(-2.0 * A * Bv * inv_sg2 / s)
+                        p_dn = 1.0 if D <= 0.0 else math.exp(-2.0 * C * D * inv_sg2 / s)
+                        wdt = ton + toff
+                        for _ in range(1000):
+                            st, u = uniform_open(st)
+                            on = u * (p_up + p_dn) < p_up
+                            eps = A if on else C
+                            dd = Bv if on else D
+                            st, zu = normal_zig(st)
+                            st, u = uniform_open(st)
+                            tau = bridge_crossing_time(s, eps, dd, zu * zu, u, sg)
+                            var_tau = sg * sg * tau
+                            # the ratio is 1 - c e^-E with E = 2 w (w - eps) /
+                            # (sigma^2 tau), c <= 2 w / eps + 1: E > 80 makes it
+                            # 1 to double precision for eps > 1e-16 w
+                            if var_tau <= 0.0 or 2.0 * wdt * (wdt - eps) > 80.0 * var_tau:
+                                break
+                            st, u = uniform_open(st)
+                            if u < two_barrier_ratio(eps, wdt, var_tau):
+                                break
+                        te = t + tau * tu_us
+                        if te > t1_us:
+                            te = t1_us
+                        if n < cap:
+                            ev_t[base + n] = te
+                            ev_x[base + n] = x
+                            ev_p[base + n] = 1 if on else -1
+                        n += 1
+                        npx += 1
+                        v = 0.0
+                        t = te + refractory_us
+                        if npx >= max_events_px:
+                            capped[y] += 1
+                            break
+                        continue
                     a = ton - v
                     b = toff + v
                     # |z| min(a, b) > 38 decides the polarity exactly at the
@@ -394,26 +525,9 @@ def voltmeter_batch(Lp, Lb, scale, ts_us, frame_idx0, seed, k, tu_us, th_on, th_
                         elif v > hi:
                             v = hi
                         break
-                    # crossing time of the bridge: tau = s U / (s + U), U ~ IG(m,
-                    # eps^2 / sigma^2), m = eps s / |d| (first_passage_time with
-                    # c = |d| / s, written here with two divisions in all)
                     st, zu = normal_zig(st)
                     st, u = uniform_open(st)
-                    ad = abs(d)
-                    if ad > 0.0 and sg > 0.0:
-                        r1e = 1.0 / (ad * eps)
-                        m = eps * eps * s * r1e
-                        q = s * zu * zu * sg * sg * r1e
-                        S = (math.sqrt(q) + math.sqrt(q + 4.0)) ** 2
-                        if u * (S + 4.0) <= S:       # keep x = 4 m / S
-                            tau = 4.0 * s * m / (s * S + 4.0 * m)
-                        else:                        # take m^2 / x = m S / 4
-                            tau = s * m * S / (4.0 * s + m * S)
-                        if not (tau >= 0.0 and tau <= s):
-                            tau = s  # m or S overflowed: the crossing is at the end
-                    else:
-                        U = first_passage_time(zu * zu, u, eps, ad / s, sg)
-                        tau = s if not math.isfinite(U) else s * (U / (s + U))
+                    tau = bridge_crossing_time(s, eps, d, zu * zu, u, sg)
                     te = t + tau * tu_us
                     if te > t1_us:
                         te = t1_us

@@ -37,6 +37,15 @@ distance eps (a or b), with the drift component towards it c (= mu for ON,
   +|c|. (The public code plugs c < 0 into the sampler and truncates a normal,
   which is biased.) We therefore sample with |c| in all cases.
 
+Option ``exit_law="two_barrier"`` instead simulates the exact exit of the
+drift-diffusion from the band (-theta_off, theta_on), per interval: end point
+y ~ N(v + mu s, sigma^2 s); no exit with the bridge's probability of staying
+in the band (image series); otherwise the side and time are drawn by rejection
+from the single-barrier bridge laws (side weights = their crossing
+probabilities, time by the bridge time change) with acceptance ratio
+g_two / g_single (image series). Polarities then follow p_on and exit times
+the series density g_+ below, exactly.
+
 This is the single-barrier law conditional on hitting that barrier. It is NOT
 the law of the exit time of the two-barrier problem conditional on exiting
 through that barrier: that one excludes paths that touch the other barrier
@@ -336,8 +345,13 @@ class VoltmeterModel(_StreamingModel):
 
     name = "voltmeter"
 
-    def __init__(self, shape, preset: Preset | str = "dvs346", **kw):
+    def __init__(self, shape, preset: Preset | str = "dvs346",
+                 exit_law: str = "single_barrier", **kw):
         super().__init__(shape, **kw)
+        if exit_law not in ("single_barrier", "two_barrier"):
+            raise ConfigError(f"events.exit_law: unknown '{exit_law}' "
+                              f"(single_barrier or two_barrier)")
+        self.exit_law = exit_law
         self.preset = get_preset(preset) if isinstance(preset, str) else preset
         self.k = np.asarray(self.preset.k, dtype=np.float64)
         k = self.k
@@ -354,7 +368,8 @@ class VoltmeterModel(_StreamingModel):
                                  self.preset.time_unit_us, self.th_on, self.th_off,
                                  self.res, self.ready, self._res2, self._ready2,
                                  self.refractory_us, self.max_events_per_pixel, self.cap,
-                                 self._ev_t, self._ev_x, self._ev_p, fn)
+                                 self._ev_t, self._ev_x, self._ev_p, fn,
+                                 self.exit_law == "two_barrier")
 
     def _commit(self):
         self.res, self._res2 = self._res2, self.res
@@ -363,6 +378,7 @@ class VoltmeterModel(_StreamingModel):
     def metadata(self) -> dict:
         d = super().metadata()
         d["preset"] = self.preset.to_dict()
+        d["exit_law"] = self.exit_law
         return d
 
 
@@ -430,7 +446,8 @@ def make_model(cfg: dict, shape: tuple[int, int], seed: int, source: str = "fram
                   max_events_per_pixel=cfg["max_events_per_pixel"], source=source)
     if cfg["model"] == "voltmeter":
         ko = {i: cfg.get(f"k{i}") for i in range(1, 7)}
-        model = VoltmeterModel(shape, preset=get_preset(cfg["preset"], ko), **common)
+        model = VoltmeterModel(shape, preset=get_preset(cfg["preset"], ko),
+                               exit_law=cfg["exit_law"], **common)
     elif cfg["model"] == "ideal":
         model = IdealModel(shape, log_eps=cfg["log_eps"], **common)
     else:
