@@ -130,6 +130,24 @@ def test_negative_drift_conditional_law_against_simulation():
 
 
 @njit(cache=True)
+def _normals(n, seed):
+    out = np.empty(n)
+    st = K.stream_state(seed, 0, 0, 5)
+    for i in range(n):
+        st, out[i] = K.normal_zig(st)
+    return out
+
+
+def test_ziggurat_normals():
+    x = _normals(1_000_000, 3)
+    assert stats.kstest(x, "norm").pvalue > 1e-3
+    tail = np.abs(x) > 3.6541528853610088  # beyond the base strip
+    assert abs(tail.mean() - 2 * stats.norm.sf(3.6541528853610088)) < 5 * math.sqrt(2.6e-4 / 1e6)
+    t = np.abs(x[tail])
+    assert stats.kstest(t, lambda v: 1 - stats.norm.sf(v) / stats.norm.sf(3.6541528853610088)).pvalue > 1e-3
+
+
+@njit(cache=True)
 def _sample_fpt(n, eps, c, sigma, seed):
     out = np.empty(n)
     st = K.stream_state(seed, 0, 0, 9)

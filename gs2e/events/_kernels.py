@@ -62,7 +62,7 @@ def pixel_state(key, pixel):
     return _mix64(key ^ (np.uint64(pixel) * _GOLDEN))
 
 
-@njit(inline="always", cache=True)
+@njit(cache=True)
 def stream_state(seed, frame_idx, pixel, salt):
     """Initial SplitMix64 state of the stream keyed by (seed, frame, pixel, salt)."""
     return pixel_state(frame_key(seed, frame_idx, salt), pixel)
@@ -81,7 +81,7 @@ def uniform_open(state):
     return state, (float(z >> _S11) + 0.5) * _INV53
 
 
-@njit(inline="always", cache=True)
+@njit(cache=True)
 def normal_pair(state):
     """Two independent standard normals (Box-Muller)."""
     state, u1 = uniform_open(state)
@@ -125,9 +125,25 @@ _B255 = np.uint64(255)
 
 @njit(inline="always", cache=True)
 def normal_zig(state):
-    """Standard normal by the ziggurat method (one 64-bit draw ~99 % of the time)."""
+    """Standard normal by the ziggurat method: one 64-bit draw and a table
+    look-up ~99 % of the time (inlined); the rest in :func:`_normal_zig_slow`."""
+    state, r = _next(state)
+    idx = np.int64(r & _B255)
+    rabs = (r >> _S9) & _MASK52
+    if rabs < _ZK[idx]:
+        x = float(rabs) * _ZW[idx]
+        return state, (-x if ((r >> _S8) & _ONE) == _ONE else x)
+    return _normal_zig_slow(state, r)
+
+
+@njit(cache=True)
+def _normal_zig_slow(state, r):
+    """Ziggurat wedges and tail, starting from the rejected draw ``r``."""
+    first = True
     while True:
-        state, r = _next(state)
+        if not first:
+            state, r = _next(state)
+        first = False
         idx = np.int64(r & _B255)
         neg = ((r >> _S8) & _ONE) == _ONE
         rabs = (r >> _S9) & _MASK52
@@ -151,7 +167,7 @@ def normal_zig(state):
             return state, x
 
 
-@njit(inline="always", cache=True)
+@njit(cache=True)
 def p_on_two_barrier(mu, sigma, a, b):
     """Probability that drifted Brownian motion (drift ``mu``, diffusion
     ``sigma``) started between barriers leaves through the upper one, which is
@@ -178,7 +194,7 @@ def p_on_two_barrier(mu, sigma, a, b):
     return math.exp(z * a) * (math.expm1(z * b) / math.expm1(z * w))
 
 
-@njit(inline="always", cache=True)
+@njit(cache=True)
 def first_passage_time(nu2, u, eps, c, sigma):
     """First-passage time of Brownian motion with drift magnitude ``c`` >= 0
     towards a barrier at distance ``eps`` > 0, diffusion ``sigma``.
@@ -208,7 +224,7 @@ def first_passage_time(nu2, u, eps, c, sigma):
     return (m / x) * m
 
 
-@njit(inline="always", cache=True)
+@njit(cache=True)
 def poisson_small(state, lam):
     """Poisson(lam) by inversion (meant for small lam, as noise per frame)."""
     state, u = uniform_open(state)
@@ -224,7 +240,7 @@ def poisson_small(state, lam):
     return state, k
 
 
-@njit(inline="always", cache=True)
+@njit(cache=True)
 def normal_polar(state):
     """Marsaglia polar method: returns (state, n1^2, n2) with n1, n2 independent
     standard normals (n1 only squared, which saves a sqrt)."""
@@ -240,7 +256,7 @@ def normal_polar(state):
     return state, u * u * f, w * math.sqrt(f)
 
 
-@njit(inline="always", cache=True)
+@njit(cache=True)
 def _n_images(var, w):
     """Image terms per side needed for series with exponents ~ -k^2 w^2 / var."""
     return 3 + int(math.sqrt(max(var, 0.0)) / w * 6.0)
@@ -278,7 +294,7 @@ def two_barrier_ratio(a, w, var_tau):
     return min(max(r, 0.0), 1.0)
 
 
-@njit(inline="always", cache=True)
+@njit(cache=True)
 def bridge_crossing_time(s, eps, d, nu2, u, sg):
     """Time (in [0, s]) at which a bridge that moves towards a barrier at
     distance eps and ends d short of it (d < 0: beyond) first reaches it,
