@@ -186,6 +186,8 @@ def main() -> None:
     rows = []
     configs = [("voltmeter", name, lambda name=name: VoltmeterModel((H, W), preset=name, seed=1))
                for name in ("dvs346", "dvs240", "gs2e_paper")]
+    configs.append(("voltmeter", "dvs346 two_barrier",
+                    lambda: VoltmeterModel((H, W), preset="dvs346", seed=1, exit_law="two_barrier")))
     th_ideal = 0.2
     configs.append(("ideal", f"theta={th_ideal}",
                     lambda: IdealModel((H, W), theta_on=th_ideal, theta_off=th_ideal)))
@@ -196,7 +198,7 @@ def main() -> None:
                      "on_fraction": n_on / max(n, 1), "mpf_per_s": pf / wall / 1e6,
                      "mpf_per_s_cpu_x_threads": pf / cpu * threads / 1e6,
                      "mev_per_s": n / wall / 1e6,
-                     "eff_threshold_rel": (effective_threshold(PRESETS[preset], 1.0, 0.5)
+                     "eff_threshold_rel": (effective_threshold(PRESETS[preset.split()[0]], 1.0, 0.5)
                                            if model == "voltmeter" else float(np.expm1(th_ideal)))})
     # one thread: per-core throughput by CPU time, robust on a shared machine
     numba.set_num_threads(1)
