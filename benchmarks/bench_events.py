@@ -1,0 +1,289 @@
+"""Event-simulation throughput on the standard sequence.
+
+Standard sequence: scikit-image's astronaut photo in grey (linear luminance),
+panning and zooming, 346x260, 2400 fps, 0.2 s = 480 frames
+(gs2e.events.synthetic.standard_sequence).
+
+Measured per model / preset: pixel-frames per second and events per second
+(wall clock, and per CPU-second x threads, since the machine may be shared),
+the event statistics, an in-run baseline (a plain vectorised numpy
+implementation of the same voltmeter model, written here) and the peak RSS of
+the streaming pipeline (model + DSEC HDF5 writer + stats) at two sequence
+lengths, each in a fresh process.
+
+Reference figure (REFERENCE.md section 2, not re-measured here): the public
+DVS-Voltmeter code runs this kind of sequence at ~4.3 M pixel-frames/s on 2
+cores (torch CPU). Target: >= 65 M pixel-frames/s.
+
+Usage: python benchmarks/bench_events.py [--quick]
+Writes benchmarks/results/bench_events.csv and bench_events.png; the last
+printed line is the headline.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from gs2e.events.models import Events, IdealModel, VoltmeterModel  # noqa: E402
+from gs2e.events.presets import PRESETS, effective_threshold  # noqa: E402
+from gs2e.events.synthetic import standard_sequence  # noqa: E402
+
+PUBLIC_MPF = 4.3  # M pixel-frames/s of the public DVS-Voltmeter code (REFERENCE.md §2)
+TARGET_MPF = 65.0
+RESULTS = ROOT / "benchmarks" / "results"
+
+
+# ---------------------------------------------------------------- baseline
+def numpy_voltmeter(ts, frames, preset, seed=0, theta=1.0):
+    """Plain vectorised numpy implementation of the same model (polarity by the
+    two-barrier probability, crossing of the polarity-conditioned drift
+    diffusion by its end point + bridge, crossing time from the bridge's
+    first-passage law, residual carried). Returns (n_events, n_on)."""
+    rng = np.random.default_rng(seed)
+    k1, k2, k3, k4, k5, k6 = preset.k
+    sc, tu = preset.intensity_scale, preset.time_unit_us
+    H, W = frames.shape[1:]
+    res = np.zeros(H * W)
+    n_ev = n_on = 0
+    prev = frames[0].astype(np.float64).ravel() * sc
+    for i in range(1, len(ts)):
+        cur = frames[i].astype(np.float64).ravel() * sc
+        t0, t1 = float(ts[i - 1]), float(ts[i])
+        lbar = 0.5 * (prev + cur)
+        mu = k1 * (cur - prev) / ((t1 - t0) / tu) / (lbar + k2) + k4 + k5 * lbar
+        sg = k3 * np.sqrt(lbar) / (lbar + k2) + k6
+        idx = np.arange(H * W)
+        t = np.full(H * W, t0)
+        v = res.copy()
+        ev_t = []
+        while idx.size:
+            m, s_, vv = mu[idx], sg[idx], v[idx]
+            a, b = theta - vv, theta + vv
+            z = 2 * m / s_**2
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                pos = np.expm1(-z * b) / np.expm1(-z * (a + b))
+                neg = np.exp(z * a) * np.expm1(z * b) / np.expm1(z * (a + b))
+            p_on = np.where(z > 0, pos, neg)
+            p_on = np.where(np.abs(z) * (a + b) < 1e-12, b / (a + b), p_on)
+            on = rng.random(idx.size) < p_on
+            eps = np.where(on, a, b)
+            s = (t1 - t[idx]) / tu
+            y = np.abs(m) * s + s_ * np.sqrt(s) * rng.standard_normal(idx.size)
+            d = eps - y
+            with np.errstate(over="ignore"):
+                cross = (d <= 0) | (rng.random(idx.size) < np.exp(-2 * eps * np.maximum(d, 0) / (s_**2 * s)))
+            nc = ~cross
+            v[idx[nc]] = np.clip(np.where(on[nc], vv[nc] + y[nc], vv[nc] - y[nc]),
+                                 -theta * (1 - 1e-9), theta * (1 - 1e-9))
+            c = np.flatnonzero(cross)
+            if c.size == 0:
+                break
+            drift = np.maximum(np.abs(d[c]) / s[c], 1e-300)
+            U = rng.wald(eps[c] / drift, (eps[c] / s_[c]) ** 2)
+            tau = s[c] * U / (s[c] + U)
+            te = t[idx[c]] + tau * tu
+            ev_t.append(te)
+            n_on += int(on[c].sum())
+            v[idx[c]] = 0.0
+            t[idx[c]] = te
+            idx = idx[c]
+        if ev_t:
+            tt = np.concatenate(ev_t)
+            n_ev += tt.size
+            np.argsort(tt, kind="stable")  # the events of a frame are sorted, like ours
+        res = v
+        prev = cur
+    return n_ev, n_on
+
+
+# ---------------------------------------------------------------- children
+def child_memory(n_frames: int, out: str) -> None:
+    """Streaming pipeline on n_frames of the standard sequence; prints JSON with
+    the peak RSS."""
+    import resource
+
+    from gs2e.config import load_section
+    from gs2e.events.frames import IterSource
+    from gs2e.events.simulate import simulate_to_folder
+
+    cfg = load_section("events", text=json.dumps({"preset": "dvs346", "preview": False,
+                                                  "compression": "lzf"}))
+    src = IterSource(standard_sequence(n_frames=n_frames), shape=(260, 346),
+                     n_frames=n_frames, name="standard")
+    st = simulate_to_folder(src, cfg, out, seed=0)
+    # VmHWM (peak RSS of this process image); ru_maxrss would include the
+    # parent's RSS at fork time, which Linux keeps across exec
+    try:
+        with open("/proc/self/status") as fh:
+            rss_mb = next(int(ln.split()[1]) for ln in fh if ln.startswith("VmHWM")) / 1024
+    except (OSError, StopIteration):
+        rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(json.dumps({"n_frames": n_frames, "peak_rss_mb": rss_mb, "n_events": st["n_events"]}))
+
+
+def measure_memory(n_frames: int) -> dict:
+    import tempfile
+    with tempfile.TemporaryDirectory() as d:
+        env = dict(os.environ, PYTHONPATH=str(ROOT), GS2E_PROGRESS="0")
+        r = subprocess.run([sys.executable, __file__, "--child-memory", str(n_frames),
+                            str(Path(d) / "out")], capture_output=True, text=True, env=env,
+                           check=True)
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+# ---------------------------------------------------------------- main
+def time_model(make, ts, frames, batch=32, reps=1):
+    best = None
+    for _ in range(reps):
+        m = make()
+        n = n_on = 0
+        w0, c0 = time.perf_counter(), time.process_time()
+        for i in range(0, len(ts), batch):
+            ev = m.process_batch(ts[i:i + batch], frames[i:i + batch])
+            n += len(ev)
+            n_on += int(ev.p.sum())
+        wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+        if best is None or wall < best[0]:
+            best = (wall, cpu, n, n_on)
+    return best
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--quick", action="store_true", help="under 60 s")
+    ap.add_argument("--child-memory", nargs=2, metavar=("N_FRAMES", "OUT"))
+    args = ap.parse_args()
+    if args.child_memory:
+        child_memory(int(args.child_memory[0]), args.child_memory[1])
+        return
+    import numba
+
+    threads = numba.get_num_threads()
+    t_gen = time.perf_counter()
+    seq = list(standard_sequence())
+    ts = np.array([t for t, _ in seq], np.int64)
+    frames = np.stack([f for _, f in seq])
+    t_gen = time.perf_counter() - t_gen
+    H, W = frames.shape[1:]
+    pf = (len(ts) - 1) * H * W
+    load0 = os.getloadavg()[0]
+    # compile / load the kernels outside the timings
+    VoltmeterModel((H, W), preset="dvs346").process_batch(ts[:3], frames[:3])
+    IdealModel((H, W)).process_batch(ts[:3], frames[:3])
+
+    reps = 1 if args.quick else 3
+    rows = []
+    configs = [("voltmeter", name, lambda name=name: VoltmeterModel((H, W), preset=name, seed=1))
+               for name in ("dvs346", "dvs240", "gs2e_paper")]
+    configs.append(("voltmeter", "dvs346 two_barrier",
+                    lambda: VoltmeterModel((H, W), preset="dvs346", seed=1, exit_law="two_barrier")))
+    th_ideal = 0.2
+    configs.append(("ideal", f"theta={th_ideal}",
+                    lambda: IdealModel((H, W), theta_on=th_ideal, theta_off=th_ideal)))
+    for model, preset, make in configs:
+        wall, cpu, n, n_on = time_model(make, ts, frames, reps=reps)
+        rows.append({"impl": "gs2e (numba)", "model": model, "preset": preset, "frames": len(ts),
+                     "wall_s": wall, "cpu_s": cpu, "threads": threads, "events": n,
+                     "on_fraction": n_on / max(n, 1), "mpf_per_s": pf / wall / 1e6,
+                     "mpf_per_s_cpu_x_threads": pf / cpu * threads / 1e6,
+                     "mev_per_s": n / wall / 1e6,
+                     "eff_threshold_rel": (effective_threshold(PRESETS[preset.split()[0]], 1.0, 0.5)
+                                           if model == "voltmeter" else float(np.expm1(th_ideal)))})
+    # one thread: per-core throughput by CPU time, robust on a shared machine
+    numba.set_num_threads(1)
+    wall1, cpu1, n1, on1 = time_model(configs[0][2], ts, frames, reps=reps)
+    numba.set_num_threads(threads)
+    rows.append({"impl": "gs2e (numba, 1 thread)", "model": "voltmeter", "preset": "dvs346",
+                 "frames": len(ts), "wall_s": wall1, "cpu_s": cpu1, "threads": 1, "events": n1,
+                 "on_fraction": on1 / max(n1, 1), "mpf_per_s": pf / wall1 / 1e6,
+                 "mpf_per_s_cpu_x_threads": pf / cpu1 / 1e6, "mev_per_s": n1 / wall1 / 1e6,
+                 "eff_threshold_rel": effective_threshold(PRESETS["dvs346"], 1.0, 0.5)})
+    # in-run baseline: plain numpy, same model, dvs346 (fewer frames in quick mode)
+    nb = 49 if args.quick else len(ts)
+    w0, c0 = time.perf_counter(), time.process_time()
+    nbe, nbon = numpy_voltmeter(ts[:nb], frames[:nb], PRESETS["dvs346"], seed=1)
+    wall_b, cpu_b = time.perf_counter() - w0, time.process_time() - c0
+    pf_b = (nb - 1) * H * W
+    m_ours = VoltmeterModel((H, W), preset="dvs346", seed=1)
+    ours_nb = m_ours.process_batch(ts[:nb], frames[:nb])
+    rows.append({"impl": "numpy baseline", "model": "voltmeter", "preset": "dvs346", "frames": nb,
+                 "wall_s": wall_b, "cpu_s": cpu_b, "threads": 1, "events": nbe,
+                 "on_fraction": nbon / max(nbe, 1), "mpf_per_s": pf_b / wall_b / 1e6,
+                 "mpf_per_s_cpu_x_threads": pf_b / cpu_b / 1e6, "mev_per_s": nbe / wall_b / 1e6,
+                 "eff_threshold_rel": effective_threshold(PRESETS["dvs346"], 1.0, 0.5)})
+    # memory at two lengths
+    lens = (120, 480) if args.quick else (480, 1920)
+    mem = [measure_memory(n) for n in lens]
+    load1 = os.getloadavg()[0]
+
+    import pandas as pd
+    df = pd.DataFrame(rows)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    df.to_csv(RESULTS / "bench_events.csv", index=False)
+    pd.DataFrame(mem).to_csv(RESULTS / "bench_events_memory.csv", index=False)
+    with pd.option_context("display.width", 200, "display.max_columns", 20,
+                           "display.float_format", "{:.3f}".format):
+        print(f"standard sequence: {len(ts)} frames {W}x{H} @2400 fps "
+              f"(generated in {t_gen:.2f} s), {pf / 1e6:.1f} M pixel-frames, "
+              f"numba threads {threads}, load avg {load0:.1f} -> {load1:.1f} "
+              f"(machine shared: 'cpu_x_threads' = pixel-frames per CPU-second x threads)")
+        print(df.to_string(index=False))
+    ours_b = rows[0]
+    one = rows[-2]
+    print(f"1 thread: {one['mpf_per_s_cpu_x_threads']:.1f} M pixel-frames per CPU-second -> "
+          f"{2 * one['mpf_per_s_cpu_x_threads']:.1f} projected on 2 free cores (target {TARGET_MPF})")
+    print(f"baseline check on {nb} frames: numpy {nbe} events (ON {nbon / max(nbe, 1):.3f}) vs "
+          f"gs2e {len(ours_nb)} (ON {ours_nb.p.mean():.3f})")
+    speed_vs_numpy = ours_b["mpf_per_s"] / rows[-1]["mpf_per_s"]
+    print(f"per core (CPU time, 1 thread each): gs2e {one['mpf_per_s_cpu_x_threads']:.1f} vs numpy "
+          f"{rows[-1]['mpf_per_s_cpu_x_threads']:.1f} M pixel-frames/s = "
+          f"{one['mpf_per_s_cpu_x_threads'] / rows[-1]['mpf_per_s_cpu_x_threads']:.1f}x")
+    print(f"speed-up vs numpy baseline (wall): {speed_vs_numpy:.1f}x; "
+          f"vs public DVS-Voltmeter figure {PUBLIC_MPF} Mpf/s: "
+          f"{ours_b['mpf_per_s'] / PUBLIC_MPF:.1f}x wall, "
+          f"{ours_b['mpf_per_s_cpu_x_threads'] / PUBLIC_MPF:.1f}x per-CPU")
+    for m in mem:
+        print(f"streaming pipeline (model + HDF5 + stats), {m['n_frames']} frames: "
+              f"peak RSS {m['peak_rss_mb']:.0f} MB, {m['n_events']} events")
+
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(1, 2, figsize=(11, 4))
+    lab = [f"{r['impl']}\n{r['model']} {r['preset']}" for r in rows]
+    ax[0].barh(lab, df["mpf_per_s"], label="wall")
+    ax[0].barh(lab, df["mpf_per_s_cpu_x_threads"], alpha=0.4, label="per CPU-s x threads")
+    ax[0].axvline(TARGET_MPF, color="r", ls="--", label="target 65")
+    ax[0].axvline(PUBLIC_MPF, color="k", ls=":", label="public code 4.3")
+    ax[0].set_xlabel("M pixel-frames / s")
+    ax[0].legend(fontsize=7)
+    ax[1].plot([m["n_frames"] for m in mem], [m["peak_rss_mb"] for m in mem], "o-")
+    ax[1].set_xlabel("frames")
+    ax[1].set_ylabel("peak RSS (MB)")
+    ax[1].set_ylim(0, None)
+    ax[1].set_title("streaming pipeline memory")
+    fig.tight_layout()
+    fig.savefig(RESULTS / "bench_events.png", dpi=100)
+    print(f"HEADLINE: voltmeter dvs346 {ours_b['mpf_per_s']:.1f} M pixel-frames/s wall on "
+          f"{threads} threads, shared machine (1-thread CPU-time: "
+          f"{one['mpf_per_s_cpu_x_threads']:.1f}/core, x2 = "
+          f"{2 * one['mpf_per_s_cpu_x_threads']:.1f}), "
+          f"{ours_b['mev_per_s']:.1f} M events/s; {speed_vs_numpy:.0f}x numpy baseline, "
+          f"{ours_b['mpf_per_s'] / PUBLIC_MPF:.1f}x public DVS-Voltmeter (4.3); peak RSS "
+          f"{mem[0]['peak_rss_mb']:.0f} MB @{mem[0]['n_frames']} vs {mem[1]['peak_rss_mb']:.0f} MB "
+          f"@{mem[1]['n_frames']} frames")
+
+
+if __name__ == "__main__":
+    main()

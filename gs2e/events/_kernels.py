@@ -1,0 +1,777 @@
+"""Compiled (numba) kernels of the event models.
+
+Everything per pixel is computed in float64; times are float64 microseconds
+internally and int64 microseconds on output.
+
+Random numbers: a counter-based stream per (seed, frame index, pixel, purpose)
+(SplitMix64 seeded by a hash of the key), so the events do not depend on the
+number of threads or on the order in which rows are processed: same seed, same
+bytes.
+
+Rows are processed in parallel (``prange``) over a BATCH of frames (one
+parallel region per batch, not per frame: pixels are independent, so a thread
+runs its rows through all frames of the batch). Every row writes its events
+into its own slice of a buffer (``cap`` events per row and batch) and counts
+them per frame in ``fn[b, row]``. A row that overflows its slice reports how
+many it needed; the caller re-runs the batch with a larger slice (state is read
+from ``*_in`` and written to ``*_out`` arrays, so a re-run sees the same input
+state and produces the same events).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_M2 = np.uint64(0x94D049BB133111EB)
+_K_FRAME = np.uint64(0xD1B54A32D192ED03)
+_K_SALT = np.uint64(0x8CB92BA72F3D8DD7)
+_S30 = np.uint64(30)
+_S27 = np.uint64(27)
+_S31 = np.uint64(31)
+_S11 = np.uint64(11)
+_INV53 = 1.0 / 9007199254740992.0  # 2**-53
+_TWO_PI = 2.0 * math.pi
+
+# Purposes of random streams (salts), so signal and noise never share draws.
+SALT_SIGNAL = 1
+SALT_NOISE = 2
+
+
+@njit(inline="always", cache=True)
+def _mix64(z):
+    z = (z ^ (z >> _S30)) * _M1
+    z = (z ^ (z >> _S27)) * _M2
+    return z ^ (z >> _S31)
+
+
+@njit(inline="always", cache=True)
+def frame_key(seed, frame_idx, salt):
+    """Key of the streams of one frame interval (hash of seed, frame, salt)."""
+    s = _mix64(np.uint64(seed) ^ (np.uint64(salt) * _K_SALT))
+    return _mix64(s ^ (np.uint64(frame_idx) * _K_FRAME))
+
+
+@njit(inline="always", cache=True)
+def pixel_state(key, pixel):
+    """Initial SplitMix64 state of one pixel's stream within a frame key."""
+    return _mix64(key ^ (np.uint64(pixel) * _GOLDEN))
+
+
+@njit(cache=True)
+def stream_state(seed, frame_idx, pixel, salt):
+    """Initial SplitMix64 state of the stream keyed by (seed, frame, pixel, salt)."""
+    return pixel_state(frame_key(seed, frame_idx, salt), pixel)
+
+
+@njit(inline="always", cache=True)
+def _next(state):
+    state = state + _GOLDEN
+    return state, _mix64(state)
+
+
+@njit(inline="always", cache=True)
+def uniform_open(state):
+    """Uniform in (0, 1) (never 0 or 1), 53-bit resolution."""
+    state, z = _next(state)
+    return state, (float(z >> _S11) + 0.5) * _INV53
+
+
+@njit(cache=True)
+def normal_pair(state):
+    """Two independent standard normals (Box-Muller)."""
+    state, u1 = uniform_open(state)
+    state, u2 = uniform_open(state)
+    r = math.sqrt(-2.0 * math.log(u1))
+    a = _TWO_PI * u2
+    return state, r * math.cos(a), r * math.sin(a)
+
+
+def _ziggurat_tables(n=256, r=3.6541528853610088, v=0.00492867323399):
+    """Marsaglia-Tsang ziggurat tables for the standard normal, 52-bit version
+    (layer i spans x in [0, w_i 2^52]; fast acceptance if |draw| < k_i)."""
+    m = 2.0 ** 52
+    ki = np.zeros(n, np.uint64)
+    wi = np.zeros(n)
+    fi = np.zeros(n)
+    dn = tn = r
+    q = v / math.exp(-0.5 * dn * dn)
+    ki[0] = np.uint64((dn / q) * m)
+    wi[0] = q / m
+    wi[n - 1] = dn / m
+    fi[0] = 1.0
+    fi[n - 1] = math.exp(-0.5 * dn * dn)
+    for i in range(n - 2, 0, -1):
+        dn = math.sqrt(-2.0 * math.log(v / dn + math.exp(-0.5 * dn * dn)))
+        ki[i + 1] = np.uint64((dn / tn) * m)
+        tn = dn
+        fi[i] = math.exp(-0.5 * dn * dn)
+        wi[i] = dn / m
+    return ki, wi, fi
+
+
+_ZK, _ZW, _ZF = _ziggurat_tables()
+_ZR = 3.6541528853610088
+_MASK52 = np.uint64((1 << 52) - 1)
+_S8 = np.uint64(8)
+_S9 = np.uint64(9)
+_ONE = np.uint64(1)
+_B255 = np.uint64(255)
+
+
+@njit(inline="always", cache=True)
+def normal_zig(state):
+    """Standard normal by the ziggurat method: one 64-bit draw and a table
+    look-up ~99 % of the time (inlined); the rest in :func:`_normal_zig_slow`."""
+    state, r = _next(state)
+    idx = np.int64(r & _B255)
+    rabs = (r >> _S9) & _MASK52
+    if rabs < _ZK[idx]:
+        x = float(rabs) * _ZW[idx]
+        return state, (-x if ((r >> _S8) & _ONE) == _ONE else x)
+    return _normal_zig_slow(state, r)
+
+
+@njit(cache=True)
+def _normal_zig_slow(state, r):
+    """Ziggurat wedges and tail, starting from the rejected draw ``r``."""
+    first = True
+    while True:
+        if not first:
+            state, r = _next(state)
+        first = False
+        idx = np.int64(r & _B255)
+        neg = ((r >> _S8) & _ONE) == _ONE
+        rabs = (r >> _S9) & _MASK52
+        x = float(rabs) * _ZW[idx]
+        if neg:
+            x = -x
+        if rabs < _ZK[idx]:
+            return state, x
+        if idx == 0:
+            # tail beyond r (Marsaglia's method)
+            while True:
+                state, u1 = uniform_open(state)
+                state, u2 = uniform_open(state)
+                xx = -math.log(u1) / _ZR
+                yy = -math.log(u2)
+                if yy + yy > xx * xx:
+                    break
+            return state, (-(_ZR + xx) if neg else _ZR + xx)
+        state, u = uniform_open(state)
+        if _ZF[idx] + u * (_ZF[idx - 1] - _ZF[idx]) < math.exp(-0.5 * x * x):
+            return state, x
+
+
+@njit(cache=True)
+def p_on_two_barrier(mu, sigma, a, b):
+    """Probability that drifted Brownian motion (drift ``mu``, diffusion
+    ``sigma``) started between barriers leaves through the upper one, which is
+    ``a`` above, before the lower one, ``b`` below (a, b > 0).
+
+    p = (exp(z b) - 1) / (exp(z b) - exp(-z a)),  z = 2 mu / sigma^2,
+    evaluated with expm1 in a form that never overflows; the mu -> 0 limit is
+    b / (a + b) (not 1/2 unless the residual is 0).
+    """
+    if sigma <= 0.0:
+        if mu > 0.0:
+            return 1.0
+        if mu < 0.0:
+            return 0.0
+        return b / (a + b)
+    z = 2.0 * mu / (sigma * sigma)
+    w = a + b
+    if abs(z) * w < 1e-12:
+        return b / w
+    if z > 0.0:
+        # multiply numerator and denominator by exp(-z b)
+        return math.expm1(-z * b) / math.expm1(-z * w)
+    # z < 0: multiply by exp(z a)
+    return math.exp(z * a) * (math.expm1(z * b) / math.expm1(z * w))
+
+
+@njit(cache=True)
+def first_passage_time(nu2, u, eps, c, sigma):
+    """First-passage time of Brownian motion with drift magnitude ``c`` >= 0
+    towards a barrier at distance ``eps`` > 0, diffusion ``sigma``.
+
+    ``nu2`` is a chi-square(1) variate (a squared standard normal) and ``u`` a
+    uniform in (0, 1). c > 0: inverse Gaussian IG(mean eps/c, shape
+    (eps/sigma)^2) by Michael-Schucany-Haas, written without cancellation
+    (x = 4 m / (sqrt(q) + sqrt(q + 4))^2, q = m nu2 / shape). c == 0: Levy with
+    scale (eps/sigma)^2, i.e. shape / nu2. Drift away from the barrier is
+    handled by the caller passing |drift| (the law conditional on hitting, see
+    gs2e/events/models.py). Returns +inf when the barrier is never reached.
+    """
+    if sigma <= 0.0:
+        if c > 0.0:
+            return eps / c
+        return math.inf
+    lam = (eps / sigma) ** 2
+    if c <= 0.0:
+        if nu2 <= 0.0:
+            return math.inf
+        return lam / nu2
+    m = eps / c
+    q = m * nu2 / lam
+    x = 4.0 * m / (math.sqrt(q) + math.sqrt(q + 4.0)) ** 2
+    if u * (m + x) <= m:
+        return x
+    return (m / x) * m
+
+
+@njit(cache=True)
+def poisson_small(state, lam):
+    """Poisson(lam) by inversion (meant for small lam, as noise per frame)."""
+    state, u = uniform_open(state)
+    k = 0
+    p = math.exp(-lam)
+    s = p
+    while u > s and k < 100000:
+        k += 1
+        p *= lam / k
+        s += p
+        if p == 0.0:
+            break
+    return state, k
+
+
+@njit(cache=True)
+def normal_polar(state):
+    """Marsaglia polar method: returns (state, n1^2, n2) with n1, n2 independent
+    standard normals (n1 only squared, which saves a sqrt)."""
+    while True:
+        state, u = uniform_open(state)
+        state, w = uniform_open(state)
+        u = 2.0 * u - 1.0
+        w = 2.0 * w - 1.0
+        s = u * u + w * w
+        if s < 1.0 and s > 0.0:
+            break
+    f = -2.0 * math.log(s) / s
+    return state, u * u * f, w * math.sqrt(f)
+
+
+@njit(cache=True)
+def _n_images(var, w):
+    """Image terms per side needed for series with exponents ~ -k^2 w^2 / var."""
+    return 3 + int(math.sqrt(max(var, 0.0)) / w * 6.0)
+
+
+@njit(cache=True)
+def bridge_stay_probability(x, y, lo, hi, var):
+    """P(a Brownian bridge from x to y with variance ``var`` (sigma^2 s) stays
+    in (lo, hi)), by the method of images:
+    sum_k exp(-2 k w (y - x + k w) / var) - exp(-2 (k w - A)(k w - B) / var),
+    w = hi - lo, A = hi - x, B = hi - y."""
+    w = hi - lo
+    A = hi - x
+    B = hi - y
+    dl = y - x
+    K = _n_images(var, w)
+    p = 0.0
+    for k in range(-K, K + 1):
+        kw = k * w
+        p += math.exp(-2.0 * kw * (dl + kw) / var) - math.exp(-2.0 * (kw - A) * (kw - B) / var)
+    return min(max(p, 0.0), 1.0)
+
+
+@njit(cache=True)
+def two_barrier_ratio(a, w, var_tau):
+    """g_two(tau) / g_single(tau): density of exiting through a barrier at
+    distance a at time tau with the other barrier at distance w - a, relative
+    to the single-barrier first-passage density (drift-free; ``var_tau`` =
+    sigma^2 tau): sum_k (1 + 2 k w / a) exp(-2 k w (a + k w) / var_tau)."""
+    K = _n_images(var_tau, w)
+    r = 0.0
+    for k in range(-K, K + 1):
+        kw = k * w
+        r += (1.0 + 2.0 * kw / a) * math.exp(-2.0 * kw * (a + kw) / var_tau)
+    return min(max(r, 0.0), 1.0)
+
+
+@njit(cache=True)
+def bridge_crossing_time(s, eps, d, nu2, u, sg):
+    """Time (in [0, s]) at which a bridge that moves towards a barrier at
+    distance eps and ends d short of it (d < 0: beyond) first reaches it,
+    given that it does: tau = s U / (s + U) with U ~ IG(eps s / |d|,
+    eps^2 / sigma^2) (time change of the bridge). nu2: chi-square(1), u:
+    uniform. Written with two divisions."""
+    ad = abs(d)
+    if ad > 0.0 and sg > 0.0:
+        r1e = 1.0 / (ad * eps)
+        m = eps * eps * s * r1e
+        q = s * nu2 * sg * sg * r1e
+        S = (math.sqrt(q) + math.sqrt(q + 4.0)) ** 2
+        if u * (S + 4.0) <= S:       # keep x = 4 m / S
+            tau = 4.0 * s * m / (s * S + 4.0 * m)
+        else:                        # take m^2 / x = m S / 4
+            tau = s * m * S / (4.0 * s + m * S)
+        if not (tau >= 0.0 and tau <= s):
+            tau = s  # m or S overflowed: the crossing is at the end
+        return tau
+    U = first_passage_time(nu2, u, eps, ad / s, sg)
+    return s if not math.isfinite(U) else s * (U / (s + U))
+
+
+@njit(cache=True)
+def row_order(H):
+    """Rows in golden-ratio order, so that the equal contiguous chunks of
+    iterations each thread gets cover the whole image (event load is uneven
+    across the image). Only the processing order changes, not the output."""
+    key = np.empty(H)
+    for y in range(H):
+        key[y] = (y * 0.6180339887498949) % 1.0
+    return np.argsort(key)
+
+
+@njit(cache=True, parallel=True)
+def voltmeter_batch(Lp, Lb, scale, ts_us, frame_idx0, seed, k, tu_us, th_on, th_off, res_in,
+                    ready_in, res_out, ready_out, refractory_us, max_events_px, cap,
+                    ev_t, ev_x, ev_p, fn, two_barrier=False):
+    """DVS-Voltmeter pixel model over a batch of frame intervals.
+
+    Parameters
+    ----------
+    Lp, Lb : (H, W) previous frame and (B, H, W) new frames, linear luminance
+        in [0, 1] (float32 or float64); interval b runs from frame b - 1 (Lp for
+        b = 0) to Lb[b]. ``scale`` converts to the preset's intensity unit.
+    ts_us : (B + 1,) int64 frame times in microseconds (absolute).
+    frame_idx0 : index of frame L[1] in the sequence (keys the random streams).
+    k : (6,) float64, k1..k6 in the preset's units (time unit ``tu_us`` us).
+    th_on, th_off : (H, W) float64, barrier heights (normalised voltage, > 0).
+    res_in, ready_in : (H, W) float64 state: residual voltage and the time (us,
+        relative to the batch's first frame) until which the pixel is held
+        after its last event (refractory; -inf if not held).
+    cap : events per row reserved in ``ev_t`` (float64 us relative to the
+        start of the event's interval), ``ev_x`` (int32),
+        ``ev_p`` (int8, +1/-1); ``fn[b, y]`` receives the number of events of
+        row y in interval b (a row total above ``cap`` means overflow).
+    two_barrier : False = DVS-Voltmeter's law (below); True = the exact exit of
+        the drift-diffusion from the band (-theta_off, theta_on) (see the
+        in-line comments and gs2e/events/models.py).
+    Returns the number of pixel-intervals whose event count hit ``max_events_px``.
+
+    Given the polarity (two-barrier probability), the voltage moves towards
+    the chosen barrier (distance eps) as Brownian motion with drift c = |mu|
+    (the law conditional on hitting it, see models.py), so its first passage
+    is IG(eps / c, eps^2 / sigma^2). It is simulated exactly per interval by
+    its end point: y ~ N(c s, sigma^2 s) over the remaining time s; the path
+    crossed if y >= eps, else with the bridge probability
+    exp(-2 eps (eps - y) / (sigma^2 s)). Given a crossing, the crossing time of
+    the bridge is tau = s U / (s + U) with U the first passage of level eps by
+    Brownian motion with drift |eps - y| / s (time change of the bridge), so
+    U ~ IG(eps s / |eps - y|, eps^2 / sigma^2). Without a crossing the
+    residual is the end point itself.
+    """
+    B = Lb.shape[0]
+    H = Lb.shape[1]
+    W = Lb.shape[2]
+    k1, k2, k3, k4, k5, k6 = k[0], k[1], k[2], k[3], k[4], k[5]
+    capped = np.zeros(H, np.int64)
+    order = row_order(H)
+    for i in prange(H):
+        y = order[i]
+        n = 0
+        base = y * cap
+        mu_r = np.empty(W)
+        sg_r = np.empty(W)
+        is_r = np.empty(W)
+        for x in range(W):
+            res_out[y, x] = res_in[y, x]
+            ready_out[y, x] = ready_in[y, x]
+        for bi in range(B):
+            # times within an interval are float64 us RELATIVE to its start
+            # (small numbers: exact and shift-invariant at any absolute time)
+            t0_us = 0.0
+            t1_us = float(ts_us[bi + 1] - ts_us[bi])
+            inv_dt_m = tu_us / t1_us
+            # drift and diffusion of the row first (a branch-free loop the
+            # compiler vectorises), then the sampling loop
+            if bi == 0:
+                for x in range(W):
+                    a0 = scale * Lp[y, x]
+                    a1 = scale * Lb[0, y, x]
+                    lbar = 0.5 * (a0 + a1)
+                    den = 1.0 / (lbar + k2)
+                    mu_r[x] = k1 * (a1 - a0) * inv_dt_m * den + k4 + k5 * lbar
+                    sg_r[x] = k3 * math.sqrt(max(lbar, 0.0)) * den + k6
+            else:
+                for x in range(W):
+                    a0 = scale * Lb[bi - 1, y, x]
+                    a1 = scale * Lb[bi, y, x]
+                    lbar = 0.5 * (a0 + a1)
+                    den = 1.0 / (lbar + k2)
+                    mu_r[x] = k1 * (a1 - a0) * inv_dt_m * den + k4 + k5 * lbar
+                    sg_r[x] = k3 * math.sqrt(max(lbar, 0.0)) * den + k6
+            for x in range(W):
+                is_r[x] = 1.0 / (sg_r[x] * sg_r[x])  # inf when sigma = 0
+            s_full = 1.0 / inv_dt_m
+            sqrt_dt_m = math.sqrt(s_full)
+            inv_tu = 1.0 / tu_us
+            n_frame0 = n
+            key = frame_key(seed, frame_idx0 + bi, SALT_SIGNAL)
+            for x in range(W):
+                mu = mu_r[x]
+                sg = sg_r[x]
+                ton = th_on[y, x]
+                toff = th_off[y, x]
+                v = res_out[y, x]
+                t = max(t0_us, ready_out[y, x])
+                st = pixel_state(key, y * W + x)
+                cm = abs(mu)
+                inv_sg2 = is_r[x]
+                if sg > 0.0:
+                    z2 = 2.0 * mu * inv_sg2
+                else:
+                    z2 = math.inf if mu > 0 else -math.inf
+                npx = 0
+                while t < t1_us:
+                    if two_barrier:
+                        # exact two-barrier exit of the free drift-diffusion
+                        if t == t0_us:
+                            s = s_full
+                            sq = sqrt_dt_m
+                        else:
+                            s = (t1_us - t) * inv_tu
+                            sq = math.sqrt(s)
+                        st, zn = normal_zig(st)
+                        yend = v + mu * s + sg * sq * zn
+                        A = ton - v
+                        Bv = ton - yend
+                        C = v + toff
+                        D = yend + toff
+                        if Bv <= 0.0 or D <= 0.0:
+                            cross = True
+                        else:
+                            eu = 2.0 * A * Bv * inv_sg2
+                            ed = 2.0 * C * D * inv_sg2
+                            if eu > 40.0 * s and ed > 40.0 * s:
+                                cross = False  # 1 - P(stay) < 2^-54
+                            else:
+                                st, u = uniform_open(st)
+                                cross = u >= bridge_stay_probability(v, yend, -toff, ton,
+                                                                     sg * sg * s)
+                        if not cross:
+                            v = min(max(yend, -toff * (1.0 - 1e-9)), ton * (1.0 - 1e-9))
+                            break
+                        # exit side and time given the bridge: propose from the
+                        # single-barrier bridge laws (weights = their crossing
+                        # probabilities), accept with g_two / g_single
+                        p_up = 1.0 if Bv <= 0.0 else math.exp(-2.0 * A * Bv * inv_sg2 / s)
+                        p_dn = 1.0 if D <= 0.0 else math.exp(-2.0 * C * D * inv_sg2 / s)
+                        wdt = ton + toff
+                        for _ in range(1000):
+                            st, u = uniform_open(st)
+                            on = u * (p_up + p_dn) < p_up
+                            eps = A if on else C
+                            dd = Bv if on else D
+                            st, zu = normal_zig(st)
+                            st, u = uniform_open(st)
+                            tau = bridge_crossing_time(s, eps, dd, zu * zu, u, sg)
+                            var_tau = sg * sg * tau
+                            # the ratio is 1 - c e^-E with E = 2 w (w - eps) /
+                            # (sigma^2 tau), c <= 2 w / eps + 1: E > 80 makes it
+                            # 1 to double precision for eps > 1e-16 w
+                            if var_tau <= 0.0 or 2.0 * wdt * (wdt - eps) > 80.0 * var_tau:
+                                break
+                            st, u = uniform_open(st)
+                            if u < two_barrier_ratio(eps, wdt, var_tau):
+                                break
+                        te = t + tau * tu_us
+                        if te > t1_us:
+                            te = t1_us
+                        if n < cap:
+                            ev_t[base + n] = te
+                            ev_x[base + n] = x
+                            ev_p[base + n] = 1 if on else -1
+                        n += 1
+                        npx += 1
+                        v = 0.0
+                        t = te + refractory_us
+                        if npx >= max_events_px:
+                            capped[y] += 1
+                            break
+                        continue
+                    a = ton - v
+                    b = toff + v
+                    # |z| min(a, b) > 38 decides the polarity exactly at the
+                    # 2^-54 resolution of our uniforms: no draw needed then
+                    if z2 * b > 38.0:
+                        on = True
+                    elif z2 * a < -38.0:
+                        on = False
+                    else:
+                        pon = p_on_two_barrier(mu, sg, a, b)
+                        st, u = uniform_open(st)
+                        on = u < pon
+                    eps = a if on else b
+                    if t == t0_us:
+                        s = s_full
+                        sq = sqrt_dt_m
+                    else:
+                        s = (t1_us - t) * inv_tu
+                        sq = math.sqrt(s)
+                    st, zn = normal_zig(st)
+                    yv = cm * s + sg * sq * zn
+                    d = eps - yv
+                    if d > 0.0:
+                        # bridge crossing probability exp(-e), e = 2 eps d / (sigma^2 s);
+                        # e > 38 is decided without a draw (and without dividing)
+                        e_s = 2.0 * eps * d * inv_sg2
+                        if e_s > 38.0 * s:
+                            cross = False
+                        else:
+                            st, u = uniform_open(st)
+                            cross = u < math.exp(-e_s / s)
+                    else:
+                        cross = True
+                    if not cross:
+                        v = v + yv if on else v - yv
+                        # the model fixes the polarity first, so the end point
+                        # may lie past the other barrier: keep it in the band
+                        lo = -toff * (1.0 - 1e-9)
+                        hi = ton * (1.0 - 1e-9)
+                        if v < lo:
+                            v = lo
+                        elif v > hi:
+                            v = hi
+                        break
+                    st, zu = normal_zig(st)
+                    st, u = uniform_open(st)
+                    tau = bridge_crossing_time(s, eps, d, zu * zu, u, sg)
+                    te = t + tau * tu_us
+                    if te > t1_us:
+                        te = t1_us
+                    if n < cap:
+                        ev_t[base + n] = te
+                        ev_x[base + n] = x
+                        ev_p[base + n] = 1 if on else -1
+                    n += 1
+                    npx += 1
+                    v = 0.0
+                    t = te + refractory_us
+                    if npx >= max_events_px:
+                        capped[y] += 1
+                        break
+                res_out[y, x] = v
+                ready_out[y, x] = t - t1_us if t > t1_us else -math.inf
+            fn[bi, y] = n - n_frame0
+    return capped.sum()
+
+
+@njit(cache=True, parallel=True)
+def ideal_batch(Lp, Lb, log_eps, ts_us, th_on, th_off, ref_in, last_in, ref_out,
+                last_out, refractory_us, max_events_px, cap, ev_t, ev_x, ev_p, fn):
+    """Ideal (ESIM-style) model over a batch of frame intervals.
+
+    Lp, Lb : previous (H, W) and new (B, H, W) frames, linear luminance in
+        [0, 1]; the log intensity G = log(L + log_eps) is taken as linear in
+        time within an interval.
+    ref_in : reference per pixel as LINEAR value exp(G_ref) (level of the last
+        crossing), so that the common no-crossing case needs no logarithm:
+        a crossing exists iff L + log_eps >= ref e^theta_on (or <= ref
+        e^-theta_off); only then are the logs taken.
+    last_in : time (us, relative to the batch's first frame) of the last
+        emitted event per pixel (-inf if none).
+    Crossings of G_ref + theta_on (upward) / G_ref - theta_off (downward) are
+    timed by linear interpolation of G; an event within ``refractory_us`` of
+    the previous emitted one is dropped but the reference still advances (as
+    ESIM). Buffers as in ``voltmeter_batch``.
+    """
+    B = Lb.shape[0]
+    H = Lb.shape[1]
+    W = Lb.shape[2]
+    capped = np.zeros(H, np.int64)
+    order = row_order(H)
+    for i in prange(H):
+        y = order[i]
+        n = 0
+        base = y * cap
+        for x in range(W):
+            ref_out[y, x] = ref_in[y, x]
+            last_out[y, x] = last_in[y, x]
+        for bi in range(B):
+            t0_us = 0.0  # relative times, as in voltmeter_batch
+            dt = float(ts_us[bi + 1] - ts_us[bi])
+            n_frame0 = n
+            for x in range(W):
+                x1 = Lb[bi, y, x] + log_eps
+                rl = ref_out[y, x]
+                ton = th_on[y, x]
+                toff = th_off[y, x]
+                up = x1 > rl
+                # no-crossing certificates without exp/log (e^th >= 1 + th):
+                # most pixels do not move by a threshold in one interval
+                if up:
+                    if x1 < rl * (1.0 + ton):
+                        continue
+                elif x1 * (1.0 + toff) > rl:
+                    continue
+                x0 = (Lp[y, x] if bi == 0 else Lb[bi - 1, y, x]) + log_eps
+                g0 = math.log(x0)
+                g1 = math.log(x1)
+                ref = math.log(rl)
+                last = last_out[y, x]
+                d = g1 - g0
+                th = ton if up else toff
+                npx = 0
+                moved = False
+                if d != 0.0:
+                    while (g1 - ref >= th) if up else (ref - g1 >= th):
+                        lev = ref + th if up else ref - th
+                        te = t0_us + (lev - g0) / d * dt
+                        if te < t0_us:
+                            te = t0_us
+                        ref = lev
+                        moved = True
+                        if refractory_us <= 0.0 or te - last >= refractory_us:
+                            if n < cap:
+                                ev_t[base + n] = te
+                                ev_x[base + n] = x
+                                ev_p[base + n] = 1 if up else -1
+                            n += 1
+                            last = te
+                        npx += 1
+                        if npx >= max_events_px:
+                            capped[y] += 1
+                            ref = g1
+                            break
+                if moved:
+                    ref_out[y, x] = math.exp(ref)
+                    last_out[y, x] = last
+            for x in range(W):
+                last_out[y, x] -= dt  # relative to the next interval's start
+            fn[bi, y] = n - n_frame0
+    return capped.sum()
+
+
+@njit(cache=True, parallel=True)
+def noise_batch(Lp, Lb, ts_us, frame_idx0, seed, leak_rate_hz, shot_rate_hz,
+                shot_on_fraction, cap, row0, ev_t, ev_x, ev_p, fn):
+    """Noise events over a batch of frame intervals (v2e-like, Poisson per pixel).
+
+    Lp, Lb : previous (H, W) and new (B, H, W) frames, linear luminance in [0, 1].
+    Leak events: ON, rate ``leak_rate_hz`` per pixel. Shot noise: rate
+    ``shot_rate_hz`` per pixel scaled by 2 (1 - L) for the pixel's mean linear
+    luminance L over the interval (more in the dark; the mean over a uniform
+    histogram is the nominal rate), ON with probability ``shot_on_fraction``.
+    Times uniform in the interval. Noise events are independent of the pixel
+    model's state (they neither reset it nor obey its refractory period, as
+    they stand for activity outside the modelled signal path). Row y uses
+    buffer row ``row0 + y`` and
+    ``fn[b, row0 + y]``; otherwise as ``voltmeter_batch``.
+    """
+    B = Lb.shape[0]
+    H = Lb.shape[1]
+    W = Lb.shape[2]
+    for y in prange(H):
+        n = 0
+        base = (row0 + y) * cap
+        for bi in range(B):
+            dt_us = float(ts_us[bi + 1] - ts_us[bi])
+            dt_s = dt_us * 1e-6
+            lam_leak = leak_rate_hz * dt_s
+            n_frame0 = n
+            for x in range(W):
+                st = stream_state(seed, frame_idx0 + bi, y * W + x, SALT_NOISE)
+                l0 = Lp[y, x] if bi == 0 else Lb[bi - 1, y, x]
+                lval = min(max(0.5 * (l0 + Lb[bi, y, x]), 0.0), 1.0)
+                lam_shot = shot_rate_hz * 2.0 * (1.0 - lval) * dt_s
+                lam = lam_leak + lam_shot
+                st, kk = poisson_small(st, lam)
+                for _ in range(kk):
+                    st, u = uniform_open(st)
+                    st, u2 = uniform_open(st)
+                    if u2 * lam < lam_leak:
+                        sgn = 1
+                    else:
+                        st, u3 = uniform_open(st)
+                        sgn = 1 if u3 < shot_on_fraction else -1
+                    if n < cap:
+                        ev_t[base + n] = u * dt_us
+                        ev_x[base + n] = x
+                        ev_p[base + n] = sgn
+                    n += 1
+            fn[bi, row0 + y] = n - n_frame0
+    return 0
+
+
+@njit(cache=True, parallel=True)
+def gather_batch(ts_us_i, H, cap, fn, ev_t, ev_x, ev_p, out_t, out_x, out_y, out_p):
+    """Collect the batch's events into ``out_*``, sorted by integer time.
+
+    Per interval b (in parallel; each has its own output range): counting sort
+    over its microseconds (ties keep buffer-row order, then per-pixel order,
+    so the output is deterministic). Buffer row r holds image row r % H
+    (signal rows, then noise rows). Event times (float us relative to the
+    interval start) are rounded to the nearest microsecond, clamped to the
+    interval and added to its integer start time. Returns the count.
+    """
+    B = fn.shape[0]
+    R = fn.shape[1]
+    start = np.zeros((B + 1, R), np.int64)  # first event of interval b in row r
+    out0 = np.zeros(B + 1, np.int64)        # first output index of interval b
+    for bi in range(B):
+        tot = 0
+        for r in range(R):
+            start[bi + 1, r] = start[bi, r] + fn[bi, r]
+            tot += fn[bi, r]
+        out0[bi + 1] = out0[bi] + tot
+    for bi in prange(B):
+        t0 = ts_us_i[bi]
+        dt = ts_us_i[bi + 1] - t0
+        counts = np.zeros(dt + 2, np.int64)
+        for r in range(R):
+            b0 = r * cap + start[bi, r]
+            for i in range(fn[bi, r]):
+                off = np.int64(math.floor(ev_t[b0 + i] + 0.5))
+                off = min(max(off, 0), dt)
+                counts[off + 1] += 1
+        for j in range(dt + 1):
+            counts[j + 1] += counts[j]
+        n_out = out0[bi]
+        for r in range(R):
+            b0 = r * cap + start[bi, r]
+            y = r % H
+            for i in range(fn[bi, r]):
+                off = np.int64(math.floor(ev_t[b0 + i] + 0.5))
+                off = min(max(off, 0), dt)
+                j = n_out + counts[off]
+                counts[off] += 1
+                out_t[j] = t0 + off
+                out_x[j] = ev_x[b0 + i]
+                out_y[j] = y
+                out_p[j] = 1 if ev_p[b0 + i] > 0 else 0
+    return out0[B]
+
+
+@njit(cache=True, parallel=True)
+def frame_ranges(F):
+    """Per-frame (min, max) of a (B, H, W) stack; NaN propagates into both."""
+    B = F.shape[0]
+    lo = np.empty(B)
+    hi = np.empty(B)
+    for b in prange(B):
+        mn = math.inf
+        mx = -math.inf
+        bad = False
+        for y in range(F.shape[1]):
+            for x in range(F.shape[2]):
+                v = float(F[b, y, x])
+                if v != v:
+                    bad = True
+                if v < mn:
+                    mn = v
+                if v > mx:
+                    mx = v
+        if bad:
+            mn = math.nan
+            mx = math.nan
+        lo[b] = mn
+        hi[b] = mx
+    return lo, hi

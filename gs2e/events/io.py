@@ -1,0 +1,290 @@
+"""Event file I/O: DSEC-layout HDF5 (streaming, atomic), text, npz, AEDAT4.
+
+DSEC layout (what :class:`H5EventWriter` writes)::
+
+    /events/x   uint16  pixel column (0 = left)
+    /events/y   uint16  pixel row (0 = top)
+    /events/t   int64   microseconds relative to /t_offset, sorted
+    /events/p   uint8   polarity: 1 = ON (brightness increase), 0 = OFF
+    /ms_to_idx  uint64  ms_to_idx[i] = index of the first event with t >= 1000 i
+                        (i = 0 .. ceil(t_last / 1000)), as in DSEC
+    /t_offset   int64   absolute time (us) of t = 0 (the first frame's time)
+    /theta/on, /theta/off  float32 (H, W) per-pixel contrast thresholds
+    root attributes: format, polarity convention, width, height, model,
+        parameters (JSON), seed, theta summaries, gs2e version
+
+Datasets are chunked and compressed (gzip by default, readable everywhere;
+``blosc`` needs hdf5plugin to read). The file is written under a temporary
+name and renamed on success, so a failed run leaves nothing.
+
+Text format (ESIM/rpg): one event per line ``t x y p`` with t in microseconds
+(absolute), p in {0, 1} (or {-1, +1} with ``polarity="pm1"``).
+npz: arrays t (int64 us, absolute), x, y (uint16), p (uint8 0/1), width, height.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from gs2e.common.atomic import atomic_file, atomic_path
+from gs2e.common.errors import InputError
+from gs2e.events.models import Events
+
+POLARITY_DOC = "p: 1 = ON (brightness increase), 0 = OFF (brightness decrease)"
+_CHUNK = 1 << 16
+
+
+def _compression(name: str) -> dict:
+    if name == "gzip":
+        return {"compression": "gzip", "compression_opts": 4, "shuffle": True}
+    if name == "lzf":
+        return {"compression": "lzf", "shuffle": True}
+    if name == "blosc":
+        import hdf5plugin
+        return dict(hdf5plugin.Blosc(cname="zstd", clevel=5, shuffle=hdf5plugin.Blosc.SHUFFLE))
+    if name == "none":
+        return {}
+    raise ValueError(f"unknown compression '{name}'")
+
+
+class H5EventWriter:
+    """Streaming writer of a DSEC-layout HDF5 file (use as a context manager).
+
+    ``append(events)`` takes time-sorted :class:`Events` batches (absolute us);
+    the file appears at ``path`` only when the context exits without error.
+    """
+
+    def __init__(self, path: str | os.PathLike, width: int, height: int, t_offset_us: int,
+                 compression: str = "gzip", attrs: dict | None = None):
+        self.path = Path(path)
+        self.width, self.height = int(width), int(height)
+        self.t_offset = int(t_offset_us)
+        self.comp = _compression(compression)
+        self.compression = compression
+        self.attrs = dict(attrs or {})
+        self.n = 0
+        self.t_last = None
+        self._ms_idx: list[np.ndarray] = [np.zeros(1, np.uint64)]  # ms 0 starts at 0
+        self._next_ms = 1  # next millisecond boundary to resolve
+        self._stack = contextlib.ExitStack()
+
+    def __enter__(self):
+        import h5py
+        self._tmp = self._stack.enter_context(atomic_path(self.path))
+        self.f = self._stack.enter_context(h5py.File(self._tmp, "w"))
+        g = self.f.create_group("events")
+        self.ds = {}
+        for name, dt in (("x", np.uint16), ("y", np.uint16), ("t", np.int64), ("p", np.uint8)):
+            self.ds[name] = g.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dt,
+                                             chunks=(_CHUNK,), **self.comp)
+        return self
+
+    def append(self, ev: Events) -> None:
+        n = len(ev)
+        if n == 0:
+            return
+        t = ev.t.astype(np.int64) - self.t_offset
+        if t[0] < 0 or (self.t_last is not None and t[0] < self.t_last):
+            raise ValueError("events must be appended in time order, after t_offset")
+        for name, arr in (("x", ev.x), ("y", ev.y), ("t", t), ("p", ev.p)):
+            d = self.ds[name]
+            d.resize((self.n + n,))
+            d[self.n:] = arr
+        # ms_to_idx: first index with t >= 1000 * ms, for the ms boundaries
+        # that this batch reaches
+        last_ms = int(t[-1] // 1000)
+        if last_ms >= self._next_ms:
+            bounds = np.arange(self._next_ms, last_ms + 1, dtype=np.int64) * 1000
+            self._ms_idx.append((np.searchsorted(t, bounds, side="left") + self.n).astype(np.uint64))
+            self._next_ms = last_ms + 1
+        self.n += n
+        self.t_last = int(t[-1])
+
+    def __exit__(self, exc_type, exc, tb):
+        try:
+            if exc_type is None:
+                # close the last millisecond: index n for the boundary after t_last
+                self._ms_idx.append(np.array([self.n], np.uint64))
+                self.f.create_dataset("ms_to_idx", data=np.concatenate(self._ms_idx), **self.comp)
+                self.f.create_dataset("t_offset", data=np.int64(self.t_offset))
+                self.f.attrs["format"] = "DSEC-style events (gs2e)"
+                self.f.attrs["polarity"] = POLARITY_DOC
+                self.f.attrs["t_unit"] = "microseconds, relative to t_offset"
+                self.f.attrs["width"] = self.width
+                self.f.attrs["height"] = self.height
+                self.f.attrs["compression"] = self.compression
+                for k, v in self.attrs.items():
+                    if isinstance(v, np.ndarray):
+                        grp, _, name = k.rpartition("/")
+                        self.f.create_dataset(k, data=v, **self.comp)
+                    elif isinstance(v, (dict, list, tuple)):
+                        self.f.attrs[k] = json.dumps(v, sort_keys=True, default=_jsonable)
+                    else:
+                        self.f.attrs[k] = v
+        finally:
+            return self._stack.__exit__(exc_type, exc, tb)
+
+
+def _jsonable(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)
+
+
+def read_h5(path: str | os.PathLike, t_range_us: tuple[int, int] | None = None) -> tuple[Events, dict]:
+    """Read a DSEC-layout file; returns (Events with absolute t in us, attrs).
+
+    ``t_range_us`` = (start, end) absolute microseconds selects a window via
+    ms_to_idx without reading the whole file.
+    """
+    import h5py
+    import hdf5plugin  # noqa: F401  (registers blosc & co. for reading)
+
+    path = Path(path)
+    try:
+        with h5py.File(path, "r") as f:
+            t_off = int(f["t_offset"][()]) if "t_offset" in f else 0
+            g = f["events"]
+            i0, i1 = 0, g["t"].shape[0]
+            if t_range_us is not None and "ms_to_idx" in f:
+                ms = f["ms_to_idx"]
+                a = max(0, (int(t_range_us[0]) - t_off) // 1000)
+                b = max(0, -(-(int(t_range_us[1]) - t_off) // 1000))
+                i0 = int(ms[min(a, ms.shape[0] - 1)])
+                i1 = int(ms[min(b, ms.shape[0] - 1)]) if b < ms.shape[0] else i1
+            t = g["t"][i0:i1].astype(np.int64) + t_off
+            ev = Events(t, g["x"][i0:i1].astype(np.uint16), g["y"][i0:i1].astype(np.uint16),
+                        g["p"][i0:i1].astype(np.uint8))
+            attrs = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in f.attrs.items()}
+            attrs["t_offset"] = t_off
+            for k in ("theta/on", "theta/off"):
+                if k in f:
+                    attrs[k] = f[k][()]
+    except (OSError, KeyError) as exc:
+        raise InputError(f"{path}: not a readable DSEC-layout event file ({exc})") from exc
+    if t_range_us is not None:
+        keep = (ev.t >= t_range_us[0]) & (ev.t < t_range_us[1])
+        ev = Events(ev.t[keep], ev.x[keep], ev.y[keep], ev.p[keep])
+    return ev, attrs
+
+
+# ---------------------------------------------------------------- text & npz
+def write_text(path: str | os.PathLike, ev: Events, polarity: str = "01") -> None:
+    """``t x y p`` per line (t absolute us); polarity "01" or "pm1" (-1/+1)."""
+    p = ev.p.astype(np.int64)
+    if polarity == "pm1":
+        p = 2 * p - 1
+    elif polarity != "01":
+        raise ValueError(f"polarity must be '01' or 'pm1', got {polarity!r}")
+    arr = np.stack([ev.t.astype(np.int64), ev.x.astype(np.int64), ev.y.astype(np.int64), p], 1)
+    with atomic_file(path, "w") as fh:
+        np.savetxt(fh, arr, fmt="%d", delimiter=" ")
+
+
+class TextEventWriter:
+    """Streaming text writer (context manager), same format as :func:`write_text`."""
+
+    def __init__(self, path, polarity: str = "01"):
+        self.path, self.polarity = path, polarity
+        self._cm = atomic_file(path, "w")
+
+    def __enter__(self):
+        self.fh = self._cm.__enter__()
+        return self
+
+    def append(self, ev: Events) -> None:
+        if len(ev) == 0:
+            return
+        p = ev.p.astype(np.int64)
+        if self.polarity == "pm1":
+            p = 2 * p - 1
+        arr = np.stack([ev.t.astype(np.int64), ev.x.astype(np.int64), ev.y.astype(np.int64), p], 1)
+        np.savetxt(self.fh, arr, fmt="%d", delimiter=" ")
+
+    def __exit__(self, *exc):
+        return self._cm.__exit__(*exc)
+
+
+def read_text(path: str | os.PathLike) -> Events:
+    """Read ``t x y p`` lines; polarity -1/0 -> 0, +1 -> 1. Comment lines (#) skipped."""
+    path = Path(path)
+    try:
+        arr = np.loadtxt(path, dtype=np.int64, comments="#", ndmin=2)
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: not a 't x y p' event text file ({exc})") from exc
+    if arr.size == 0:
+        return Events.empty()
+    if arr.shape[1] != 4:
+        raise InputError(f"{path}: expected 4 columns 't x y p', got {arr.shape[1]}")
+    return Events(arr[:, 0], arr[:, 1].astype(np.uint16), arr[:, 2].astype(np.uint16),
+                  (arr[:, 3] > 0).astype(np.uint8))
+
+
+def write_npz(path: str | os.PathLike, ev: Events, width: int, height: int) -> None:
+    with atomic_file(path, "wb") as fh:
+        np.savez_compressed(fh, t=ev.t.astype(np.int64), x=ev.x, y=ev.y, p=ev.p,
+                            width=np.int64(width), height=np.int64(height))
+
+
+def read_npz(path: str | os.PathLike) -> tuple[Events, tuple[int, int]]:
+    """Returns (events, (height, width))."""
+    path = Path(path)
+    try:
+        with np.load(path) as z:
+            ev = Events(z["t"].astype(np.int64), z["x"].astype(np.uint16),
+                        z["y"].astype(np.uint16), z["p"].astype(np.uint8))
+            return ev, (int(z["height"]), int(z["width"]))
+    except (OSError, KeyError, ValueError) as exc:
+        raise InputError(f"{path}: not a gs2e event npz ({exc})") from exc
+
+
+def read_events(path: str | os.PathLike) -> tuple[Events, tuple[int, int] | None]:
+    """Any supported event file by suffix: .h5/.hdf5, .txt, .npz, .aedat4.
+    Returns (events, (height, width) or None if the format does not say)."""
+    path = Path(path)
+    suf = path.suffix.lower()
+    if not path.exists():
+        raise InputError(f"{path}: no such event file")
+    if suf in (".h5", ".hdf5"):
+        ev, attrs = read_h5(path)
+        return ev, (int(attrs.get("height", 0)), int(attrs.get("width", 0)))
+    if suf == ".npz":
+        return read_npz(path)
+    if suf == ".aedat4":
+        return read_aedat4(path)
+    return read_text(path), None
+
+
+def read_aedat4(path: str | os.PathLike) -> tuple[Events, tuple[int, int]]:
+    """Events of the first event stream of an AEDAT4 file (iniVation), read
+    with the maintained ``aedat`` package. Returns (events, (height, width))."""
+    import aedat
+
+    path = Path(path)
+    try:
+        dec = aedat.Decoder(str(path))
+        streams = dec.id_to_stream()
+        ev_ids = [i for i, s in streams.items() if s.get("type") == "events"]
+        if not ev_ids:
+            raise InputError(f"{path}: AEDAT4 file has no event stream")
+        sid = sorted(ev_ids)[0]
+        W, H = int(streams[sid]["width"]), int(streams[sid]["height"])
+        parts = [p["events"] for p in dec if p["stream_id"] == sid and "events" in p]
+    except InputError:
+        raise
+    except Exception as exc:  # the decoder raises plain Exceptions on corrupt data
+        raise InputError(f"{path}: cannot decode AEDAT4 ({exc})") from exc
+    if not parts:
+        return Events.empty(), (H, W)
+    a = np.concatenate(parts)
+    t = a["t"].astype(np.int64)
+    order = np.argsort(t, kind="stable")
+    return Events(t[order], a["x"][order].astype(np.uint16), a["y"][order].astype(np.uint16),
+                  a["on"][order].astype(np.uint8)), (H, W)

@@ -1,0 +1,116 @@
+"""Ideal (ESIM-style) model: exactness on log-linear ramps, refractory, edge cases."""
+
+import numpy as np
+import pytest
+
+from gs2e.common.errors import InputError
+from gs2e.events.models import Events, IdealModel, make_model
+from gs2e.config import load_section
+
+
+def _ramp(rates_per_s, n_frames, dt_us, start, eps, t0_us=0):
+    """Frames whose log(L + eps) is exactly linear in time, per pixel."""
+    ts = t0_us + dt_us * np.arange(n_frames, dtype=np.int64)
+    g0 = np.log(start + eps)
+    frames = np.stack([np.exp(g0 + rates_per_s * (t - t0_us) * 1e-6) - eps for t in ts])
+    return ts, frames
+
+
+@pytest.mark.parametrize("t0_us", [0, (1 << 24) + 12345, (1 << 40) + 3])
+def test_exact_on_log_linear_ramps(t0_us):
+    H, W = 6, 7
+    rates = np.linspace(-9.0, 9.0, H * W).reshape(H, W)  # log units per second
+    rates[rates == 0] = 0.0
+    eps, th = 1e-3, 0.07
+    ts, fr = _ramp(rates, 41, 2500, 0.05, eps, t0_us)  # 0.1 s, ends below 1.0
+    assert fr.max() <= 1.0 and fr.min() >= 0.0
+    m = IdealModel((H, W), theta_on=th, theta_off=th, log_eps=eps)
+    ev = Events.concat([m.process_batch(ts[:17], fr[:17]), m.process_batch(ts[17:], fr[17:])])
+    assert np.all(np.diff(ev.t) >= 0)
+    T = (ts[-1] - ts[0]) * 1e-6
+    n_expected = 0
+    for y in range(H):
+        for x in range(W):
+            r = rates[y, x]
+            sel = (ev.y == y) & (ev.x == x)
+            k = np.arange(1, int(np.floor(abs(r) * T / th + 1e-9)) + 1)
+            t_true = t0_us + k * th / abs(r) * 1e6 if r != 0 else np.empty(0)
+            assert sel.sum() == len(k), (y, x, r)
+            # exact up to the rounding to integer microseconds
+            assert np.all(np.abs(ev.t[sel] - t_true) <= 0.5 + 1e-6)
+            assert np.all(ev.p[sel] == (1 if r > 0 else 0))
+            n_expected += len(k)
+    assert len(ev) == n_expected
+
+
+def test_refractory_drops_but_reference_advances():
+    H, W = 1, 2
+    rates = np.array([[19.7, -19.7]])
+    eps, th = 1e-3, 0.1  # a crossing every 5076 us, 19 in 0.1 s
+    ts, fr = _ramp(rates, 21, 5000, 0.1, eps)
+    free = IdealModel((H, W), theta_on=th, theta_off=th, log_eps=eps).process_batch(ts, fr)
+    m = IdealModel((H, W), theta_on=th, theta_off=th, log_eps=eps, refractory_us=12000)
+    ref = m.process_batch(ts, fr)
+    assert len(free) == 38
+    for x in (0, 1):
+        t = ref.t[ref.x == x]
+        assert np.all(np.diff(t) >= 12000)
+        # kept: every 3rd crossing (15228 us apart); the reference still advanced
+        assert len(t) == 7
+        assert np.all(np.isin(t, free.t[free.x == x]))
+    assert np.allclose(m.ref_log, np.log(fr[-1] + eps), atol=th)
+
+
+def test_black_saturated_constant_and_bad_input():
+    H, W = 5, 6
+    ts = np.arange(0, 10_001, 1000)
+    for val in (0.0, 1.0, 0.5):
+        m = IdealModel((H, W), theta_on=0.2, theta_off=0.2)
+        assert len(m.process_batch(ts, np.full((len(ts), H, W), val))) == 0
+    m = IdealModel((H, W))
+    # black -> white in one step: many ON events, all inside the interval
+    ev = m.process_batch([0, 1000], np.stack([np.zeros((H, W)), np.ones((H, W))]))
+    assert len(ev) == H * W * int(np.floor(np.log(1.001 / 0.001) / 1.0 + 1e-12))
+    assert ev.t.min() >= 0 and ev.t.max() <= 1000
+    with pytest.raises(InputError, match="NaN"):
+        m.process(2000, np.full((H, W), np.inf))
+    with pytest.raises(InputError, match="increase"):
+        m.process_batch([3000, 3000], np.zeros((2, H, W)))
+
+
+def test_make_model_theta_sampling_and_mismatch():
+    cfg = load_section("events", text='{"model": "ideal", "theta_sampling": "uniform", '
+                                      '"theta_mismatch_sigma": 0.03, "theta_range": [0.2, 0.5]}')
+    m1, info1 = make_model(cfg, (50, 60), seed=4)
+    m2, info2 = make_model(cfg, (50, 60), seed=4)
+    m3, info3 = make_model(cfg, (50, 60), seed=5)
+    assert 0.2 <= info1["theta_on_nominal"] <= 0.5
+    assert info1["theta_on_nominal"] == info1["theta_off_nominal"]
+    assert info1 == info2 and info1 != info3
+    assert np.array_equal(m1.th_on, m2.th_on)
+    assert (m1.th_on > 0).all()
+    assert abs(m1.th_on.std() - 0.03) < 0.005
+    assert abs(m1.th_on.mean() - info1["theta_on_nominal"]) < 0.003
+    # large sigma: still positive (truncated at 5 % of theta)
+    cfg2 = dict(cfg, theta_mismatch_sigma=1.0, theta_sampling="fixed", theta_on=0.2)
+    m4, _ = make_model(cfg2, (50, 60), seed=1)
+    assert m4.th_on.min() >= 0.01 - 1e-12
+
+
+def test_noise_off_by_default_and_calibrated_rates():
+    H, W, T = 40, 50, 2_000_000
+    ts = np.arange(0, T + 1, 20_000)
+    fr = np.full((len(ts), H, W), 0.5, np.float32)
+    assert len(IdealModel((H, W)).process_batch(ts, fr)) == 0
+    m = IdealModel((H, W), shot_noise_rate_hz=0.56, shot_noise_on_fraction=0.54,
+                   leak_rate_hz=0.2, seed=2)
+    ev = m.process_batch(ts, fr)
+    # luminance 0.5: shot rate x 2 (1 - 0.5) = nominal; leak events are ON
+    lam = (0.56 + 0.2) * H * W * T * 1e-6
+    assert abs(len(ev) - lam) < 5 * np.sqrt(lam)
+    on_expected = (0.2 + 0.56 * 0.54) / 0.76
+    assert abs(ev.p.mean() - on_expected) < 5 * np.sqrt(0.25 / len(ev))
+    assert np.all(np.diff(ev.t) >= 0)
+    ev2 = IdealModel((H, W), shot_noise_rate_hz=0.56, shot_noise_on_fraction=0.54,
+                     leak_rate_hz=0.2, seed=2).process_batch(ts, fr)
+    assert np.array_equal(ev.t, ev2.t) and np.array_equal(ev.x, ev2.x)
