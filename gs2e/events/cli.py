@@ -15,7 +15,13 @@ def register(subparsers) -> None:
                     "(+ timestamps file or --fps), a video, or a .npy/.npz array. Writes OUT/ "
                     "with events.h5 (DSEC layout), stats.json and optional preview.mp4, "
                     "events.txt, events.npz.")
-    p.add_argument("input", help="folder of images, video file, or .npy/.npz frames")
+    p.add_argument("input", nargs="?", help="folder of images, video file, or .npy/.npz frames "
+                   "(omit with --model/--trajectory)")
+    p.add_argument("--model", help="gs2e train output: render the frames on demand (workflow mode)")
+    p.add_argument("--trajectory", help="trajectory .npz to render along (with --model)")
+    p.add_argument("--render-config-json", metavar="JSON",
+                   help="the render config section (sampling of the rendered signal)")
+    p.add_argument("--threads", type=int, default=None, help="CPU threads for rendering")
     p.add_argument("-o", "--out", required=True, help="output folder (replaced atomically)")
     p.add_argument("--timestamps", help="text file, one frame time per line (see --time-unit)")
     p.add_argument("--time-unit", default="us", choices=["us", "ms", "s"],
@@ -75,10 +81,30 @@ def run(args) -> int:
     from gs2e.events.simulate import simulate_to_folder
 
     log = logging.getLogger("gs2e.events")
+    from gs2e.common.errors import ConfigError
+
     cfg = _section(args)
-    src = open_frame_source(args.input, args.timestamps, args.fps, args.encoding, args.time_unit)
+    if args.model or args.trajectory:
+        if not (args.model and args.trajectory) or args.input:
+            raise ConfigError("workflow mode needs both --model and --trajectory and no INPUT")
+        from gs2e.config import load_section
+        from gs2e.render.source import source_for_events
+        from gs2e.splat.train import set_threads
+
+        set_threads(args.threads)
+        rcfg = load_section("render", text=args.render_config_json)
+        src = source_for_events(args.model, args.trajectory, rcfg, cfg)
+        extra = {"model_dir": str(args.model), "trajectory": str(args.trajectory), "render": rcfg}
+    else:
+        if not args.input:
+            raise ConfigError("give INPUT (frames) or --model and --trajectory")
+        src = open_frame_source(args.input, args.timestamps, args.fps, args.encoding, args.time_unit)
+        extra = None
     with timed(f"events {cfg['model']} on {src.name}", log):
-        simulate_to_folder(src, cfg, args.out, args.seed)
+        stats = simulate_to_folder(src, cfg, args.out, args.seed, extra_meta=extra)
+    if hasattr(src, "stats"):
+        log.info("frame source: %d frames rendered, %d used (%s sampling)", src.stats.rendered,
+                 src.stats.accepted, src.mode)
     return 0
 
 

@@ -26,11 +26,10 @@ from typing import Iterable, Iterator
 import numpy as np
 
 from gs2e.common.errors import InputError
-from gs2e.events.synthetic import srgb_to_linear
+from gs2e.common.color import REC709 as _REC709, srgb_to_linear
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".exr", ".pgm", ".ppm")
 VIDEO_EXTS = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v")
-_REC709 = np.array([0.2126, 0.7152, 0.0722])
 
 
 def to_linear_luminance(img: np.ndarray, encoding: str = "srgb", where: str = "frame") -> np.ndarray:

@@ -6,11 +6,7 @@ from typing import Iterator
 
 import numpy as np
 
-
-def srgb_to_linear(img: np.ndarray) -> np.ndarray:
-    """sRGB-encoded values in [0, 1] -> linear luminance in [0, 1]."""
-    img = np.asarray(img, dtype=np.float64)
-    return np.where(img <= 0.04045, img / 12.92, ((img + 0.055) / 1.055) ** 2.4)
+from gs2e.common.color import srgb_to_linear
 
 
 def standard_sequence(n_frames: int = 480, fps: float = 2400.0, width: int = 346,

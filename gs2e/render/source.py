@@ -80,3 +80,26 @@ class RenderedFrameSource:
             if lum is None:  # the last render was a rejected trial: render again
                 lum = r.linear_luminance(t)
             yield int(t), lum
+
+
+def source_for_events(model_dir, trajectory_path, render_cfg: dict, events_cfg: dict) -> RenderedFrameSource:
+    """The frame source of the workflow's event stage: the adaptive bound is
+    ``render.adaptive_bound_fraction`` x the smallest contrast threshold the
+    event config can draw (theta_on/theta_off, or the low end of theta_range),
+    as a log-intensity step (for the voltmeter model: log(1 + theta / k1))."""
+    theta = min(events_cfg["theta_on"], events_cfg["theta_off"])
+    if events_cfg.get("theta_sampling", "fixed") != "fixed":
+        theta = min(theta, min(events_cfg["theta_range"]))
+    if events_cfg["model"] == "voltmeter":
+        # voltage threshold -> the log-intensity step that crosses it (bright-pixel limit)
+        from gs2e.events.presets import get_preset
+
+        k = {i + 1: events_cfg.get(f"k{i + 1}") for i in range(6)}
+        theta = float(np.log1p(theta / get_preset(events_cfg["preset"], k).k[0]))
+    r = TrajectoryRenderer(model_dir, trajectory_path, render_cfg["background"], render_cfg["scale"])
+    clip = render_cfg.get("events_max_duration_s")
+    if clip:
+        r.t1_us = min(r.t1_us, r.t0_us + int(round(clip * 1e6)))
+    return RenderedFrameSource(r, render_cfg["sampling"], render_cfg["fixed_fps"],
+                               render_cfg["adaptive_bound_fraction"] * theta, render_cfg["log_eps"],
+                               render_cfg["adaptive_dt_min_us"], render_cfg["adaptive_dt_max_us"])

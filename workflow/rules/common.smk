@@ -52,5 +52,6 @@ def all_targets():
     out = []
     for sid in SCENES:
         out += [res(sid, "splat"), res(sid, "trajectories")]
-        out += [res(sid, "frames", t) for t in SCENE_CFG[sid]["render"]["trajectories"]]
+        for t in SCENE_CFG[sid]["render"]["trajectories"]:
+            out += [res(sid, "frames", t), res(sid, "events", t)]
     return out

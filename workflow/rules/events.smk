@@ -1,0 +1,26 @@
+rule events:
+    input:
+        model=res("{scene}", "splat"),
+        trajectories=res("{scene}", "trajectories"),
+    output:
+        directory(res("{scene}", "events", "{traj}")),
+    params:
+        cfg=stage_cfg("events"),
+        render_cfg=stage_cfg("render"),
+        seed=lambda wc: derive_seed(SCENE_CFG[wc.scene]["seed"], f"{wc.scene}/{wc.traj}", "events"),
+        code=code_version("events"),
+        trajectory=lambda wc, input: str(Path(input.trajectories, f"{wc.traj}.npz")),
+    conda:
+        ENV
+    log:
+        res("{scene}", "logs", "events_{traj}.log"),
+    benchmark:
+        res("{scene}", "benchmarks", "events_{traj}.tsv")
+    threads: workflow.cores
+    resources:
+        mem_mb=3000,
+        runtime=240,
+    shell:
+        "python -m gs2e events --model {input.model:q} --trajectory {params.trajectory:q}"
+        " -o {output:q} --seed {params.seed} --threads {threads}"
+        " --config-json {params.cfg:q} --render-config-json {params.render_cfg:q} 2> {log:q}"
