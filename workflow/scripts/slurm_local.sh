@@ -1,0 +1,209 @@
+#!/usr/bin/env bash
+# A real one-node Slurm cluster on this machine (loopback, no systemd), for
+# testing the Slurm profile:  slurm_local.sh start|stop|status
+#
+#   start   install Debian's slurm-wlm + munge if missing (needs root and apt),
+#           write munge/slurm config under $GS2E_SLURM_DIR, start munged,
+#           slurmctld and slurmd, wait until `sinfo` shows the node idle.
+#   stop    stop the daemons this script started (by their pid files).
+#   status  print daemon states and `sinfo`; exit 0 only if the node is usable.
+#
+# Environment:
+#   GS2E_SLURM_DIR        scratch dir for keys, sockets, state, logs
+#                         (default /tmp/gs2e-slurm)
+#   GS2E_SLURM_PARTITION  partition name (default gs2e; the profile's
+#                         slurm_partition must match, or be left unset)
+#   GS2E_SLURM_PORT       slurmctld port; slurmd uses PORT+1 (default 6817)
+#   GS2E_SLURM_WAIT_S     seconds to wait for the node to become idle (default 60)
+#
+# Everything is idempotent: `start` on a running cluster only re-checks it,
+# `stop` on a stopped one does nothing.  slurm.conf must also be reachable at
+# /etc/slurm/slurm.conf (a symlink is written): the executor plugin's job step
+# drops SLURM_* variables, so SLURM_CONF does not reach the jobs.
+set -euo pipefail
+
+DIR=${GS2E_SLURM_DIR:-/tmp/gs2e-slurm}
+PARTITION=${GS2E_SLURM_PARTITION:-gs2e}
+PORT=${GS2E_SLURM_PORT:-6817}
+WAIT_S=${GS2E_SLURM_WAIT_S:-60}
+CONF=$DIR/etc/slurm.conf
+ETC_CONF=/etc/slurm/slurm.conf
+MUNGE_SOCKET=$DIR/munge/munge.socket
+export SLURM_CONF=$CONF
+
+say() { echo "slurm_local: $*" >&2; }
+die() { say "ERROR: $*"; exit 1; }
+
+have_binaries() {
+    command -v munged >/dev/null && command -v mungekey >/dev/null &&
+    command -v slurmctld >/dev/null && command -v slurmd >/dev/null &&
+    command -v sinfo >/dev/null && command -v sbatch >/dev/null
+}
+
+install_packages() {
+    have_binaries && return 0
+    [[ $(id -u) -eq 0 ]] || die "slurm-wlm/munge are not installed and installing them needs root (run as root or: apt-get install slurm-wlm munge)"
+    command -v apt-get >/dev/null || die "slurm-wlm/munge are not installed and apt-get is not available on this machine"
+    local t0=$SECONDS
+    say "installing slurm-wlm + munge with apt-get"
+    # Package scripts must not try to start services (no init system here).
+    export DEBIAN_FRONTEND=noninteractive RUNLEVEL=1
+    apt-get update -qq || die "apt-get update failed"
+    apt-get install -y -qq --no-install-recommends slurm-wlm munge >/dev/null ||
+        die "apt-get install slurm-wlm munge failed"
+    have_binaries || die "slurm-wlm/munge installed but munged/slurmctld/slurmd/sinfo not on PATH"
+    say "installed in $((SECONDS - t0)) s"
+}
+
+pid_alive() {  # pid_alive FILE: the pid in FILE is a running process
+    [[ -s $1 ]] && kill -0 "$(cat "$1")" 2>/dev/null
+}
+
+write_config() {
+    local node cpus mem_mb
+    node=$(hostname -s)
+    cpus=$(nproc)
+    # Leave 10% of RAM to the OS and the Snakemake scheduler process.
+    mem_mb=$(awk '/^MemTotal:/ {printf "%d", $2 / 1024 * 0.9}' /proc/meminfo)
+    mkdir -p "$DIR"/{etc,munge,state,spool,log,run}
+    chmod 700 "$DIR/munge"
+    cat >"$CONF" <<EOF
+# Written by workflow/scripts/slurm_local.sh: one node on loopback, for tests.
+ClusterName=gs2e
+SlurmctldHost=${node}(127.0.0.1)
+SlurmUser=root
+SlurmdUser=root
+SlurmctldPort=${PORT}
+SlurmdPort=$((PORT + 1))
+AuthType=auth/munge
+AuthInfo=socket=${MUNGE_SOCKET}
+StateSaveLocation=${DIR}/state
+SlurmdSpoolDir=${DIR}/spool
+SlurmctldPidFile=${DIR}/run/slurmctld.pid
+SlurmdPidFile=${DIR}/run/slurmd.pid
+SlurmctldLogFile=${DIR}/log/slurmctld.log
+SlurmdLogFile=${DIR}/log/slurmd.log
+SelectType=select/cons_tres
+SelectTypeParameters=CR_Core_Memory
+ProctrackType=proctrack/linuxproc
+TaskPlugin=task/none
+MpiDefault=none
+AccountingStorageType=accounting_storage/none
+JobAcctGatherType=jobacct_gather/none
+JobCompType=jobcomp/none
+# Reject jobs larger than the node instead of letting them pend forever.
+EnforcePartLimits=ALL
+# The node's real hardware may differ from what is declared below.
+SlurmdParameters=config_overrides
+ReturnToService=2
+# Finished jobs stay visible to squeue (the profile's status command) for 5 min.
+MinJobAge=300
+NodeName=${node} NodeAddr=127.0.0.1 CPUs=${cpus} RealMemory=${mem_mb} State=UNKNOWN
+PartitionName=${PARTITION} Nodes=${node} Default=YES MaxTime=INFINITE State=UP
+EOF
+}
+
+link_etc_conf() {
+    mkdir -p /etc/slurm 2>/dev/null || die "cannot create /etc/slurm (need root)"
+    if [[ -e $ETC_CONF || -L $ETC_CONF ]]; then
+        if [[ -L $ETC_CONF && $(readlink "$ETC_CONF") == "$CONF" ]]; then return 0; fi
+        if [[ ! -L $ETC_CONF ]]; then
+            die "$ETC_CONF exists and is not our symlink; refusing to replace a real Slurm config"
+        fi
+    fi
+    ln -sfn "$CONF" "$ETC_CONF" || die "cannot write the symlink $ETC_CONF -> $CONF"
+}
+
+start_munge() {
+    pid_alive "$DIR/munge/munged.pid" && return 0
+    [[ -s $DIR/munge/munge.key ]] || mungekey -c -k "$DIR/munge/munge.key" ||
+        die "mungekey failed"
+    chmod 600 "$DIR/munge/munge.key"
+    # munged refuses a socket directory other users cannot traverse
+    chmod 755 "$DIR/munge"
+    rm -f "$MUNGE_SOCKET" "$MUNGE_SOCKET.lock"
+    munged --force --key-file="$DIR/munge/munge.key" --socket="$MUNGE_SOCKET" \
+        --pid-file="$DIR/munge/munged.pid" --log-file="$DIR/log/munged.log" \
+        --seed-file="$DIR/munge/munged.seed" ||
+        die "munged failed to start; see $DIR/log/munged.log"
+}
+
+start_daemon() {  # start_daemon NAME
+    local name=$1
+    pid_alive "$DIR/run/$name.pid" && return 0
+    "$name" -f "$CONF" || die "$name failed to start; see $DIR/log/$name.log"
+}
+
+node_state() {
+    sinfo -h -N -o '%T' 2>/dev/null | head -n1
+}
+
+wait_idle() {
+    local t0=$SECONDS state=""
+    while ((SECONDS - t0 < WAIT_S)); do
+        state=$(node_state || true)
+        case $state in
+            idle | mixed | allocated) return 0 ;;
+        esac
+        sleep 0.5
+    done
+    die "node not idle after ${WAIT_S} s (state: '${state:-unknown}'); see $DIR/log/slurmctld.log and $DIR/log/slurmd.log"
+}
+
+cmd_start() {
+    local t0=$SECONDS
+    install_packages
+    if pid_alive "$DIR/run/slurmctld.pid" && pid_alive "$DIR/run/slurmd.pid" &&
+        pid_alive "$DIR/munge/munged.pid"; then
+        wait_idle
+        say "already running (config $CONF)"
+        return 0
+    fi
+    write_config
+    link_etc_conf
+    start_munge
+    start_daemon slurmctld
+    start_daemon slurmd
+    wait_idle
+    say "node $(hostname -s) idle in partition '$PARTITION' (started in $((SECONDS - t0)) s; config $CONF)"
+}
+
+stop_pidfile() {  # stop_pidfile NAME FILE
+    local name=$1 file=$2 pid i
+    if ! pid_alive "$file"; then rm -f "$file"; return 0; fi
+    pid=$(cat "$file")
+    kill "$pid" 2>/dev/null || true
+    for ((i = 0; i < 100; i++)); do
+        kill -0 "$pid" 2>/dev/null || { rm -f "$file"; say "stopped $name ($pid)"; return 0; }
+        sleep 0.1
+    done
+    say "$name ($pid) ignored SIGTERM for 10 s; sending SIGKILL"
+    kill -9 "$pid" 2>/dev/null || true
+    rm -f "$file"
+}
+
+cmd_stop() {
+    stop_pidfile slurmd "$DIR/run/slurmd.pid"
+    stop_pidfile slurmctld "$DIR/run/slurmctld.pid"
+    stop_pidfile munged "$DIR/munge/munged.pid"
+    # Remove our /etc symlink so no stale config points into the scratch dir.
+    if [[ -L $ETC_CONF && $(readlink "$ETC_CONF") == "$CONF" ]]; then rm -f "$ETC_CONF"; fi
+}
+
+cmd_status() {
+    local ok=0 name file
+    for name in munged slurmctld slurmd; do
+        file=$DIR/run/$name.pid
+        [[ $name == munged ]] && file=$DIR/munge/munged.pid
+        if pid_alive "$file"; then echo "$name: running ($(cat "$file"))"; else echo "$name: stopped"; ok=1; fi
+    done
+    if ((ok == 0)); then sinfo || ok=1; fi
+    return $ok
+}
+
+case ${1:-} in
+    start) cmd_start ;;
+    stop) cmd_stop ;;
+    status) cmd_status ;;
+    *) echo "usage: $0 start|stop|status" >&2; exit 2 ;;
+esac
