@@ -100,7 +100,7 @@ def test_dry_run_through_profile_without_slurm(tmp_path, path_without_slurm, att
 
 # ---------------------------------------------------------------- real cluster
 
-def _cluster_env(tmp: Path) -> dict:
+def _cluster_env() -> dict:
     return {**os.environ, "GS2E_SLURM_DIR": os.environ.get("GS2E_SLURM_DIR", "/tmp/gs2e-slurm"),
             "GS2E_SLURM_PARTITION": "gs2e"}
 
@@ -122,11 +122,11 @@ def _can_run_cluster() -> str | None:
 
 
 @pytest.fixture(scope="module")
-def cluster(tmp_path_factory):
+def cluster():
     reason = _can_run_cluster()
     if reason:
         pytest.skip(f"no local Slurm cluster: {reason}")
-    env = _cluster_env(tmp_path_factory.mktemp("slurm"))
+    env = _cluster_env()
     was_running = _script("status", env).returncode == 0
     t0 = time.monotonic()
     proc = _script("start", env)
@@ -148,22 +148,61 @@ def _squeue_history() -> dict[str, tuple[str, str, str]]:
     return {i: (s, p, c) for i, s, p, c in (ln.split("|") for ln in out.split())}
 
 
-@pytest.mark.slurm
-def test_demo_workflow_through_slurm(cluster, tmp_path):
+# A rule that needs ~1.5 GB but asks for 1000 MB on its first attempt: Slurm
+# kills it for memory, and the profile's retries resubmit it with 2000 MB.
+OOM_SNAKEFILE = """
+rule big:
+    output:
+        "out.txt",
+    resources:
+        mem_mb=lambda wc, attempt: 1000 * attempt,
+        runtime=5,
+    shell:
+        "python -c 'x = bytearray(1500 * 2**20); x[::4096] = bytes(len(x[::4096])); "
+        "import time; time.sleep(3)' && echo {resources.mem_mb} > {output}"
+"""
+
+
+@pytest.fixture(scope="module")
+def slurm_runs(cluster, tmp_path_factory):
+    """The demo up to SfM and the memory-retry toy, run through the profile at
+    the same time (the one node fits a 1-CPU toy job next to a demo job)."""
     env, start_s = cluster
     env = {**env, "GS2E_PROGRESS": "0",
            "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}"}
-    wd = tmp_path / "run"
-    wd.mkdir()
-    cores = str(os.cpu_count() or 1)  # threads per job must fit the one node
-    t0 = time.monotonic()
-    proc = _snakemake([TARGET, "--cores", cores, "--slurm-keep-successful-logs",
-                       *_workdir(wd)], env, 600)
-    run_s = time.monotonic() - t0
-    out = proc.stdout + proc.stderr
-    assert proc.returncode == 0, out[-5000:]
+    oom = tmp_path_factory.mktemp("oom")
+    (oom / "Snakefile").write_text(OOM_SNAKEFILE)
+    toy = subprocess.Popen(
+        ["timeout", "-k", "20", "400", str(BIN / "snakemake"), "--snakefile", str(oom / "Snakefile"),
+         "--directory", str(oom), "--profile", str(PROFILE), "--cores", "1",
+         "--slurm-keep-successful-logs"],
+        cwd=oom, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        wd = tmp_path_factory.mktemp("demo")
+        cores = str(os.cpu_count() or 1)  # threads per job must fit the one node
+        t0 = time.monotonic()
+        demo = _snakemake([TARGET, "--cores", cores, "--slurm-keep-successful-logs",
+                           *_workdir(wd)], env, 600)
+        run_s = time.monotonic() - t0
+        toy_out, _ = toy.communicate(timeout=460)
+    finally:
+        if toy.poll() is None:
+            toy.kill()
     print(f"\nslurm cluster start {start_s:.1f} s; demo to sfm through Slurm {run_s:.1f} s")
+    return {"demo": (wd, demo.stdout + demo.stderr, demo.returncode),
+            "oom": (oom, toy_out, toy.returncode), "history": _squeue_history()}
 
+
+def _submitted(out: str) -> dict[str, str]:
+    """Slurm job id -> rule, from Snakemake's submission messages."""
+    return dict(re.findall(r"Job \d+ has been submitted with SLURM jobid (\d+) "
+                           r"\(log: .*?/slurm_logs/rule_(\w+)/", out))
+
+
+@pytest.mark.slurm
+def test_demo_workflow_through_slurm(slurm_runs):
+    wd, out, rc = slurm_runs["demo"]
+    assert rc == 0, out[-5000:]
     res = wd / "results" / "demo"
     sfm = read_scene(res / "sfm")
     assert len(sfm.frames) == N_VIEWS, "COLMAP must register every demo view"
@@ -178,14 +217,25 @@ def test_demo_workflow_through_slurm(cluster, tmp_path):
     # Each job went through sbatch: Snakemake names its Slurm job id, the
     # plugin kept the job's Slurm log, and slurmctld saw the job complete in
     # the requested partition.
-    submitted = dict(re.findall(r"Job \d+ has been submitted with SLURM jobid (\d+) "
-                                r"\(log: .*?/slurm_logs/rule_(\w+)/", out))
+    submitted = _submitted(out)
     assert sorted(submitted.values()) == sorted(RULES), out[-3000:]
-    history = _squeue_history()
     for job_id, rule in submitted.items():
         slurm_log = wd / ".snakemake" / "slurm_logs" / f"rule_{rule}" / "demo" / f"{job_id}.log"
         assert slurm_log.is_file(), f"no Slurm log for {rule}: {slurm_log}"
         text = slurm_log.read_text()
         assert "slurm-jobstep" in text and f"rule {rule}:" in text
-        state, partition, _ = history[job_id]
-        assert state == "COMPLETED" and partition == "gs2e", (rule, history[job_id])
+        state, partition, _ = slurm_runs["history"][job_id]
+        assert state == "COMPLETED" and partition == "gs2e", (rule, state, partition)
+
+
+@pytest.mark.slurm
+def test_job_killed_for_memory_is_retried_with_more(slurm_runs):
+    wd, out, rc = slurm_runs["oom"]
+    assert rc == 0, out[-5000:]
+    assert (wd / "out.txt").read_text().strip() == "2000", "the successful attempt is the 2nd"
+    jobs = sorted(_submitted(out), key=int)
+    assert len(jobs) == 2, out[-3000:]
+    first, second = (slurm_runs["history"][j][0] for j in jobs)
+    assert first != "COMPLETED" and second == "COMPLETED", (first, second)
+    log = (wd / ".snakemake" / "slurm_logs" / "rule_big" / f"{jobs[0]}.log").read_text()
+    assert "exceeded memory limit" in log, log[-2000:]

@@ -89,7 +89,11 @@ ProctrackType=proctrack/linuxproc
 TaskPlugin=task/none
 MpiDefault=none
 AccountingStorageType=accounting_storage/none
-JobAcctGatherType=jobacct_gather/none
+# Memory is enforced by polling (no cgroups here): a job step above its --mem
+# is killed (OUT_OF_MEMORY), which is what triggers a retry with more memory.
+JobAcctGatherType=jobacct_gather/linux
+JobAcctGatherFrequency=task=1
+JobAcctGatherParams=OverMemoryKill
 JobCompType=jobcomp/none
 # Reject jobs larger than the node instead of letting them pend forever.
 EnforcePartLimits=ALL
