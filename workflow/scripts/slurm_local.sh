@@ -42,21 +42,31 @@ have_binaries() {
 
 install_packages() {
     have_binaries && return 0
-    [[ $(id -u) -eq 0 ]] || die "slurm-wlm/munge are not installed and installing them needs root (run as root or: apt-get install slurm-wlm munge)"
+    [[ $(id -u) -eq 0 ]] || die "slurm-wlm/munge are not installed and installing them needs root (run as root, or: sudo apt-get install slurm-wlm munge)"
     command -v apt-get >/dev/null || die "slurm-wlm/munge are not installed and apt-get is not available on this machine"
-    local t0=$SECONDS
+    local t0=$SECONDS rc=0 policy=/usr/sbin/policy-rc.d
     say "installing slurm-wlm + munge with apt-get"
-    # Package scripts must not try to start services (no init system here).
-    export DEBIAN_FRONTEND=noninteractive RUNLEVEL=1
-    apt-get update -qq || die "apt-get update failed"
-    apt-get install -y -qq --no-install-recommends slurm-wlm munge >/dev/null ||
-        die "apt-get install slurm-wlm munge failed"
+    # The packages' scripts must not start system-wide daemons (we start our
+    # own with scratch paths): a temporary policy-rc.d denies service starts.
+    local own_policy=0
+    if [[ ! -e $policy ]]; then
+        printf '#!/bin/sh\nexit 101\n' >"$policy" && chmod 755 "$policy" && own_policy=1
+    fi
+    export DEBIAN_FRONTEND=noninteractive
+    { apt-get update -qq && apt-get install -y -qq --no-install-recommends slurm-wlm munge >/dev/null; } || rc=$?
+    ((own_policy)) && rm -f "$policy"
+    ((rc == 0)) || die "apt-get update/install of slurm-wlm munge failed (exit $rc)"
     have_binaries || die "slurm-wlm/munge installed but munged/slurmctld/slurmd/sinfo not on PATH"
     say "installed in $((SECONDS - t0)) s"
 }
 
-pid_alive() {  # pid_alive FILE: the pid in FILE is a running process
-    [[ -s $1 ]] && kill -0 "$(cat "$1")" 2>/dev/null
+pid_alive() {  # pid_alive FILE NAME: the pid in FILE is a running process called NAME
+    local pid
+    [[ -s $1 ]] || return 1
+    pid=$(<"$1")
+    [[ $pid =~ ^[0-9]+$ ]] || return 1
+    # a stale pid file may name a pid reused by an unrelated process
+    [[ $(cat "/proc/$pid/comm" 2>/dev/null) == "$2" ]]
 }
 
 write_config() {
@@ -114,12 +124,18 @@ link_etc_conf() {
         if [[ ! -L $ETC_CONF ]]; then
             die "$ETC_CONF exists and is not our symlink; refusing to replace a real Slurm config"
         fi
+        # a symlink left by another scratch dir: replace it unless that cluster runs
+        local other_pid
+        other_pid=$(sed -n 's/^SlurmctldPidFile=//p' "$ETC_CONF" 2>/dev/null || true)
+        if [[ -n $other_pid ]] && pid_alive "$other_pid" slurmctld; then
+            die "another local cluster ($(readlink "$ETC_CONF")) is running; stop it first (GS2E_SLURM_DIR=... $0 stop)"
+        fi
     fi
     ln -sfn "$CONF" "$ETC_CONF" || die "cannot write the symlink $ETC_CONF -> $CONF"
 }
 
 start_munge() {
-    pid_alive "$DIR/munge/munged.pid" && return 0
+    pid_alive "$DIR/munge/munged.pid" munged && return 0
     [[ -s $DIR/munge/munge.key ]] || mungekey -c -k "$DIR/munge/munge.key" ||
         die "mungekey failed"
     chmod 600 "$DIR/munge/munge.key"
@@ -134,7 +150,7 @@ start_munge() {
 
 start_daemon() {  # start_daemon NAME
     local name=$1
-    pid_alive "$DIR/run/$name.pid" && return 0
+    pid_alive "$DIR/run/$name.pid" "$name" && return 0
     "$name" -f "$CONF" || die "$name failed to start; see $DIR/log/$name.log"
 }
 
@@ -157,14 +173,17 @@ wait_idle() {
 cmd_start() {
     local t0=$SECONDS
     install_packages
-    if pid_alive "$DIR/run/slurmctld.pid" && pid_alive "$DIR/run/slurmd.pid" &&
-        pid_alive "$DIR/munge/munged.pid"; then
+    if pid_alive "$DIR/run/slurmctld.pid" slurmctld && pid_alive "$DIR/run/slurmd.pid" slurmd &&
+        pid_alive "$DIR/munge/munged.pid" munged; then
         wait_idle
         say "already running (config $CONF)"
         return 0
     fi
     write_config
     link_etc_conf
+    # A fresh controller state: the node must register anew (no node state
+    # or jobs remembered from an earlier run).
+    pid_alive "$DIR/run/slurmctld.pid" slurmctld || rm -rf "${DIR:?}"/state/* "${DIR:?}"/spool/*
     start_munge
     start_daemon slurmctld
     start_daemon slurmd
@@ -174,7 +193,7 @@ cmd_start() {
 
 stop_pidfile() {  # stop_pidfile NAME FILE
     local name=$1 file=$2 pid i
-    if ! pid_alive "$file"; then rm -f "$file"; return 0; fi
+    if ! pid_alive "$file" "$name"; then rm -f "$file"; return 0; fi
     pid=$(cat "$file")
     kill "$pid" 2>/dev/null || true
     for ((i = 0; i < 100; i++)); do
@@ -199,7 +218,7 @@ cmd_status() {
     for name in munged slurmctld slurmd; do
         file=$DIR/run/$name.pid
         [[ $name == munged ]] && file=$DIR/munge/munged.pid
-        if pid_alive "$file"; then echo "$name: running ($(cat "$file"))"; else echo "$name: stopped"; ok=1; fi
+        if pid_alive "$file" "$name"; then echo "$name: running ($(cat "$file"))"; else echo "$name: stopped"; ok=1; fi
     done
     if ((ok == 0)); then sinfo || ok=1; fi
     return $ok
