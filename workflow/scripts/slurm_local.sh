@@ -206,6 +206,22 @@ stop_pidfile() {  # stop_pidfile NAME FILE
 }
 
 cmd_stop() {
+    # Cancel jobs still queued or running on this private cluster first, so
+    # that slurmstepd ends their processes before the daemons go.
+    if pid_alive "$DIR/run/slurmctld.pid" slurmctld; then
+        local jobs
+        jobs=$(squeue -h -o '%i' -t pending,running,suspended 2>/dev/null || true)
+        if [[ -n $jobs ]]; then
+            say "cancelling jobs: $(echo $jobs)"
+            # shellcheck disable=SC2086
+            scancel $jobs 2>/dev/null || true
+            local i
+            for ((i = 0; i < 50; i++)); do
+                [[ -z $(squeue -h -o '%i' -t pending,running,suspended,completing 2>/dev/null) ]] && break
+                sleep 0.2
+            done
+        fi
+    fi
     stop_pidfile slurmd "$DIR/run/slurmd.pid"
     stop_pidfile slurmctld "$DIR/run/slurmctld.pid"
     stop_pidfile munged "$DIR/munge/munged.pid"
