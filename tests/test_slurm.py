@@ -16,7 +16,6 @@ import os
 import re
 import shutil
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -128,11 +127,11 @@ def cluster():
         pytest.skip(f"no local Slurm cluster: {reason}")
     env = _cluster_env()
     was_running = _script("status", env).returncode == 0
-    t0 = time.monotonic()
-    proc = _script("start", env)
-    start_s = time.monotonic() - t0
-    assert proc.returncode == 0, f"slurm_local.sh start failed:\n{proc.stderr[-3000:]}"
     try:
+        t0 = time.monotonic()
+        proc = _script("start", env)
+        start_s = time.monotonic() - t0
+        assert proc.returncode == 0, f"slurm_local.sh start failed:\n{proc.stderr[-3000:]}"
         yield env, start_s
     finally:
         if not was_running:  # leave a cluster the user started alone
@@ -148,8 +147,9 @@ def _squeue_history() -> dict[str, tuple[str, str, str]]:
     return {i: (s, p, c) for i, s, p, c in (ln.split("|") for ln in out.split())}
 
 
-# A rule that needs ~1.5 GB but asks for 1000 MB on its first attempt: Slurm
-# kills it for memory, and the profile's retries resubmit it with 2000 MB.
+# A rule that needs ~1.4 GB (1.2 GB + the job's own Snakemake) but asks for
+# 1000 MB on its first attempt: Slurm kills it for memory, and the profile's
+# retries resubmit it with 2000 MB.
 OOM_SNAKEFILE = """
 rule big:
     output:
@@ -158,7 +158,7 @@ rule big:
         mem_mb=lambda wc, attempt: 1000 * attempt,
         runtime=5,
     shell:
-        "python -c 'x = bytearray(1500 * 2**20); x[::4096] = bytes(len(x[::4096])); "
+        "python -c 'x = bytearray(1200 * 2**20); x[::4096] = bytes(len(x[::4096])); "
         "import time; time.sleep(3)' && echo {resources.mem_mb} > {output}"
 """
 

@@ -110,8 +110,8 @@ EnforcePartLimits=ALL
 # The node's real hardware may differ from what is declared below.
 SlurmdParameters=config_overrides
 ReturnToService=2
-# Finished jobs stay visible to squeue (the profile's status command) for 5 min.
-MinJobAge=300
+# Finished jobs stay visible to squeue (the profile's status command) for 1 h.
+MinJobAge=3600
 NodeName=${node} NodeAddr=127.0.0.1 CPUs=${cpus} RealMemory=${mem_mb} State=UNKNOWN
 PartitionName=${PARTITION} Nodes=${node} Default=YES MaxTime=INFINITE State=UP
 EOF
