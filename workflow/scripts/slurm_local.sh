@@ -5,8 +5,10 @@
 #   start   install Debian's slurm-wlm + munge if missing (needs root and apt),
 #           write munge/slurm config under $GS2E_SLURM_DIR, start munged,
 #           slurmctld and slurmd, wait until `sinfo` shows the node idle.
-#   stop    stop the daemons this script started (by their pid files).
-#   status  print daemon states and `sinfo`; exit 0 only if the node is usable.
+#   stop    cancel the cluster's unfinished jobs, stop the daemons this script
+#           started (by their pid files) and remove the /etc symlink.
+#   status  print daemon states and `sinfo`; exit 0 only if all daemons run
+#           and sinfo answers.
 #
 # Environment:
 #   GS2E_SLURM_DIR        scratch dir for keys, sockets, state, logs
@@ -76,7 +78,6 @@ write_config() {
     # Leave 10% of RAM to the OS and the Snakemake scheduler process.
     mem_mb=$(awk '/^MemTotal:/ {printf "%d", $2 / 1024 * 0.9}' /proc/meminfo)
     mkdir -p "$DIR"/{etc,munge,state,spool,log,run}
-    chmod 700 "$DIR/munge"
     cat >"$CONF" <<EOF
 # Written by workflow/scripts/slurm_local.sh: one node on loopback, for tests.
 ClusterName=gs2e
