@@ -92,8 +92,10 @@ def test_dry_run_through_profile_without_slurm(tmp_path, path_without_slurm, att
     for rule in ("demo_scene", "ingest"):
         assert int(res[rule]["mem_mb"]) == 2000 * factor
         assert int(res[rule]["runtime"]) == 30 * factor
-    # sfm keeps the resources written in its rule
+    # sfm keeps the resources written in its rule, and its threads are the
+    # profile's CPUs per job (not the 1 core of a dry-run)
     assert int(res["sfm"]["mem_mb"]) >= 1000 and int(res["sfm"]["runtime"]) >= 10
+    assert re.search(r"python -m gs2e sfm .*--threads 8 ", out)
     assert not (wd / "results").exists(), "a dry-run must not write outputs"
 
 
