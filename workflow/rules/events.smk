@@ -18,8 +18,8 @@ rule events:
         res("{scene}", "benchmarks", "events_{traj}.tsv")
     threads: workflow.cores
     resources:
-        mem_mb=3000,
-        runtime=240,
+        mem_mb=lambda wc, attempt: 3000 * attempt,
+        runtime=lambda wc, attempt: 240 * attempt,
     shell:
         "python -m gs2e events --model {input.model:q} --trajectory {params.trajectory:q}"
         " -o {output:q} --seed {params.seed} --threads {threads}"

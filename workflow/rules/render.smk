@@ -16,8 +16,8 @@ rule render:
         res("{scene}", "benchmarks", "render_{traj}.tsv")
     threads: workflow.cores
     resources:
-        mem_mb=3000,
-        runtime=120,
+        mem_mb=lambda wc, attempt: 3000 * attempt,
+        runtime=lambda wc, attempt: 120 * attempt,
     shell:
         "python -m gs2e render --model {input.model:q} --trajectory {params.trajectory:q}"
         " --out {output:q} --threads {threads} --scene-id {wildcards.scene}"

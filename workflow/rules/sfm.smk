@@ -15,8 +15,8 @@ rule sfm:
         res("{scene}", "benchmarks", "sfm.tsv")
     threads: workflow.cores
     resources:
-        mem_mb=4000,
-        runtime=60,
+        mem_mb=lambda wc, attempt: 4000 * attempt,
+        runtime=lambda wc, attempt: 60 * attempt,
     shell:
         "python -m gs2e sfm --scene {input:q} --out {output:q} --seed {params.seed}"
         " --threads {threads} --scene-id {wildcards.scene}"

@@ -16,8 +16,8 @@ rule train:
         res("{scene}", "benchmarks", "train.tsv")
     threads: workflow.cores
     resources:
-        mem_mb=6000,
-        runtime=240,
+        mem_mb=lambda wc, attempt: 6000 * attempt,
+        runtime=lambda wc, attempt: 240 * attempt,
     shell:
         "python -m gs2e train --scene {input:q} --out {output:q} --seed {params.seed}"
         " --threads {threads} --scene-id {wildcards.scene} --checkpoint-dir {params.ckpt:q}"

@@ -15,8 +15,8 @@ rule trajectory:
         res("{scene}", "benchmarks", "trajectory.tsv")
     threads: 1
     resources:
-        mem_mb=1000,
-        runtime=10,
+        mem_mb=lambda wc, attempt: 1000 * attempt,
+        runtime=lambda wc, attempt: 10 * attempt,
     shell:
         "python -m gs2e trajectory --scene {input:q} --out {output:q} --seed {params.seed}"
         " --config-json {params.cfg:q} 2> {log:q}"
