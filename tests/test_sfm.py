@@ -179,3 +179,17 @@ def test_too_few_registered_views_fails_with_names(tmp_path):
     assert proc.returncode == 2
     assert "zz_noise0.png" in proc.stderr and "min_registered_fraction" in proc.stderr
     assert not (tmp_path / "sfm").exists()
+
+
+def test_reuse_poses_keeps_given_points_without_colmap(tmp_path):
+    scene_dir = _temple_subset_with_poses(tmp_path, n=6)
+    scene = read_scene(scene_dir)
+    rng = np.random.default_rng(0)
+    scene.points_xyz = rng.normal(size=(50, 3)) * 0.01
+    scene.points_rgb = rng.integers(0, 256, size=(50, 3)).astype(np.uint8)
+    write_scene_json(scene, scene_dir)
+    stats = run_sfm(scene_dir, tmp_path / "sfm", sfm_cfg(reuse_poses=True), threads=2)
+    assert stats["mode"] == "given" and stats["n_points"] == 50 and stats["matcher"] == "none"
+    out = read_scene(tmp_path / "sfm")
+    np.testing.assert_array_equal(out.points_xyz, scene.points_xyz)
+    assert json.loads((tmp_path / "sfm" / "sfm_stats.json").read_text())["mean_reproj_error_px"] is None

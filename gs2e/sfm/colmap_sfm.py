@@ -165,14 +165,25 @@ def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0
         else:
             mode = pycolmap.CameraMode.SINGLE if cfg["single_camera"] else pycolmap.CameraMode.PER_IMAGE
             cam_model = cfg["camera_model"]
-        with timed("extraction", log, timings):
-            _extract(db, image_dir, names, cfg, threads, mode, cam_model)
-        with timed("matching", log, timings):
-            _match(db, matcher, cfg, threads)
         opts = _mapper_options(threads, seed)
         model_dir = work / "model"
         model_dir.mkdir()
-        if reuse:
+        keep_points = reuse and scene.points_xyz is not None and len(scene.points_xyz) > 0
+        if keep_points:
+            # poses and points given (COLMAP project, demo, DL3DV colmap/): nothing to recover
+            from gs2e.io.colmap import reconstruction_from_scene
+
+            matcher = "none"
+            rec = reconstruction_from_scene(scene)
+            rec.write(model_dir)
+        else:
+            with timed("extraction", log, timings):
+                _extract(db, image_dir, names, cfg, threads, mode, cam_model)
+            with timed("matching", log, timings):
+                _match(db, matcher, cfg, threads)
+        if keep_points:
+            pass
+        elif reuse:
             with timed("mapping", log, timings):  # triangulation with the known poses
                 rec = _known_pose_reconstruction(db, scene)
                 rec = pycolmap.triangulate_points(rec, db, image_dir, model_dir, options=opts)
@@ -203,6 +214,8 @@ def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0
 
             rec_u = pycolmap.Reconstruction(str(undist / "sparse"))
             out_scene = scene_from_reconstruction(rec_u)
+            if keep_points:
+                out_scene.points_xyz, out_scene.points_rgb = scene.points_xyz, scene.points_rgb
             out_scene.layout = "sfm"
             out_scene.source = str(scene_dir)
             out_scene.extra = {"input_extra": scene.extra, "registered": sorted(registered)}
@@ -215,11 +228,12 @@ def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0
             "n_views": n_views,
             "n_registered": n_reg,
             "registration_rate": rate,
-            "n_points": int(rec.num_points3D()),
-            "mean_reproj_error_px": float(rec.compute_mean_reprojection_error()),
+            "n_points": int(len(scene.points_xyz)) if keep_points else int(rec.num_points3D()),
+            "mean_reproj_error_px": (float(rec.compute_mean_reprojection_error())
+                                     if rec.num_points3D() and not keep_points else float("nan")),
             "mean_track_length": float(rec.compute_mean_track_length()) if rec.num_points3D() else float("nan"),
             "matcher": matcher,
-            "mode": "triangulate" if reuse else "incremental",
+            "mode": "given" if keep_points else "triangulate" if reuse else "incremental",
             "threads": threads,
             **{f"time_{k}_s": v for k, v in timings.items()},
         }
@@ -231,9 +245,10 @@ def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0
                                         np.stack([gt[f.name] for f in common]))
                 stats.update({f"gt_{k}": v for k, v in errs.items()})
         stats["time_total_s"] = time.perf_counter() - t_start
-        write_json_atomic(out / "sfm_stats.json", stats)
+        write_json_atomic(out / "sfm_stats.json", {k: (None if isinstance(v, float) and not np.isfinite(v) else v)
+                                                   for k, v in stats.items()})
         write_metrics(out / "metrics.parquet", stats, scene_id=scene_id or scene_dir.parent.name,
                       stage="sfm")
-    log.info("SfM: %d/%d views registered, %d points, %.3f px mean reprojection error, %.1f s",
-             n_reg, n_views, stats["n_points"], stats["mean_reproj_error_px"], stats["time_total_s"])
+    log.info("SfM: %d/%d views registered, %d points, %s px mean reprojection error, %.1f s",
+             n_reg, n_views, stats["n_points"], f"{stats['mean_reproj_error_px']:.3f}", stats["time_total_s"])
     return stats
