@@ -23,7 +23,7 @@ textured plane of Gaussians (tests/test_render.py) seen at 64 x 48 by a
 camera that pans and translates with a varying speed.
 
 Usage: python benchmarks/bench_temporal_sampling.py [--quick]
-Writes benchmarks/results/bench_temporal_sampling.csv and .png; the last line
+Writes benchmarks/results/bench_temporal_sampling[_quick].csv and .png; the last line
 printed is the headline.
 """
 
@@ -268,9 +268,10 @@ def main() -> None:
 
     df = pd.DataFrame(rows)
     df["render_fps_320x240"] = fps_tp
-    csv = RESULTS / "bench_temporal_sampling.csv"
+    stem = "bench_temporal_sampling" + ("_quick" if args.quick else "")
+    csv = RESULTS / f"{stem}.csv"
     df.to_csv(csv, index=False)
-    plot(df, RESULTS / "bench_temporal_sampling.png")
+    plot(df, RESULTS / f"{stem}.png")
 
     print()
     print(df[["case", "method", "frames_rendered", "rejected", "forced", "wall_s", "count_err",

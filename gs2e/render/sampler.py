@@ -62,9 +62,10 @@ def adaptive_samples(render_log: Callable[[int], np.ndarray], t0_us: int, t1_us:
 
     ``render_log(t_us)`` returns the log-intensity frame at an integer time.
     Steps are integers in [dt_min_us, dt_max_us] (the last one may be
-    shorter); growth is at most 2x per step. A rejected trial frame is kept
+    shorter); growth is at most 2x per step. Rejected trial frames are kept
     and, once a shorter step has been accepted, tried as the next sample
-    without rendering. Memory: three frames.
+    without rendering: no time is rendered twice. Memory: two frames plus
+    the rejected trials ahead of the current time (a few).
     """
     if not (t1_us >= t0_us and 1 <= dt_min_us <= dt_max_us and bound > 0 and 0 <= outlier_fraction < 1):
         raise ValueError(f"bad sampler arguments t0={t0_us} t1={t1_us} dt=[{dt_min_us},{dt_max_us}] "
@@ -76,27 +77,25 @@ def adaptive_samples(render_log: Callable[[int], np.ndarray], t0_us: int, t1_us:
     st.accepted += 1
     yield t, cur
     dt = int(dt_init_us or dt_min_us)
-    pending = None  # (time, log frame) of the last rejected trial: a later step may end there
+    pending: dict[int, np.ndarray] = {}  # rejected trials ahead of t: later steps may end there
     accepted = True
     while t < t1_us:
-        reused = accepted and pending is not None and pending[0] - t >= dt_min_us
-        accepted = False
-        if reused:
-            t_new, nxt = pending  # costs no render
-            pending = None
+        nearest = min(pending) if pending else None
+        if accepted and nearest is not None and nearest - t >= dt_min_us:
+            t_new, nxt, reused = nearest, pending[nearest], True  # costs no render
         else:
             dt = int(min(max(dt, dt_min_us), dt_max_us, t1_us - t))
-            t_new, nxt = t + dt, render_log(t + dt)
-            st.rendered += 1
+            t_new = t + dt
+            reused = t_new in pending
+            nxt = pending[t_new] if reused else render_log(t_new)
+            st.rendered += int(not reused)
+        accepted = False
         step = t_new - t
         change = max_log_change(cur, nxt, outlier_fraction)
-        if change > bound and reused:
-            # still too far from the new sample: dropped; the next step stays shorter
-            dt = min(dt, max(dt_min_us, int(step * max(0.2, 0.9 * bound / change))))
-            continue
         if change > bound and step > dt_min_us:
-            st.rejected += 1
-            pending = (t_new, nxt)
+            if not reused:
+                st.rejected += 1
+                pending[t_new] = nxt
             # shrink towards the step that would just meet the bound (locally linear signal)
             dt = max(dt_min_us, int(step * max(0.2, 0.9 * bound / change)))
             continue
@@ -104,8 +103,8 @@ def adaptive_samples(render_log: Callable[[int], np.ndarray], t0_us: int, t1_us:
             st.forced += 1
         st.reused += int(reused)
         t, cur, accepted = t_new, nxt, True
-        if pending is not None and pending[0] <= t:
-            pending = None
+        for k in [k for k in pending if k <= t]:
+            del pending[k]
         st.accepted += 1
         st.max_change = max(st.max_change, change) if change <= bound else st.max_change
         st.min_step_us = step if st.min_step_us == 0 else min(st.min_step_us, step)
