@@ -308,6 +308,7 @@ def plot(df, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker  # noqa: F401
 
     cases = list(dict.fromkeys(df["case"]))
     fig, axes = plt.subplots(len(cases), 2, figsize=(10, 3.8 * len(cases)), squeeze=False)
@@ -315,16 +316,21 @@ def plot(df, path: Path) -> None:
         g = df[df["case"] == name]
         for ax, col, lab in ((row[0], "count_err", "count error (sum |n - n_ref| / sum n_ref)"),
                              (row[1], "t_err_mean_us", "mean |t - t_ref| of matched events (us)")):
-            for mode, mk in (("fixed", "o-"), ("adaptive", "s-")):
-                h = g[g["mode"] == mode].sort_values("frames_rendered")
-                ax.plot(h["frames_rendered"], h[col], mk, label=mode)
+            for mode, mk, lab_m in (("fixed", "o-", "fixed fps"), ("adaptive", "s-", "adaptive, q=1e-3"),
+                                    ("adaptive0", "x", "adaptive, every pixel bounded (q=0)")):
+                h = g[g["mode"] == mode.rstrip("0")]
+                if mode != "fixed":
+                    h = h[(h["outlier_fraction"] > 0) == (mode == "adaptive")]
+                h = h.sort_values("frames_rendered")
+                ax.plot(h["frames_rendered"], h[col], mk, label=lab_m, ms=8 if mk == "x" else 6)
                 for _, r in h.iterrows():
                     ax.annotate(f"{r['fps']:.0f}" if mode == "fixed" else
-                                f"{r['bound_fraction']:g}θ" + ("" if r["outlier_fraction"] else " q=0"),
+                                f"{r['bound_fraction']:g}θ",
                                 (r["frames_rendered"], r[col]), fontsize=7, xytext=(3, 3),
                                 textcoords="offset points")
             ax.set_xscale("log")
             ax.set_yscale("log")
+            ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
             ax.set_xlabel("frames rendered")
             ax.set_ylabel(lab)
             ax.set_title(f"{name} (reference {REF_FPS:.0f} fps: {int(g['ref_frames'].iloc[0])} frames)",

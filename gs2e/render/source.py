@@ -92,7 +92,8 @@ def source_for_events(model_dir, trajectory_path, render_cfg: dict, events_cfg: 
     """The frame source of the workflow's event stage: the adaptive bound is
     ``render.adaptive_bound_fraction`` x the smallest contrast threshold the
     event config can draw (theta_on/theta_off, or the low end of theta_range),
-    as a log-intensity step (for the voltmeter model: log(1 + theta / k1))."""
+    as a log-intensity step (for the voltmeter model: log(1 + theta / k1)),
+    on all pixels but the ``render.adaptive_outlier_fraction`` that change most."""
     theta = min(events_cfg["theta_on"], events_cfg["theta_off"])
     if events_cfg.get("theta_sampling", "fixed") != "fixed":
         theta = min(theta, min(events_cfg["theta_range"]))
@@ -108,4 +109,5 @@ def source_for_events(model_dir, trajectory_path, render_cfg: dict, events_cfg: 
         r.t1_us = min(r.t1_us, r.t0_us + int(round(clip * 1e6)))
     return RenderedFrameSource(r, render_cfg["sampling"], render_cfg["fixed_fps"],
                                render_cfg["adaptive_bound_fraction"] * theta, render_cfg["log_eps"],
-                               render_cfg["adaptive_dt_min_us"], render_cfg["adaptive_dt_max_us"])
+                               render_cfg["adaptive_dt_min_us"], render_cfg["adaptive_dt_max_us"],
+                               render_cfg["adaptive_outlier_fraction"])
