@@ -215,12 +215,15 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="plane scene, short span (under 60 s)")
     ap.add_argument("--span-s", type=float, default=None, help="simulated time span per trajectory")
-    ap.add_argument("--report", metavar="CSV", help="only print the table and headline of a results CSV")
+    ap.add_argument("--report", metavar="CSV", help="only redraw the plot and print the table and headline of a "
+                                                    "results CSV")
     args = ap.parse_args()
     if args.report:
         import pandas as pd
 
-        report(pd.read_csv(args.report))
+        df = pd.read_csv(args.report)
+        plot(df, Path(args.report).with_suffix(".png"))
+        report(df)
         return
     RESULTS.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix="bench_ts_"))
