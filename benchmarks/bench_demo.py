@@ -12,7 +12,6 @@ last printed line is the headline figure.
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 import tempfile
 import time
@@ -21,12 +20,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from _results import RESULTS, pyplot, write_csv  # noqa: E402
 from gs2e.config import load_section  # noqa: E402
 from gs2e.demo.io import generate_demo_scene  # noqa: E402
 from gs2e.demo.world import (RAY_CHUNK, build_world, intrinsics, orbit_c2w,  # noqa: E402
                              render_view, wall_size)
 
-RESULTS = ROOT / "benchmarks" / "results"
 
 
 def time_views(world, c2ws, W, H, ss, chunk) -> float:
@@ -60,15 +59,8 @@ def main() -> None:
         stats = generate_demo_scene(Path(tmp) / "demo", cfg)
         wall, cpu = time.perf_counter() - w0, time.process_time() - c0
 
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    with open(RESULTS / "bench_demo.csv", "w", newline="") as fh:
-        wr = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        wr.writeheader()
-        wr.writerows(rows)
-
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    write_csv("bench_demo", rows)
+    plt = pyplot()
 
     labels = [f"{r['width']}x{r['height']}\nss{r['supersample']}" for r in rows]
     x = range(len(rows))

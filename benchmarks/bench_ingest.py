@@ -13,7 +13,6 @@ the headline figure.
 from __future__ import annotations
 
 import argparse
-import csv
 import os
 import shutil
 import sys
@@ -25,6 +24,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 import cv2  # noqa: E402
+from _results import RESULTS, pyplot, write_csv  # noqa: E402
 
 from gs2e.io.ingest import ingest_scene  # noqa: E402
 
@@ -75,15 +75,9 @@ def main() -> int:
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
-    res = REPO / "benchmarks" / "results"
-    res.mkdir(parents=True, exist_ok=True)
-    with open(res / "bench_ingest.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    write_csv("bench_ingest", rows)
+    res = RESULTS
+    plt = pyplot()
     labels = [f"{r['scene']}\nmax_side={r['max_side'] or 'full'}" for r in rows]
     x = range(len(rows))
     fig, ax = plt.subplots(figsize=(7, 3.5))

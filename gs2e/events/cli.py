@@ -101,7 +101,7 @@ def run(args) -> int:
         src = open_frame_source(args.input, args.timestamps, args.fps, args.encoding, args.time_unit)
         extra = None
     with timed(f"events {cfg['model']} on {src.name}", log):
-        stats = simulate_to_folder(src, cfg, args.out, args.seed, extra_meta=extra)
+        simulate_to_folder(src, cfg, args.out, args.seed, extra_meta=extra)
     if hasattr(src, "stats"):
         log.info("frame source: %d frames rendered, %d used (%s sampling)", src.stats.rendered,
                  src.stats.accepted, src.mode)

@@ -44,7 +44,6 @@ from __future__ import annotations
 import copy
 import hashlib
 import logging
-import math
 import os
 import re
 from pathlib import Path

@@ -3,7 +3,6 @@ alpha, and a per-frame record of time, pose and intrinsics."""
 
 from __future__ import annotations
 
-import math
 import time
 from pathlib import Path
 from typing import Any

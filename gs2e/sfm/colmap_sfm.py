@@ -10,7 +10,6 @@ internal-layout scene (undistorted ``images/``, ``scene.json``,
 
 from __future__ import annotations
 
-import os
 import shutil
 import tempfile
 import time

@@ -181,8 +181,6 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     Checkpoints go to ``checkpoint_dir`` (default ``<out_dir>.ckpt``) and are
     resumed when their config matches; they are removed after success.
     """
-    from gs2e.metrics.table import write_metrics
-
     scene_dir, out_dir = Path(scene_dir), Path(out_dir)
     set_threads(threads)
     scene = read_scene(scene_dir)
