@@ -61,3 +61,27 @@ def test_every_rule_has_log_benchmark_and_code_version():
         shell = body.split("shell:", 1)[1] if "shell:" in body else ""
         # config values reach the CLI through params only, never interpolated into shell.
         assert "config[" not in shell and "SCENE_CFG" not in shell, name
+
+
+def test_conda_env_covers_the_package_dependencies():
+    """envs/gs2e.yaml (used by `snakemake --sdm conda`) lists every runtime
+    dependency of pyproject.toml (conda-forge names where they differ)."""
+    import re
+    import tomllib
+
+    import yaml
+
+    env = yaml.safe_load((REPO / "envs" / "gs2e.yaml").read_text())
+    names = set()
+    for dep in env["dependencies"]:
+        items = dep["pip"] if isinstance(dep, dict) else [dep]
+        for item in items:
+            names.add(re.split(r"[<>=!\s]", item, maxsplit=1)[0].lower())
+    conda_name = {"torch": "pytorch", "opencv-contrib-python-headless": "py-opencv",
+                  "snakemake": None, "snakemake-executor-plugin-slurm": None}
+    deps = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["dependencies"]
+    for dep in deps:
+        name = re.split(r"[<>=!\s\[]", dep, maxsplit=1)[0].lower()
+        want = conda_name.get(name, name)
+        if want is not None:  # snakemake itself runs outside the job environment
+            assert want in names, f"envs/gs2e.yaml lacks {want} (pyproject: {dep})"
