@@ -1,4 +1,5 @@
 # Shared wiring: validated config, the scenes table, per-scene parameters.
+import json
 from pathlib import Path
 
 from gs2e.codeversion import code_version
@@ -47,11 +48,14 @@ def scene_source(wc):
     return row["path"]
 
 
-def all_targets():
-    """Every scene's final products (grows as stages are wired in)."""
-    out = []
-    for sid in SCENES:
-        out += [res(sid, "splat"), res(sid, "trajectories")]
-        for t in SCENE_CFG[sid]["render"]["trajectories"]:
-            out += [res(sid, "frames", t), res(sid, "events", t)]
+def scene_products(sid):
+    """Every product of one scene: model, trajectories, frames and events."""
+    out = [res(sid, "sfm"), res(sid, "splat"), res(sid, "trajectories")]
+    for t in SCENE_CFG[sid]["render"]["trajectories"]:
+        out += [res(sid, "frames", t), res(sid, "events", t)]
     return out
+
+
+def all_targets():
+    """The dataset summary (which needs every scene's metrics and products)."""
+    return [res("summary.parquet")]

@@ -1,0 +1,65 @@
+"""The scene's metrics table and the dataset summary.
+
+``scene_table`` joins the one-row tables every stage writes (sfm, train,
+render, events) into one row per (scene, trajectory), each stage's columns
+prefixed with its name (``sfm_registration_rate``, ``train_test_psnr``,
+``render_frames_per_s``, ``events_rate_meps`` ...), plus the code version,
+config hash and seeds. ``summary`` concatenates scene tables and adds
+dataset-level rows. Missing values stay missing (null).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import pandas as pd
+
+from gs2e import __version__
+from gs2e.common.errors import InputError
+
+STAGE_FILES = {"sfm": "sfm/metrics.parquet", "train": "splat/metrics.parquet"}
+
+
+def _row(path: Path, prefix: str) -> dict:
+    df = pd.read_parquet(path)
+    if len(df) != 1:
+        raise InputError(f"{path}: expected one row, got {len(df)}")
+    return {f"{prefix}_{k}": v for k, v in df.iloc[0].items() if k not in ("scene_id", "stage")}
+
+
+def scene_table(scene_dir: str | Path, scene_id: str, trajectories: list[str], config: dict,
+                seeds: dict[str, int] | None = None) -> pd.DataFrame:
+    """One row per trajectory of the scene in ``scene_dir`` (results/<scene>)."""
+    scene_dir = Path(scene_dir)
+    base = {"scene_id": scene_id, "gs2e_version": __version__,
+            "config_hash": hashlib.sha256(json.dumps(config, sort_keys=True).encode()).hexdigest()[:16],
+            **{f"seed_{k}": v for k, v in (seeds or {}).items()}}
+    for stage, rel in STAGE_FILES.items():
+        p = scene_dir / rel
+        if p.exists():
+            base.update(_row(p, stage))
+    idx = scene_dir / "trajectories" / "trajectories.json"
+    traj_info = {}
+    if idx.exists():
+        for t in json.loads(idx.read_text()).get("trajectories", []):
+            traj_info[t["name"]] = t
+    rows = []
+    for name in trajectories:
+        row = dict(base, trajectory=name)
+        t = traj_info.get(name, {})
+        for k in ("kind", "method", "preset", "n_poses", "duration_us", "length", "max_rel_step_error"):
+            row[f"trajectory_{k}"] = t.get(k)
+        for stage, rel in (("render", f"frames/{name}/metrics.parquet"), ("events", f"events/{name}/stats.parquet")):
+            p = scene_dir / rel
+            if p.exists():
+                row.update(_row(p, stage))
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def summary(tables: list[str | Path]) -> pd.DataFrame:
+    """Concatenate scene tables (one row per scene x trajectory)."""
+    frames = [pd.read_parquet(p) for p in tables]
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
