@@ -309,6 +309,9 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
                 log.debug("it %d densify: %s", n_it, res)
             if n_it % cfg["opacity_reset_every"] == 0:
                 reset_opacity(p, opt)
+                # the held-out PSNR drops and recovers: restart plateau tracking, or the
+                # run would stop during the recovery with a model worse than before
+                best, bad_evals = -math.inf, 0
         if n_it % cfg["eval_every"] == 0 or n_it == cfg["max_iterations"]:
             elapsed = time.perf_counter() - t_loop
             ev = evaluate(p, test_v or train_v[:4], bg, sh_deg)
