@@ -149,13 +149,15 @@ def test_ply_import_renders_and_evaluates(tiny_scene, tmp_path):
     write_ply(official / "point_cloud" / "iteration_7000" / "point_cloud.ply", **g)
     write_ply(official / "point_cloud" / "iteration_500" / "point_cloud.ply", **{**g, "means": g["means"] + 1})
 
-    c = cfg(model_source="ply", ply_path=str(official))
+    bg = [0.2, 0.5, 0.9]  # the model's background must follow it to render-views
+    c = cfg(model_source="ply", ply_path=str(official), background=bg)
     st = train(tiny_scene, tmp_path / "m", c, scene_id="tiny")
     assert st["source"] == "ply" and st["iterations"] == 7000 and st["sh_degree"] == 1
     assert st["ply_path"].endswith("iteration_7000/point_cloud.ply")
     views = load_views(tiny_scene, scene, [1])
     _, test_v = split_views(views, c["test_every"])
-    ref = evaluate(to_params(g), test_v, BG, 1)
+    ref = evaluate(to_params(g), test_v, torch.tensor(bg), 1)
+    assert ref["psnr"] < evaluate(to_params(g), test_v, BG, 1)["psnr"] - 0.5  # bg matters
     assert st["test_psnr"] == pytest.approx(ref["psnr"], abs=1e-4)
     assert st["test_ssim"] == pytest.approx(ref["ssim"], abs=1e-5)
     back = read_ply(tmp_path / "m" / "point_cloud" / "iteration_7000" / "point_cloud.ply")
@@ -165,7 +167,8 @@ def test_ply_import_renders_and_evaluates(tiny_scene, tmp_path):
     assert np.mean([r["psnr"] for r in rows]) == pytest.approx(ref["psnr"], abs=1e-3)
 
     # a single file works too
-    c = cfg(model_source="ply", ply_path=str(official / "point_cloud" / "iteration_7000" / "point_cloud.ply"))
+    c = cfg(model_source="ply", background=bg,
+            ply_path=str(official / "point_cloud" / "iteration_7000" / "point_cloud.ply"))
     assert train(tiny_scene, tmp_path / "m3", c)["test_psnr"] == pytest.approx(ref["psnr"], abs=1e-4)
 
 

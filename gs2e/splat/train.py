@@ -206,7 +206,8 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     bg = torch.tensor(cfg["background"], dtype=torch.float32)
     timings: dict[str, float] = {}
     stats: dict[str, Any] = {"n_views": len(views), "n_train_views": len(train_v),
-                             "n_test_views": len(test_v), "extent": extent}
+                             "n_test_views": len(test_v), "extent": extent,
+                             "test_every": cfg["test_every"], "background": list(cfg["background"])}
 
     if cfg["model_source"] == "ply":
         return _import_ply(scene, scene_dir, out_dir, cfg, views, test_v, bg, stats, scene_id, t0)
@@ -376,7 +377,8 @@ def _write_model(out_dir: Path, scene: Scene, g: dict[str, np.ndarray], iteratio
         write_json_atomic(out / "model.json", {
             "format": "gs2e-splat", "version": 1, "ply": rel, "iterations": iterations,
             "sh_degree": sh_degree, "n_gaussians": int(len(g["means"])), "scene": str(scene_dir),
-            "width": scene.width, "height": scene.height, "source": stats.get("source")})
+            "width": scene.width, "height": scene.height, "source": stats.get("source"),
+            "background": stats["background"], "test_every": stats["test_every"]})
         write_json_atomic(out / "train_stats.json", stats)
         write_metrics(out / "metrics.parquet", stats, scene_id=scene_id or out_dir.parent.name,
                       stage="train")
