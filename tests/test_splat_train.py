@@ -350,3 +350,24 @@ def test_scene_analysis_rules():
     budget, edges = detail_budget([checker, checker, flat], 2.0, 100, 10**6)
     assert edges > 300 and budget == int(2 * edges)
     assert detail_budget([checker], 2.0, 100, 500)[0] == 500
+
+
+def test_cli_train_and_render_views(tiny_scene, tmp_path):
+    from conftest import run_cli
+
+    c = {"max_iterations": 30, "min_iterations": 0, "eval_every": 15, "sh_degree": 0,
+         "densify_from": 10, "densify_every": 10, "densify_until": 25, "budget": 3000,
+         "resolution_schedule": [[0, 1]], "checkpoint_every": 0}
+    run_cli("train", "--scene", str(tiny_scene), "--out", str(tmp_path / "m"), "--seed", "1",
+            "--scene-id", "tiny", "--config-json", json.dumps(c), check=True)
+    stats = json.loads((tmp_path / "m" / "train_stats.json").read_text())
+    assert stats["iterations"] == 30 and stats["n_gaussians"] <= 3000
+    run_cli("render-views", "--model", str(tmp_path / "m"), "--scene", str(tiny_scene),
+            "--out", str(tmp_path / "r"), "--views", "all", check=True)
+    assert len(list((tmp_path / "r").glob("*.png"))) == 12
+    m = pd.read_parquet(tmp_path / "r" / "metrics.parquet")
+    held = m[m["view"].isin(["000.png", "008.png"])]
+    assert held["psnr"].mean() == pytest.approx(stats["test_psnr"], abs=0.05)
+    # bad input through the CLI: a clear message and a non-zero exit, no output
+    p = run_cli("train", "--scene", str(tmp_path / "nope"), "--out", str(tmp_path / "x"))
+    assert p.returncode != 0 and "scene.json" in p.stderr and not (tmp_path / "x").exists()
