@@ -62,7 +62,7 @@ def settings(base: dict) -> dict[str, dict]:
             "full-res": dict(base, resolution_schedule=[[0, 1]], sh_degree=3, budget=base["budget_max"])}
 
 
-def prepare(work: Path, name: str) -> Path:
+def prepare(work: Path, name: str, data: Path) -> Path:
     """A trainable scene folder (cached in ``work``)."""
     from gs2e.demo.io import generate_demo_scene
 
@@ -89,7 +89,7 @@ def prepare(work: Path, name: str) -> Path:
             gs2e_cli("demo-scene", "--out", raw)
         gs2e_cli("ingest", "--layout", "demo", "--src", raw, "--out", ing)
     else:
-        gs2e_cli("ingest", "--layout", "folder", "--src", DATA / "temple_ring", "--out", ing)
+        gs2e_cli("ingest", "--layout", "folder", "--src", data / "temple_ring", "--out", ing)
     gs2e_cli("sfm", "--scene", ing, "--out", out)
     return out
 
@@ -114,13 +114,18 @@ def main() -> int:
                     help="steps per run (schedule scaled to it); default: quick 300, full 3000")
     ap.add_argument("--no-baseline", action="store_true", help="only the gs2e defaults")
     ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("--data", type=Path, default=DATA, help="shared data folder (default ../shared/data)")
+    ap.add_argument("--name", default="bench_train", help="stem of the CSV/PNG files written")
     ap.add_argument("--work", type=Path, default=RESULTS / "work_train", help="scene/model cache")
     a = ap.parse_args()
 
     scenes = ["demo-small"] if a.quick else (a.scenes or "demo,temple_ring").split(",")
-    if "temple_ring" in scenes and not (DATA / "temple_ring").exists():
-        print(f"skipping temple_ring: {DATA / 'temple_ring'} is absent")
+    if "temple_ring" in scenes and not (a.data / "temple_ring").exists():
+        print(f"skipping temple_ring: {a.data / 'temple_ring'} is absent")
         scenes.remove("temple_ring")
+    if not scenes:
+        print("train: nothing to run")
+        return 0
     iters = a.iterations or (300 if a.quick else 3000)
     base = scaled(load_section("splat"), iters)
     if a.quick:
@@ -132,7 +137,7 @@ def main() -> int:
     rows, finals = [], []
     for scene in scenes:
         t = time.perf_counter()
-        sdir = prepare(a.work, scene)
+        sdir = prepare(a.work, scene, a.data)
         print(f"[{scene}] scene ready in {time.perf_counter() - t:.1f} s: {sdir}", flush=True)
         for name, cfg in settings(base).items():
             if a.no_baseline and name != "gs2e":
@@ -151,9 +156,9 @@ def main() -> int:
                   f"SH {f['sh']}): PSNR {f['psnr']:.2f} dB SSIM {f['ssim']:.4f}", flush=True)
 
     df = pd.DataFrame(rows)
-    df.to_csv(RESULTS / "bench_train.csv", index=False)
+    df.to_csv(RESULTS / f"{a.name}.csv", index=False)
     fin = pd.DataFrame(finals)
-    fin.to_csv(RESULTS / "bench_train_final.csv", index=False)
+    fin.to_csv(RESULTS / f"{a.name}_final.csv", index=False)
 
     print("\nheld-out PSNR/SSIM against training time (every evaluation):")
     with pd.option_context("display.width", 160, "display.max_rows", 400):
@@ -172,7 +177,7 @@ def main() -> int:
             ratios[scene] = (target, tg, tb, tb / tg if tg == tg else float("nan"))
             print(f"[{scene}] baseline final {target:.2f} dB after {tb:.1f} s; gs2e reaches it after "
                   f"{tg:.1f} s -> {ratios[scene][3]:.2f}x faster")
-    _plot(df, scenes)
+    _plot(df, scenes, RESULTS / f"{a.name}.png")
 
     heads = []
     for scene in scenes:
@@ -185,7 +190,7 @@ def main() -> int:
     return 0
 
 
-def _plot(df: pd.DataFrame, scenes: list[str]) -> None:
+def _plot(df: pd.DataFrame, scenes: list[str], path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -204,7 +209,7 @@ def _plot(df: pd.DataFrame, scenes: list[str]) -> None:
         axes[1, j].set_xlabel("training wall time (s, 2 CPU cores)")
         axes[0, j].legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(RESULTS / "bench_train.png", dpi=110)
+    fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
