@@ -88,7 +88,7 @@ def test_training_improves_heldout_psnr(tiny_scene, tmp_path):
     assert (out / "cameras.json").exists()
     curve = pd.read_parquet(out / "curve.parquet")
     assert list(curve["iteration"]) == [50, 100, 150, 200]
-    assert curve["train_time_s"].is_monotonic_increasing
+    assert curve["train_time_s"].is_monotonic_increasing and curve["cpu_time_s"].is_monotonic_increasing
     assert list(curve["downscale"]) == [2, 1, 1, 1]  # factor of the step just taken
     m = pd.read_parquet(out / "metrics.parquet")
     assert m.loc[0, "scene_id"] == "tiny" and m.loc[0, "stage"] == "train"

@@ -247,7 +247,7 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
                          min_opacity=cfg["prune_min_opacity"], budget=budget)
     gstats = GradStats.zeros(p["means"].shape[0])
     order: list[int] = []  # views left in the current epoch (popped from the end)
-    it0, curve, best, bad_evals, train_time = 0, [], -math.inf, 0, 0.0
+    it0, curve, best, bad_evals, train_time, cpu_time = 0, [], -math.inf, 0, 0.0, 0.0
 
     ckpt_dir = Path(checkpoint_dir) if checkpoint_dir else out_dir.with_name(out_dir.name + ".ckpt")
     ckpt = ckpt_dir / "checkpoint.pt"
@@ -261,6 +261,7 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
             gen.set_state(st["gen"])
             rng.bit_generator.state = st["rng"]
             gstats, order = st["gstats"], st["order"]
+            cpu_time = st.get("cpu_time", 0.0)
             log.info("resumed from %s at iteration %d", ckpt, it0)
         else:
             log.info("ignoring checkpoint %s (different config or seed)", ckpt)
@@ -270,6 +271,7 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
         with atomic_path(ckpt) as tmp:
             torch.save({"hash": chash, "params": p, "iteration": n_it, "curve": curve, "best": best,
                         "bad_evals": bad_evals, "train_time": time.perf_counter() - t_loop,
+                        "cpu_time": time.process_time() - c_loop,
                         "opt": opt.state_dict(), "gen": gen.get_state(),
                         "rng": rng.bit_generator.state, "gstats": gstats, "order": order}, tmp)
 
@@ -278,6 +280,7 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     bar = progress(range(it0, cfg["max_iterations"]), desc="training", total=cfg["max_iterations"],
                    initial=it0)
     t_loop = time.perf_counter() - train_time
+    c_loop = time.process_time() - cpu_time  # CPU seconds (all threads): robust on a shared machine
     for it in bar:
         ds = downscale_at(schedule, it)
         sh_deg = min(sh_max, it // cfg["sh_increase_every"])
@@ -316,7 +319,8 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
         if n_it % cfg["eval_every"] == 0 or n_it == cfg["max_iterations"]:
             elapsed = time.perf_counter() - t_loop
             ev = evaluate(p, test_v or train_v[:4], bg, sh_deg)
-            curve.append({"iteration": n_it, "train_time_s": elapsed, "psnr": ev["psnr"],
+            curve.append({"iteration": n_it, "train_time_s": elapsed,
+                          "cpu_time_s": time.process_time() - c_loop, "psnr": ev["psnr"],
                           "ssim": ev["ssim"], "n_gaussians": int(p["means"].shape[0]),
                           "downscale": ds, "loss": float(loss.detach())})
             log.info("it %d: held-out PSNR %.2f dB, SSIM %.4f, %d Gaussians, %.1f s", n_it,
@@ -341,10 +345,11 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
         bar.close()
     n_iters = it + 1 if cfg["max_iterations"] > it0 else it0
     train_s = time.perf_counter() - t_loop
+    cpu_s = time.process_time() - c_loop
     sh_final = min(sh_max, max(0, n_iters - 1) // cfg["sh_increase_every"])
     final = evaluate(p, test_v, bg, sh_final)
     stats.update({"source": "trained", "iterations": n_iters, "stop_reason": stop_reason,
-                  "n_gaussians": int(p["means"].shape[0]), "train_time_s": train_s,
+                  "n_gaussians": int(p["means"].shape[0]), "train_time_s": train_s, "train_cpu_s": cpu_s,
                   "test_psnr": final["psnr"], "test_ssim": final["ssim"], "test_lpips": None,
                   "sh_degree_final": sh_final, **{f"time_{k.replace(' ', '_')}_s": t for k, t in timings.items()}})
     _write_model(out_dir, scene, from_params(p), n_iters, sh_final, stats, curve, scene_id, scene_dir)
