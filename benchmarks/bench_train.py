@@ -102,9 +102,10 @@ def run_one(scene_dir: Path, out: Path, cfg: dict, threads: int | None) -> tuple
     return st, pd.read_parquet(out / "curve.parquet")
 
 
-def time_to_reach(curve: pd.DataFrame, psnr: float) -> float:
+def time_to_reach(curve: pd.DataFrame, psnr: float, col: str = "cpu_time_s") -> float:
+    """First evaluation time (CPU s by default) with held-out PSNR >= ``psnr``."""
     hit = curve[curve["psnr"] >= psnr]
-    return float(hit["train_time_s"].iloc[0]) if len(hit) else float("nan")
+    return float(hit[col].iloc[0]) if len(hit) else float("nan")
 
 
 def main() -> int:
@@ -173,17 +174,18 @@ def main() -> int:
         g = df[(df.scene == scene) & (df.setting == "gs2e")]
         b = df[(df.scene == scene) & (df.setting == "full-res")]
         if len(b) and len(g):
-            target = float(b["psnr"].iloc[-1])
-            tg, tb = time_to_reach(g, target), float(b["train_time_s"].iloc[-1])
+            # within 0.1 dB of the baseline's final PSNR: the evaluation grid is coarse
+            target = float(b["psnr"].iloc[-1]) - 0.1
+            tg, tb = time_to_reach(g, target), time_to_reach(b, target)
             ratios[scene] = (target, tg, tb, tb / tg if tg == tg else float("nan"))
-            print(f"[{scene}] baseline final {target:.2f} dB after {tb:.1f} s; gs2e reaches it after "
-                  f"{tg:.1f} s -> {ratios[scene][3]:.2f}x faster")
+            print(f"[{scene}] {target:.2f} dB (baseline final - 0.1): baseline after {tb:.1f} CPU-s, "
+                  f"gs2e after {tg:.1f} CPU-s -> {ratios[scene][3]:.2f}x less CPU")
     _plot(df, scenes, RESULTS / f"{a.name}.png")
 
     heads = []
     for scene in scenes:
         f = fin[(fin.scene == scene) & (fin.setting == "gs2e")].iloc[0]
-        extra = f", {ratios[scene][3]:.1f}x faster than full-res to {ratios[scene][0]:.1f} dB" \
+        extra = f", {ratios[scene][3]:.2f}x less CPU than full-res to {ratios[scene][0]:.1f} dB" \
             if scene in ratios and np.isfinite(ratios[scene][3]) else ""
         heads.append(f"{scene} {f['psnr']:.2f} dB / SSIM {f['ssim']:.3f} in {f['train_s']:.0f} s "
                      f"({f['iterations']} it, {f['gaussians']} G){extra}")
