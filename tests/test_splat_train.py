@@ -139,6 +139,13 @@ def test_plateau_stop_on_converged_scene(tiny_scene, tmp_path):
     # min_iterations holds the stop back
     st = train(tiny_scene, tmp_path / "m2", {**c, "min_iterations": 80})
     assert st["stop_reason"] == "plateau" and st["iterations"] == 80
+    # an opacity reset (step 30) drops the PSNR: tracking restarts there instead of
+    # counting the dip as stalls (30 sets the new best, 40 and 50 stall)
+    st = train(tiny_scene, tmp_path / "m3", {**c, "opacity_reset_every": 30, "densify_until": 100,
+                                              "densify_every": 1000})
+    assert st["stop_reason"] == "plateau" and st["iterations"] == 50
+    curve = pd.read_parquet(tmp_path / "m3" / "curve.parquet")
+    assert curve["psnr"].iloc[2] < curve["psnr"].iloc[1] - 1.0  # the reset's dip
 
 
 def test_ply_import_renders_and_evaluates(tiny_scene, tmp_path):
