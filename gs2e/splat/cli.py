@@ -31,7 +31,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--scene", required=True, help="scene folder whose cameras to render")
     r.add_argument("--out", required=True, help="output folder for renders (atomic)")
     r.add_argument("--views", choices=["test", "train", "all"], default="test")
-    r.add_argument("--test-every", type=int, default=8)
+    r.add_argument("--test-every", type=int, default=None,
+                   help="hold-out split (default: the one the model was trained with)")
     r.set_defaults(func=run_render_views)
 
 

@@ -30,7 +30,7 @@ from gs2e.io.scene import IMAGES_DIR, Scene, read_scene
 from gs2e.splat.init import init_from_points
 from gs2e.splat.loss import photometric_loss, psnr, ssim
 from gs2e.splat.ply import read_ply, write_cameras_json, write_ply
-from gs2e.splat.rasterize import SplatCamera, rasterize
+from gs2e.splat.rasterize import NonFiniteError, SplatCamera, rasterize
 from gs2e.splat.scene_stats import choose_sh_degree, detail_budget, view_dependence
 from gs2e.splat.strategy import PARAMS, Adam, DensifyConfig, GradStats, densify_and_prune, reset_opacity
 
@@ -169,7 +169,8 @@ def config_hash(cfg: dict, scene_dir: Path) -> str:
 # ----------------------------------------------------------------- training
 def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
           threads: int | None = None, scene_id: str | None = None,
-          checkpoint_dir: str | Path | None = None, resume: bool = True) -> dict[str, Any]:
+          checkpoint_dir: str | Path | None = None, resume: bool = True,
+          interrupt_after: int | None = None) -> dict[str, Any]:
     """Train (or, with ``model_source: ply``, import) a Gaussian model of the
     scene in ``scene_dir`` (an sfm output: PINHOLE views with poses and
     points3d.npz; its ``sparse/0`` tracks are used to choose the SH degree).
@@ -179,7 +180,18 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     read), ``train_stats.json``, ``metrics.parquet`` (one row) and
     ``curve.parquet`` (held-out PSNR/SSIM against wall time and iteration).
     Checkpoints go to ``checkpoint_dir`` (default ``<out_dir>.ckpt``) and are
-    resumed when their config matches; they are removed after success.
+    resumed when their config and seed match; they are removed after success.
+    A resumed run continues exactly where the interrupted one stopped (view
+    order, densification statistics, random states), so it writes the same
+    model bytes as an uninterrupted run.
+
+    ``interrupt_after``: stop after that many steps in total, leaving a
+    checkpoint and writing no output (time-sliced jobs; tests of resume).
+    Returns the statistics (``{"interrupted": True, "iteration": N}`` then).
+
+    Raises InputError (naming the file) for unusable scenes and
+    NonFiniteError (naming the iteration and view) when parameters or
+    gradients become NaN/inf; no output is written then.
     """
     scene_dir, out_dir = Path(scene_dir), Path(out_dir)
     set_threads(threads)
@@ -192,7 +204,8 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     bg = torch.tensor(cfg["background"], dtype=torch.float32)
     timings: dict[str, float] = {}
     stats: dict[str, Any] = {"n_views": len(views), "n_train_views": len(train_v),
-                             "n_test_views": len(test_v), "extent": extent}
+                             "n_test_views": len(test_v), "extent": extent,
+                             "test_every": cfg["test_every"], "background": list(cfg["background"])}
 
     if cfg["model_source"] == "ply":
         return _import_ply(scene, scene_dir, out_dir, cfg, views, test_v, bg, stats, scene_id, t0)
@@ -216,8 +229,11 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
 
     if scene.points_xyz is None:
         raise InputError(f"{scene_dir}: no points3d.npz to initialise Gaussians from")
-    g0 = init_from_points(scene.points_xyz, scene.points_rgb, sh_degree=sh_max,
-                          init_opacity=cfg["init_opacity"], min_points=cfg["min_points"])
+    try:
+        g0 = init_from_points(scene.points_xyz, scene.points_rgb, sh_degree=sh_max,
+                              init_opacity=cfg["init_opacity"], min_points=cfg["min_points"])
+    except InputError as exc:
+        raise InputError(f"{scene_dir / 'points3d.npz'}: {exc} (splat.min_points)") from exc
     p = to_params(g0)
     lrs = {"means": position_lr(0, cfg, extent), "quats": cfg["lr_rotation"],
            "log_scales": cfg["lr_scaling"], "opacity_logits": cfg["lr_opacity"],
@@ -228,7 +244,8 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     dcfg = DensifyConfig(grad_threshold=cfg["densify_grad_threshold"], percent_dense=cfg["percent_dense"],
                          min_opacity=cfg["prune_min_opacity"], budget=budget)
     gstats = GradStats.zeros(p["means"].shape[0])
-    it0, curve, best, bad_evals, train_time = 0, [], -math.inf, 0, 0.0
+    order: list[int] = []  # views left in the current epoch (popped from the end)
+    it0, curve, best, bad_evals, train_time, cpu_time = 0, [], -math.inf, 0, 0.0, 0.0
 
     ckpt_dir = Path(checkpoint_dir) if checkpoint_dir else out_dir.with_name(out_dir.name + ".ckpt")
     ckpt = ckpt_dir / "checkpoint.pt"
@@ -241,17 +258,27 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
             opt.load_state_dict(st["opt"])
             gen.set_state(st["gen"])
             rng.bit_generator.state = st["rng"]
-            gstats = GradStats.zeros(p["means"].shape[0])
+            gstats, order = st["gstats"], st["order"]
+            cpu_time = st.get("cpu_time", 0.0)
             log.info("resumed from %s at iteration %d", ckpt, it0)
         else:
-            log.info("ignoring checkpoint %s (different config)", ckpt)
+            log.info("ignoring checkpoint %s (different config or seed)", ckpt)
 
-    order: list[int] = []
+    def save_checkpoint(n_it: int) -> None:
+        ckpt_dir.mkdir(parents=True, exist_ok=True)
+        with atomic_path(ckpt) as tmp:
+            torch.save({"hash": chash, "params": p, "iteration": n_it, "curve": curve, "best": best,
+                        "bad_evals": bad_evals, "train_time": time.perf_counter() - t_loop,
+                        "cpu_time": time.process_time() - c_loop,
+                        "opt": opt.state_dict(), "gen": gen.get_state(),
+                        "rng": rng.bit_generator.state, "gstats": gstats, "order": order}, tmp)
+
     it = it0
     stop_reason = "max_iterations"
     bar = progress(range(it0, cfg["max_iterations"]), desc="training", total=cfg["max_iterations"],
                    initial=it0)
     t_loop = time.perf_counter() - train_time
+    c_loop = time.process_time() - cpu_time  # CPU seconds (all threads): robust on a shared machine
     for it in bar:
         ds = downscale_at(schedule, it)
         sh_deg = min(sh_max, it // cfg["sh_increase_every"])
@@ -262,9 +289,13 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
         cam, gt = v.camera(ds)
         for k in PARAMS:
             p[k].requires_grad_(True)
-        img, alpha, depth, meta = render(p, cam, bg, sh_deg)
-        loss = photometric_loss(img, gt, cfg["lambda_ssim"])
-        loss.backward()
+        try:
+            img, alpha, depth, meta = render(p, cam, bg, sh_deg)
+            loss = photometric_loss(img, gt, cfg["lambda_ssim"])
+            loss.backward()
+        except NonFiniteError as exc:
+            raise NonFiniteError(f"{scene_dir}: training step {it + 1} (view {v.name}): {exc}; "
+                                 "no output written") from exc
         grads = {k: p[k].grad for k in PARAMS}
         for k in PARAMS:
             p[k].requires_grad_(False)
@@ -280,10 +311,14 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
                 log.debug("it %d densify: %s", n_it, res)
             if n_it % cfg["opacity_reset_every"] == 0:
                 reset_opacity(p, opt)
+                # the held-out PSNR drops and recovers: restart plateau tracking, or the
+                # run would stop during the recovery with a model worse than before
+                best, bad_evals = -math.inf, 0
         if n_it % cfg["eval_every"] == 0 or n_it == cfg["max_iterations"]:
             elapsed = time.perf_counter() - t_loop
             ev = evaluate(p, test_v or train_v[:4], bg, sh_deg)
-            curve.append({"iteration": n_it, "train_time_s": elapsed, "psnr": ev["psnr"],
+            curve.append({"iteration": n_it, "train_time_s": elapsed,
+                          "cpu_time_s": time.process_time() - c_loop, "psnr": ev["psnr"],
                           "ssim": ev["ssim"], "n_gaussians": int(p["means"].shape[0]),
                           "downscale": ds, "loss": float(loss.detach())})
             log.info("it %d: held-out PSNR %.2f dB, SSIM %.4f, %d Gaussians, %.1f s", n_it,
@@ -296,21 +331,23 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
             if full_res and n_it >= cfg["min_iterations"] and bad_evals >= cfg["plateau_patience"]:
                 stop_reason = "plateau"
                 break
+        if interrupt_after is not None and n_it >= interrupt_after and n_it < cfg["max_iterations"]:
+            save_checkpoint(n_it)
+            if hasattr(bar, "close"):
+                bar.close()
+            log.info("interrupted after step %d; checkpoint %s", n_it, ckpt)
+            return {"interrupted": True, "iteration": n_it, "checkpoint": str(ckpt)}
         if cfg["checkpoint_every"] and n_it % cfg["checkpoint_every"] == 0 and n_it < cfg["max_iterations"]:
-            ckpt_dir.mkdir(parents=True, exist_ok=True)
-            with atomic_path(ckpt) as tmp:
-                torch.save({"hash": chash, "params": p, "iteration": n_it, "curve": curve, "best": best,
-                            "bad_evals": bad_evals, "train_time": time.perf_counter() - t_loop,
-                            "opt": opt.state_dict(), "gen": gen.get_state(),
-                            "rng": rng.bit_generator.state}, tmp)
+            save_checkpoint(n_it)
     if hasattr(bar, "close"):
         bar.close()
     n_iters = it + 1 if cfg["max_iterations"] > it0 else it0
     train_s = time.perf_counter() - t_loop
+    cpu_s = time.process_time() - c_loop
     sh_final = min(sh_max, max(0, n_iters - 1) // cfg["sh_increase_every"])
     final = evaluate(p, test_v, bg, sh_final)
     stats.update({"source": "trained", "iterations": n_iters, "stop_reason": stop_reason,
-                  "n_gaussians": int(p["means"].shape[0]), "train_time_s": train_s,
+                  "n_gaussians": int(p["means"].shape[0]), "train_time_s": train_s, "train_cpu_s": cpu_s,
                   "test_psnr": final["psnr"], "test_ssim": final["ssim"], "test_lpips": None,
                   "sh_degree_final": sh_final, **{f"time_{k.replace(' ', '_')}_s": t for k, t in timings.items()}})
     _write_model(out_dir, scene, from_params(p), n_iters, sh_final, stats, curve, scene_id, scene_dir)
@@ -343,7 +380,8 @@ def _write_model(out_dir: Path, scene: Scene, g: dict[str, np.ndarray], iteratio
         write_json_atomic(out / "model.json", {
             "format": "gs2e-splat", "version": 1, "ply": rel, "iterations": iterations,
             "sh_degree": sh_degree, "n_gaussians": int(len(g["means"])), "scene": str(scene_dir),
-            "width": scene.width, "height": scene.height, "source": stats.get("source")})
+            "width": scene.width, "height": scene.height, "source": stats.get("source"),
+            "background": stats["background"], "test_every": stats["test_every"]})
         write_json_atomic(out / "train_stats.json", stats)
         write_metrics(out / "metrics.parquet", stats, scene_id=scene_id or out_dir.parent.name,
                       stage="train")

@@ -19,19 +19,22 @@ log = get_logger("gs2e.splat")
 
 
 def render_views(model_dir: str | Path, scene_dir: str | Path, out_dir: str | Path,
-                 which: str = "test", test_every: int = 8) -> list[dict]:
+                 which: str = "test", test_every: int | None = None) -> list[dict]:
     """Render ``which`` views (test/train/all) of ``scene_dir`` with the model in
     ``model_dir``; writes ``<name>.png`` renders and ``metrics.parquet`` with
-    per-view PSNR (dB) and SSIM against the scene's images."""
+    per-view PSNR (dB) and SSIM against the scene's images. The hold-out split
+    (``test_every``) and background are the model's own unless given."""
     from gs2e.metrics.table import write_metrics
 
     p, info = load_model(model_dir)
     scene_dir = Path(scene_dir)
     scene = read_scene(scene_dir)
     views = load_views(scene_dir, scene, [1])
+    if test_every is None:
+        test_every = int(info.get("test_every", 8))
     train_v, test_v = split_views(views, test_every)
     sel = {"test": test_v, "train": train_v, "all": views}[which]
-    bg = torch.zeros(3)
+    bg = torch.tensor(info.get("background", [0.0, 0.0, 0.0]), dtype=torch.float32)
     rows = []
     with atomic_dir(out_dir) as out, torch.no_grad():
         for v in progress(sel, desc="rendering views"):

@@ -1,0 +1,380 @@
+"""Trainer tests: quality gain, bit-exact resume, density control and optimiser
+state, plateau stop, drop-in PLY models, bad input and NaN reporting.
+
+The scenes are tiny demo scenes (12 views at 96x72, ground-truth poses and
+surface points from the demo generator, no SfM) so the whole module runs in
+well under two minutes on 2 cores.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import shutil
+from pathlib import Path
+
+import gs2e  # noqa: F401  (first: sets OMP_WAIT_POLICY before torch loads OpenMP)
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from gs2e.common.errors import InputError
+from gs2e.config import load_section
+from gs2e.io.scene import read_scene, write_scene_json
+from gs2e.splat.init import init_from_points
+from gs2e.splat.ply import read_ply, write_ply
+from gs2e.splat.rasterize import NonFiniteError
+from gs2e.splat.scene_stats import choose_sh_degree, detail_budget
+from gs2e.splat.strategy import (PARAMS, Adam, DensifyConfig, GradStats, densify_and_prune,
+                                 reset_opacity)
+from gs2e.splat.train import evaluate, load_views, split_views, to_params, train
+from gs2e.splat.views import render_views
+
+pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
+
+BG = torch.zeros(3)
+
+
+def cfg(**kw) -> dict:
+    """A validated splat config for tiny scenes (short schedule)."""
+    base = {"max_iterations": 150, "min_iterations": 0, "eval_every": 50, "sh_degree": 0,
+            "resolution_schedule": [[0, 2], [50, 1]], "densify_from": 20, "densify_every": 30,
+            "densify_until": 120, "opacity_reset_every": 10000, "checkpoint_every": 0,
+            "budget": 4000}
+    return load_section("splat", json.dumps({**base, **kw}))
+
+
+@pytest.fixture(scope="module")
+def tiny_scene(tmp_path_factory) -> Path:
+    from gs2e.demo.io import generate_demo_scene
+
+    out = tmp_path_factory.mktemp("splat_train") / "tiny"
+    generate_demo_scene(out, load_section("demo", json.dumps(
+        {"n_views": 12, "width": 96, "height": 72, "n_points": 2000})))
+    return out
+
+
+def copy_scene(src: Path, dst: Path) -> Path:
+    shutil.copytree(src, dst)
+    return dst
+
+
+def model_digest(out: Path) -> str:
+    info = json.loads((out / "model.json").read_text())
+    return hashlib.sha256((out / info["ply"]).read_bytes()).hexdigest()
+
+
+# ----------------------------------------------------------------- training
+def test_training_improves_heldout_psnr(tiny_scene, tmp_path):
+    c = cfg(max_iterations=200)
+    scene = read_scene(tiny_scene)
+    views = load_views(tiny_scene, scene, [1])
+    _, test_v = split_views(views, c["test_every"])
+    assert len(test_v) == 2
+    g0 = init_from_points(scene.points_xyz, scene.points_rgb, sh_degree=0)
+    before = evaluate(to_params(g0), test_v, BG, 0)
+
+    st = train(tiny_scene, tmp_path / "m", c, seed=0, scene_id="tiny")
+    assert st["stop_reason"] == "max_iterations" and st["iterations"] == 200
+    assert st["test_psnr"] > before["psnr"] + 3.0, (before, st["test_psnr"])
+    assert st["test_ssim"] > before["ssim"] + 0.1, (before, st["test_ssim"])
+    assert st["n_gaussians"] <= 4000
+    out = tmp_path / "m"
+    info = json.loads((out / "model.json").read_text())
+    assert info["iterations"] == 200 and (out / info["ply"]).exists()
+    assert (out / "cameras.json").exists()
+    curve = pd.read_parquet(out / "curve.parquet")
+    assert list(curve["iteration"]) == [50, 100, 150, 200]
+    assert curve["train_time_s"].is_monotonic_increasing and curve["cpu_time_s"].is_monotonic_increasing
+    assert list(curve["downscale"]) == [2, 1, 1, 1]  # factor of the step just taken
+    m = pd.read_parquet(out / "metrics.parquet")
+    assert m.loc[0, "scene_id"] == "tiny" and m.loc[0, "stage"] == "train"
+    assert m.loc[0, "test_psnr"] == pytest.approx(st["test_psnr"])
+    assert m.loc[0, "test_lpips"] is None or pd.isna(m.loc[0, "test_lpips"])  # recorded as missing
+
+    # the written model renders to the same held-out figures
+    rows = render_views(out, tiny_scene, tmp_path / "renders", "test", c["test_every"])
+    assert len(rows) == 2 and len(list((tmp_path / "renders").glob("*.png"))) == 2
+    assert np.mean([r["psnr"] for r in rows]) == pytest.approx(st["test_psnr"], abs=0.05)
+
+
+def test_resume_gives_identical_bytes(tiny_scene, tmp_path):
+    """Interrupt after 45 steps (mid-epoch, between densifications, with
+    densification statistics pending) and resume: same bytes as one run."""
+    c = cfg(max_iterations=110, sh_degree=1, sh_increase_every=50, densify_until=100,
+            opacity_reset_every=80)  # every stateful feature is active around the interruption
+    train(tiny_scene, tmp_path / "a", c, seed=3)
+    r = train(tiny_scene, tmp_path / "b", c, seed=3, interrupt_after=45)
+    assert r["interrupted"] and r["iteration"] == 45
+    assert not (tmp_path / "b").exists() and (tmp_path / "b.ckpt" / "checkpoint.pt").exists()
+    st = train(tiny_scene, tmp_path / "b", c, seed=3)
+    assert st["iterations"] == 110
+    assert model_digest(tmp_path / "a") == model_digest(tmp_path / "b")
+    assert not (tmp_path / "b.ckpt").exists()  # removed after success
+    ca, cb = (pd.read_parquet(tmp_path / d / "curve.parquet") for d in "ab")
+    assert list(ca["psnr"]) == list(cb["psnr"]) and list(ca["n_gaussians"]) == list(cb["n_gaussians"])
+
+    # a checkpoint of another seed (or config) is ignored, not resumed
+    train(tiny_scene, tmp_path / "c", c, seed=4, interrupt_after=45)
+    for d, seed, other in (("d", 3, c), ("e", 4, {**c, "lr_opacity": 0.02}), ("f", 4, c)):
+        shutil.copytree(tmp_path / "c.ckpt", tmp_path / f"{d}.ckpt")
+        r = train(tiny_scene, tmp_path / d, other, seed=seed, interrupt_after=5)
+        assert r["iteration"] == (46 if d == "f" else 5)  # only the matching one resumes
+
+
+def test_plateau_stop_on_converged_scene(tiny_scene, tmp_path):
+    """With (almost) zero learning rates nothing changes: the first evaluation
+    sets the best PSNR, the full-resolution ones after it stall and count."""
+    tiny = 1e-12
+    c = cfg(max_iterations=1000, eval_every=10, plateau_patience=2, resolution_schedule=[[0, 2], [25, 1]],
+            densify_until=0, lr_position_init=tiny, lr_position_final=tiny, lr_sh_dc=tiny,
+            lr_sh_rest=tiny, lr_opacity=tiny, lr_scaling=tiny, lr_rotation=tiny)
+    st = train(tiny_scene, tmp_path / "m", c)
+    assert st["stop_reason"] == "plateau"
+    # evaluations at 10 (best), 20 (coarse: does not count), 30, 40 (stalled)
+    assert st["iterations"] == 40
+    # min_iterations holds the stop back
+    st = train(tiny_scene, tmp_path / "m2", {**c, "min_iterations": 80})
+    assert st["stop_reason"] == "plateau" and st["iterations"] == 80
+    # an opacity reset (step 30) drops the PSNR: tracking restarts there instead of
+    # counting the dip as stalls (30 sets the new best, 40 and 50 stall)
+    st = train(tiny_scene, tmp_path / "m3", {**c, "opacity_reset_every": 30, "densify_until": 100,
+                                              "densify_every": 1000})
+    assert st["stop_reason"] == "plateau" and st["iterations"] == 50
+    curve = pd.read_parquet(tmp_path / "m3" / "curve.parquet")
+    assert curve["psnr"].iloc[2] < curve["psnr"].iloc[1] - 1.0  # the reset's dip
+
+
+def test_ply_import_renders_and_evaluates(tiny_scene, tmp_path):
+    scene = read_scene(tiny_scene)
+    g = init_from_points(scene.points_xyz, scene.points_rgb, sh_degree=1)
+    g["sh"][:, 1:] = np.random.default_rng(0).normal(0, 0.05, g["sh"][:, 1:].shape)
+    official = tmp_path / "official"
+    write_ply(official / "point_cloud" / "iteration_7000" / "point_cloud.ply", **g)
+    write_ply(official / "point_cloud" / "iteration_500" / "point_cloud.ply", **{**g, "means": g["means"] + 1})
+
+    bg = [0.2, 0.5, 0.9]  # the model's background must follow it to render-views
+    c = cfg(model_source="ply", ply_path=str(official), background=bg)
+    st = train(tiny_scene, tmp_path / "m", c, scene_id="tiny")
+    assert st["source"] == "ply" and st["iterations"] == 7000 and st["sh_degree"] == 1
+    assert st["ply_path"].endswith("iteration_7000/point_cloud.ply")
+    views = load_views(tiny_scene, scene, [1])
+    _, test_v = split_views(views, c["test_every"])
+    ref = evaluate(to_params(g), test_v, torch.tensor(bg), 1)
+    assert ref["psnr"] < evaluate(to_params(g), test_v, BG, 1)["psnr"] - 0.5  # bg matters
+    assert st["test_psnr"] == pytest.approx(ref["psnr"], abs=1e-4)
+    assert st["test_ssim"] == pytest.approx(ref["ssim"], abs=1e-5)
+    back = read_ply(tmp_path / "m" / "point_cloud" / "iteration_7000" / "point_cloud.ply")
+    for k in g:
+        np.testing.assert_array_equal(back[k], np.asarray(g[k], np.float32))
+    rows = render_views(tmp_path / "m", tiny_scene, tmp_path / "r", "test")
+    assert np.mean([r["psnr"] for r in rows]) == pytest.approx(ref["psnr"], abs=1e-3)
+
+    # a single file works too
+    c = cfg(model_source="ply", background=bg,
+            ply_path=str(official / "point_cloud" / "iteration_7000" / "point_cloud.ply"))
+    assert train(tiny_scene, tmp_path / "m3", c)["test_psnr"] == pytest.approx(ref["psnr"], abs=1e-4)
+
+
+# ----------------------------------------------------------------- bad input
+def test_too_few_points(tiny_scene, tmp_path):
+    scene_dir = copy_scene(tiny_scene, tmp_path / "s")
+    scene = read_scene(scene_dir)
+    scene.points_xyz, scene.points_rgb = scene.points_xyz[:5], scene.points_rgb[:5]
+    write_scene_json(scene, scene_dir)
+    with pytest.raises(InputError, match=r"points3d\.npz.*too few points.*min_points"):
+        train(scene_dir, tmp_path / "m", cfg())
+    assert not (tmp_path / "m").exists()
+
+
+def test_missing_pose(tiny_scene, tmp_path):
+    scene_dir = copy_scene(tiny_scene, tmp_path / "s")
+    scene = read_scene(scene_dir)
+    scene.frames[3].c2w = None
+    write_scene_json(scene, scene_dir)
+    with pytest.raises(InputError, match=r"003\.png has no pose"):
+        train(scene_dir, tmp_path / "m", cfg())
+    assert not (tmp_path / "m").exists()
+
+
+@pytest.mark.parametrize("damage", ["truncated", "nan", "missing_attr", "no_path"])
+def test_bad_ply_model(tiny_scene, tmp_path, damage):
+    scene = read_scene(tiny_scene)
+    g = init_from_points(scene.points_xyz, scene.points_rgb, sh_degree=0)
+    path = tmp_path / "point_cloud.ply"
+    write_ply(path, **g)
+    if damage == "truncated":
+        path.write_bytes(path.read_bytes()[:-1000])
+        pattern = "cannot read Gaussian model"
+    elif damage == "nan":
+        data = bytearray(path.read_bytes())
+        head = data.index(b"end_header\n") + len(b"end_header\n")
+        data[head:head + 4] = np.float32(np.nan).tobytes()  # x of the first Gaussian
+        path.write_bytes(bytes(data))
+        pattern = "NaN/inf in means"
+    elif damage == "missing_attr":
+        from plyfile import PlyData, PlyElement
+
+        from numpy.lib.recfunctions import repack_fields
+
+        v = PlyData.read(str(path))["vertex"].data
+        names = [n for n in v.dtype.names if n != "opacity"]
+        PlyData([PlyElement.describe(repack_fields(v[names]), "vertex")]).write(str(path))
+        pattern = "missing vertex attributes opacity"
+    else:
+        pattern = "ply_path is not set"
+    c = cfg(model_source="ply", ply_path=None if damage == "no_path" else str(path))
+    with pytest.raises(InputError, match=pattern):
+        train(tiny_scene, tmp_path / "m", c)
+    assert not (tmp_path / "m").exists()
+
+
+def test_nan_parameters_are_reported_not_propagated(tiny_scene, tmp_path):
+    """A NaN in the parameters (here: injected into a checkpoint) stops
+    training with a NonFiniteError naming the step; nothing is written."""
+    c = cfg(max_iterations=60)
+    train(tiny_scene, tmp_path / "m", c, interrupt_after=20)
+    ckpt = tmp_path / "m.ckpt" / "checkpoint.pt"
+    st = torch.load(ckpt, weights_only=False)
+    st["params"]["means"][7, 1] = float("nan")
+    torch.save(st, ckpt)
+    with pytest.raises(NonFiniteError, match=r"training step 21 .*means holds 1 non-finite value.*rows \[7\]"):
+        train(tiny_scene, tmp_path / "m", c)
+    assert not (tmp_path / "m").exists()
+
+
+# ----------------------------------------------------------------- density control
+def _toy(n=6, seed=0):
+    """Gaussians 0,1 small (clone), 2,3 large (split), 4 low gradient, 5 transparent."""
+    rng = np.random.default_rng(seed)
+    p = {"means": torch.tensor(rng.normal(size=(n, 3)), dtype=torch.float32),
+         "quats": torch.tensor(rng.normal(size=(n, 4)), dtype=torch.float32),
+         "log_scales": torch.full((n, 3), math.log(0.005)),
+         "opacity_logits": torch.zeros(n),
+         "sh_dc": torch.arange(n, dtype=torch.float32).view(n, 1, 1).repeat(1, 1, 3),
+         "sh_rest": torch.zeros(n, 3, 3)}
+    p["log_scales"][2:4] = math.log(0.1)
+    p["opacity_logits"][5] = -8.0  # opacity 3e-4
+    stats = GradStats.zeros(n)
+    stats.grad_accum[:] = torch.tensor([5e-4, 6e-4, 7e-4, 8e-4, 1e-5, 1e-5], dtype=torch.float64)
+    stats.count[:] = 1
+    return p, stats
+
+
+def _adam_with_marked_rows(p):
+    opt = Adam({k: 1e-3 for k in PARAMS})
+    opt.step(p, {k: torch.ones_like(v) for k, v in p.items()})  # creates the moments
+    for k in PARAMS:  # moment row i = i + 1, to follow rows through densification
+        shape = (-1,) + (1,) * (p[k].dim() - 1)
+        opt.m[k] = (torch.arange(p[k].shape[0], dtype=torch.float32).view(shape) + 1).expand_as(p[k]).clone()
+        opt.v[k] = opt.m[k].clone() * 10
+    return opt
+
+
+def test_clone_split_prune_counts_and_adam_rows():
+    p, stats = _toy()
+    opt = _adam_with_marked_rows(p)
+    s0 = p["log_scales"].exp()
+    res = densify_and_prune(p, opt, stats, DensifyConfig(budget=100), extent=1.0,
+                            gen=torch.Generator().manual_seed(0))
+    assert res == {"cloned": 2, "split": 2, "pruned": 1, "pruned_big": 0, "n": 6 + 2 + 4 - 2 - 1}
+    ids = p["sh_dc"][:, 0, 0].round().long().tolist()
+    # survivors in order: originals 0, 1, 4; clones of 0, 1; two children each of 2, 3
+    assert ids == [0, 1, 4, 0, 1, 2, 3, 2, 3]
+    for k in PARAMS:
+        assert p[k].shape[0] == 9 and opt.m[k].shape == p[k].shape and opt.v[k].shape == p[k].shape
+        m = opt.m[k].reshape(9, -1)[:, 0]
+        np.testing.assert_array_equal(m[:3].numpy(), [1, 2, 5])  # originals keep their moments
+        assert torch.all(m[3:] == 0) and torch.all(opt.v[k].reshape(9, -1)[3:] == 0)
+    # clones keep the scale, split children get scale / (0.8 * 2)
+    s = p["log_scales"].exp()
+    torch.testing.assert_close(s[3:5], s0[[0, 1]])
+    torch.testing.assert_close(s[5:], s0[[2, 3, 2, 3]] / 1.6)
+    # the next Adam step moves every row (no stale or missing state)
+    before = {k: v.clone() for k, v in p.items()}
+    opt.step(p, {k: torch.ones_like(v) for k, v in p.items()})
+    assert all(torch.all(p[k] != before[k]) for k in PARAMS)
+
+
+def test_budget_keeps_largest_gradients():
+    p, stats = _toy()
+    opt = _adam_with_marked_rows(p)
+    # room for 3 more: Gaussian 3 (largest gradient, split: +1), 2 (split: +1), 1 (clone: +1)
+    res = densify_and_prune(p, opt, stats, DensifyConfig(budget=9), extent=1.0,
+                            gen=torch.Generator().manual_seed(0))
+    assert (res["cloned"], res["split"]) == (1, 2)
+    ids = sorted(p["sh_dc"][:, 0, 0].round().long().tolist())
+    assert ids == [0, 1, 1, 2, 2, 3, 3, 4]
+    assert res["n"] == 8 <= 9
+    # a full budget densifies nothing but still prunes
+    p, stats = _toy()
+    opt = _adam_with_marked_rows(p)
+    res = densify_and_prune(p, opt, stats, DensifyConfig(budget=6), extent=1.0,
+                            gen=torch.Generator().manual_seed(0))
+    assert (res["cloned"], res["split"], res["pruned"], res["n"]) == (0, 0, 1, 5)
+    np.testing.assert_array_equal(opt.m["means"][:, 0].numpy(), [1, 2, 3, 4, 5])
+
+
+def test_prune_big_and_opacity_reset():
+    p, stats = _toy()
+    opt = _adam_with_marked_rows(p)
+    stats.grad_accum.zero_()
+    stats.max_radius_px[0] = 50.0  # too large on screen
+    res = densify_and_prune(p, opt, stats, DensifyConfig(budget=100, prune_big=True, max_world_frac=0.05),
+                            extent=1.0, gen=torch.Generator().manual_seed(0))
+    # 0 (screen), 2 and 3 (world: 0.1 > 0.05), 5 (opacity)
+    assert res["pruned_big"] == 3 and res["n"] == 2
+    np.testing.assert_array_equal(p["sh_dc"][:, 0, 0].round().numpy(), [1, 4])
+    np.testing.assert_array_equal(opt.m["quats"][:, 0].numpy(), [2, 5])
+    reset_opacity(p, opt)
+    assert torch.all(torch.sigmoid(p["opacity_logits"]) <= 0.01 + 1e-7)
+    assert torch.all(opt.m["opacity_logits"] == 0) and torch.all(opt.m["means"] != 0)
+
+
+def test_grad_stats_resolution_independent():
+    """The NDC gradient of the same motion is the same at every downscale."""
+    n = 3
+    radii = torch.tensor([4, 0, 2], dtype=torch.int32)
+    a, b = GradStats.zeros(n), GradStats.zeros(n)
+    g_full = torch.tensor([[1e-3, 2e-3], [5.0, 5.0], [0.0, 1e-3]], dtype=torch.float64)
+    a.update(g_full, radii, 96, 72, 1)
+    b.update(g_full * 4, radii, 24, 18, 4)  # d/dpx grows with the downscale factor
+    torch.testing.assert_close(a.mean_grad(), b.mean_grad())
+    assert a.count.tolist() == [1, 0, 1] and a.mean_grad()[1] == 0  # invisible: not counted
+    assert b.max_radius_px.tolist() == [16, 0, 8]
+
+
+# ----------------------------------------------------------------- scene analysis
+def test_scene_analysis_rules():
+    assert choose_sh_degree(None, [0.03, 0.06, 0.1]) == 3  # nothing measured: keep all
+    assert [choose_sh_degree(s, [0.03, 0.06, 0.1]) for s in (0.0, 0.04, 0.07, 0.5)] == [0, 1, 2, 3]
+    flat = np.full((40, 50, 3), 0.5, np.float32)
+    checker = ((np.indices((40, 50)).sum(0) // 5) % 2).astype(np.float32)[..., None].repeat(3, 2)
+    assert detail_budget([flat, flat], 2.0, 100, 10**6) == (100, 0.0)  # clipped to the minimum
+    budget, edges = detail_budget([checker, checker, flat], 2.0, 100, 10**6)
+    assert edges > 300 and budget == int(2 * edges)
+    assert detail_budget([checker], 2.0, 100, 500)[0] == 500
+
+
+def test_cli_train_and_render_views(tiny_scene, tmp_path):
+    from conftest import run_cli
+
+    c = {"max_iterations": 30, "min_iterations": 0, "eval_every": 15, "sh_degree": 0,
+         "densify_from": 10, "densify_every": 10, "densify_until": 25, "budget": 3000,
+         "resolution_schedule": [[0, 1]], "checkpoint_every": 0}
+    run_cli("train", "--scene", str(tiny_scene), "--out", str(tmp_path / "m"), "--seed", "1",
+            "--scene-id", "tiny", "--config-json", json.dumps(c), check=True)
+    stats = json.loads((tmp_path / "m" / "train_stats.json").read_text())
+    assert stats["iterations"] == 30 and stats["n_gaussians"] <= 3000
+    run_cli("render-views", "--model", str(tmp_path / "m"), "--scene", str(tiny_scene),
+            "--out", str(tmp_path / "r"), "--views", "all", check=True)
+    assert len(list((tmp_path / "r").glob("*.png"))) == 12
+    m = pd.read_parquet(tmp_path / "r" / "metrics.parquet")
+    held = m[m["view"].isin(["000.png", "008.png"])]
+    assert held["psnr"].mean() == pytest.approx(stats["test_psnr"], abs=0.05)
+    # bad input through the CLI: a clear message and a non-zero exit, no output
+    p = run_cli("train", "--scene", str(tmp_path / "nope"), "--out", str(tmp_path / "x"))
+    assert p.returncode != 0 and "scene.json" in p.stderr and not (tmp_path / "x").exists()
