@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import os
+
+# Before torch/numba load OpenMP (see gs2e/__init__.py): spinning waits halve
+# throughput on a shared 2-core machine.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import subprocess
 import sys
 from pathlib import Path
