@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import copy
 import csv
+import functools
 import json
 from pathlib import Path
 from typing import Any, Mapping
@@ -45,9 +46,20 @@ def _with_defaults(cls):
 _DefaultingValidator = _with_defaults(Draft202012Validator)
 
 
-def load_schema(path: Path = CONFIG_SCHEMA) -> dict:
+@functools.lru_cache(maxsize=8)
+def _schema_cached(path: Path) -> dict:
     with open(path) as fh:
         return yaml.safe_load(fh)
+
+
+def load_schema(path: Path = CONFIG_SCHEMA) -> dict:
+    """The schema as a dict (a fresh copy; the parsed file is cached)."""
+    return copy.deepcopy(_schema_cached(Path(path)))
+
+
+@functools.lru_cache(maxsize=8)
+def _validator(path: Path):
+    return _DefaultingValidator(_schema_cached(path))
 
 
 def _key_path(err) -> str:
@@ -65,11 +77,12 @@ def _format_error(err, what: str) -> str:
     return f"{what} key '{key or '<root>'}': {err.message}"
 
 
-def validate(instance: dict, schema: dict, what: str = "config") -> dict:
-    """Validate ``instance`` in place, filling defaults; raise ConfigError naming the key."""
+def validate(instance: dict, schema: dict | Path, what: str = "config") -> dict:
+    """Validate ``instance`` in place, filling defaults; raise ConfigError naming the key.
+    ``schema`` is a schema dict or the path of a schema file (validator cached)."""
     if not isinstance(instance, dict):
         raise ConfigError(f"{what}: expected a mapping, got {type(instance).__name__}")
-    v = _DefaultingValidator(schema)
+    v = _validator(Path(schema)) if isinstance(schema, (str, Path)) else _DefaultingValidator(schema)
     # Fill defaults first (a full pass), then report the first error by path order.
     errors = sorted(v.iter_errors(instance), key=lambda e: (list(map(str, e.absolute_path)), e.message))
     if errors:
@@ -95,7 +108,7 @@ def load_config(cfg: Mapping | str | Path | None = None) -> dict:
             raise ConfigError(f"config file {cfg} is not valid YAML: {exc}") from exc
     else:
         data = copy.deepcopy(dict(cfg))
-    return validate(data, load_schema(), "config")
+    return validate(data, CONFIG_SCHEMA, "config")
 
 
 def parse_overrides(text: str, where: str = "overrides") -> dict:
@@ -147,14 +160,13 @@ def load_scenes(path: str | Path) -> list[dict]:
     if not lines:
         raise ConfigError(f"scenes table {path} is empty (needs a header and one row)")
     reader = csv.DictReader(lines, delimiter="\t")
-    schema = load_schema(SCENES_SCHEMA)
     rows, seen = [], set()
     for lineno, raw in enumerate(reader, start=2):
         if None in raw:
             raise ConfigError(f"{path}:{lineno}: more cells than header columns")
         row = {k.strip(): (v or "").strip() for k, v in raw.items() if k is not None}
         row = {k: v for k, v in row.items() if not (v == "" and k in ("path", "overrides"))}
-        validate(row, schema, f"{path}:{lineno}")
+        validate(row, SCENES_SCHEMA, f"{path}:{lineno}")
         if row["scene_id"] in seen:
             raise ConfigError(f"{path}:{lineno}: duplicate scene_id '{row['scene_id']}'")
         if row["layout"] != "demo" and not row["path"]:
@@ -170,7 +182,7 @@ def scene_config(config: dict, scene: dict) -> dict:
     """Validated config for one scene: global config + the row's overrides."""
     over = parse_overrides(scene.get("overrides", ""), f"scene '{scene['scene_id']}' overrides")
     merged = deep_merge(config, over)
-    return validate(merged, load_schema(), f"scene '{scene['scene_id']}' config")
+    return validate(merged, CONFIG_SCHEMA, f"scene '{scene['scene_id']}' config")
 
 
 def section_json(config: dict, section: str) -> str:
