@@ -1,5 +1,6 @@
-"""End to end through Snakemake on the built-in demo scene: generation,
-ingestion and SfM; then the rerun audit (nothing to do, and exactly the
+"""End to end through Snakemake on the built-in demo scene (the defaults: 36
+views at 320x240): generation, ingestion and SfM, where COLMAP must register
+every view and recover the ground-truth cameras; then the rerun audit (nothing to do, and exactly the
 affected jobs after a parameter change)."""
 
 from __future__ import annotations
@@ -41,6 +42,10 @@ def test_outputs_and_logs(demo_run):
     gt = {f.name: f.c2w for f in ing.frames}
     err = alignment_errors(np.stack([f.c2w for f in sfm.frames]), np.stack([gt[f.name] for f in sfm.frames]))
     assert err["center_rmse_pct_extent"] < 2.0 and err["rot_max_deg"] < 1.0
+    orbit_radius = src.extra["config"]["orbit_radius"]
+    assert err["center_max"] < 0.02 * orbit_radius
+    assert stats["n_points"] > 1500
+    assert sfm.frames[0].camera.fx == pytest.approx(src.frames[0].camera.fx, rel=0.02)
     assert stats["gt_center_rmse_pct_extent"] == pytest.approx(err["center_rmse_pct_extent"], rel=1e-6)
     for rule in ("demo_scene", "ingest", "sfm"):
         log = (res / "logs" / f"{rule}.log").read_text()
