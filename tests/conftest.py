@@ -49,3 +49,40 @@ def run_snakemake(*args: str, cwd: Path | None = None, timeout: float = 1500) ->
 @pytest.fixture
 def repo() -> Path:
     return REPO
+
+
+# The whole workflow on a tiny demo scene (16 views at 128x96, 120 training
+# steps, one 30-frame trajectory, 30 ms of events): ~1 min on 2 cores. Run
+# once per test session and shared read-only by the end-to-end, rerun-audit
+# and report tests (they may dry-run in it, never change its outputs).
+TINY_OVERRIDES = ";".join([
+    "demo.n_views=16", "demo.width=128", "demo.height=96", "demo.supersample=1",
+    "sfm.reuse_poses=true",
+    "splat.max_iterations=120", "splat.min_iterations=120", "splat.eval_every=60",
+    "splat.densify_from=40", "splat.densify_until=100", "splat.densify_every=20",
+    "splat.resolution_schedule=[[0,2],[60,1]]", "splat.checkpoint_every=0",
+    "trajectory.speed_presets=[medium]", "trajectory.mini_groups=1", "trajectory.mini_frames=30",
+    "trajectory.plot=false",
+    "render.trajectories=[mini00_medium]", "render.fps=10", "render.exposure_us=20000",
+    "render.events_max_duration_s=0.03", "render.min_coverage=0.0",
+    "events.model=ideal", "events.theta_on=0.3", "events.theta_off=0.3", "events.preview=false",
+])
+
+
+def tiny_pipeline_args(wd: Path) -> tuple[str, ...]:
+    return ("--cores", "2", "--directory", str(wd), "--config", f"scenes={wd / 'scenes.tsv'}")
+
+
+def run_tiny_pipeline(wd: Path, overrides: str = TINY_OVERRIDES) -> tuple[Path, tuple[str, ...]]:
+    """Run the workflow to the summary in ``wd``; returns (wd, snakemake args)."""
+    wd.mkdir(parents=True, exist_ok=True)
+    (wd / "scenes.tsv").write_text(f"scene_id\tlayout\tpath\toverrides\ntiny\tdemo\t\t{overrides}\n")
+    args = tiny_pipeline_args(wd)
+    proc = run_snakemake(*args)
+    assert proc.returncode == 0, proc.stderr[-5000:]
+    return wd, args
+
+
+@pytest.fixture(scope="session")
+def tiny_pipeline(tmp_path_factory) -> tuple[Path, tuple[str, ...]]:
+    return run_tiny_pipeline(tmp_path_factory.mktemp("tiny_pipeline"))

@@ -10,25 +10,9 @@ import pandas as pd
 
 from tests.conftest import run_snakemake
 
-OVERRIDES = ";".join([
-    "demo.n_views=16", "demo.width=128", "demo.height=96", "demo.supersample=1",
-    "sfm.reuse_poses=true",
-    "splat.max_iterations=120", "splat.min_iterations=120", "splat.eval_every=60",
-    "splat.densify_from=40", "splat.densify_until=100", "splat.densify_every=20",
-    "splat.resolution_schedule=[[0,2],[60,1]]", "splat.checkpoint_every=0",
-    "trajectory.speed_presets=[medium]", "trajectory.mini_groups=1", "trajectory.mini_frames=30",
-    "trajectory.plot=false",
-    "render.trajectories=[mini00_medium]", "render.fps=10", "render.exposure_us=20000",
-    "render.events_max_duration_s=0.03", "render.min_coverage=0.0",
-    "events.model=ideal", "events.theta_on=0.3", "events.theta_off=0.3", "events.preview=false",
-])
 
-
-def test_full_pipeline_on_tiny_demo(tmp_path):
-    (tmp_path / "scenes.tsv").write_text(f"scene_id\tlayout\tpath\toverrides\ntiny\tdemo\t\t{OVERRIDES}\n")
-    args = ("--cores", "2", "--directory", str(tmp_path), "--config", f"scenes={tmp_path / 'scenes.tsv'}")
-    proc = run_snakemake(*args)
-    assert proc.returncode == 0, proc.stderr[-5000:]
+def test_full_pipeline_on_tiny_demo(tiny_pipeline):
+    tmp_path, args = tiny_pipeline
     res = tmp_path / "results" / "tiny"
     train = json.loads((res / "splat" / "train_stats.json").read_text())
     assert train["iterations"] == 120 and train["n_gaussians"] > 0
