@@ -57,7 +57,8 @@ def render_dataset(model_dir: str | Path, trajectory_path: str | Path, out_dir: 
 
     check_render_config(cfg)
     t_start = time.perf_counter()
-    r = TrajectoryRenderer(model_dir, trajectory_path, cfg["background"], cfg["scale"])
+    r = TrajectoryRenderer(model_dir, trajectory_path, cfg["background"], cfg["scale"],
+                           cfg.get("backend", "cpu"))
     if np.any(np.diff(r.traj.t_us) <= 0):
         raise InputError(f"{trajectory_path}: timestamps are not strictly increasing")
     times = fixed_times_us(r.t0_us, r.t1_us, cfg["fps"])

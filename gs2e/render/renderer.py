@@ -9,6 +9,7 @@ import torch
 
 from gs2e.common.color import luminance, srgb_to_linear
 from gs2e.common.errors import InputError
+from gs2e.splat.backend import resolve_backend
 from gs2e.splat.rasterize import SplatCamera
 from gs2e.splat.train import load_model, render
 from gs2e.trajectory import load_trajectory
@@ -22,8 +23,9 @@ class TrajectoryRenderer:
     """
 
     def __init__(self, model_dir: str | Path, trajectory_path: str | Path, background=(0.0, 0.0, 0.0),
-                 scale: float = 1.0):
+                 scale: float = 1.0, backend: str = "cpu"):
         self.params, self.info = load_model(model_dir)
+        self.backend = resolve_backend(backend, "render.backend")
         self.traj = load_trajectory(trajectory_path)
         self.name = Path(trajectory_path).stem
         K = np.asarray(self.traj.K, np.float64)
@@ -45,7 +47,7 @@ class TrajectoryRenderer:
     def render_pose(self, c2w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         cam = SplatCamera.from_c2w(c2w, self.fx, self.fy, self.cx, self.cy, self.width, self.height)
         with torch.no_grad():
-            img, alpha, depth, _ = render(self.params, cam, self.bg, self.sh_degree)
+            img, alpha, depth, _ = render(self.params, cam, self.bg, self.sh_degree, self.backend)
         self.renders += 1
         return (img.clamp(0, 1).double().numpy(), alpha.double().numpy(), depth.double().numpy())
 

@@ -103,7 +103,8 @@ def source_for_events(model_dir, trajectory_path, render_cfg: dict, events_cfg: 
 
         k = {i + 1: events_cfg.get(f"k{i + 1}") for i in range(6)}
         theta = float(np.log1p(theta / get_preset(events_cfg["preset"], k).k[0]))
-    r = TrajectoryRenderer(model_dir, trajectory_path, render_cfg["background"], render_cfg["scale"])
+    r = TrajectoryRenderer(model_dir, trajectory_path, render_cfg["background"], render_cfg["scale"],
+                           render_cfg.get("backend", "cpu"))
     clip = render_cfg.get("events_max_duration_s")
     if clip:
         r.t1_us = min(r.t1_us, r.t0_us + int(round(clip * 1e6)))

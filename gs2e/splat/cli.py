@@ -33,6 +33,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--views", choices=["test", "train", "all"], default="test")
     r.add_argument("--test-every", type=int, default=None,
                    help="hold-out split (default: the one the model was trained with)")
+    r.add_argument("--backend", choices=["cpu", "gsplat", "auto"], default="cpu",
+                   help="rasterizer: cpu (default), gsplat (CUDA, optional) or auto")
     r.set_defaults(func=run_render_views)
 
 
@@ -49,5 +51,5 @@ def run_train(args: argparse.Namespace) -> int:
 def run_render_views(args: argparse.Namespace) -> int:
     from gs2e.splat.views import render_views
 
-    render_views(args.model, args.scene, args.out, args.views, args.test_every)
+    render_views(args.model, args.scene, args.out, args.views, args.test_every, args.backend)
     return 0

@@ -198,7 +198,7 @@ class _Rasterize(torch.autograd.Function):
 def rasterize(means: torch.Tensor, quats: torch.Tensor, log_scales: torch.Tensor,
               opacity_logits: torch.Tensor, sh: torch.Tensor, cam: SplatCamera,
               background: torch.Tensor | None = None, sh_degree: int | None = None,
-              check: bool = True):
+              check: bool = True, backend: str = "cpu"):
     """Render Gaussians with a differentiable CPU rasterizer.
 
     Parameters
@@ -212,6 +212,8 @@ def rasterize(means: torch.Tensor, quats: torch.Tensor, log_scales: torch.Tensor
     background : (3,) colour behind the Gaussians (default black).
     sh_degree : active degree (default: the largest K allows).
     check : raise NonFiniteError on NaN/inf parameters (cheap; keep on).
+    backend : 'cpu' (this module's rasterizer) or 'gsplat' (CUDA, optional;
+        see :mod:`gs2e.splat.backend`; resolve 'auto' with ``resolve_backend``).
 
     All tensors share one dtype, float32 or float64 (outputs take it).
 
@@ -253,6 +255,13 @@ def rasterize(means: torch.Tensor, quats: torch.Tensor, log_scales: torch.Tensor
         qn = quats.detach().norm(dim=1)
         if bool((qn == 0).any()):
             raise NonFiniteError(f"quats has zero-norm rows {torch.nonzero(qn == 0)[:5].flatten().tolist()}")
+    if backend == "gsplat":
+        from gs2e.splat.backend import rasterize_gsplat
+
+        return rasterize_gsplat(means, quats, log_scales, opacity_logits, sh, cam, background,
+                                int(sh_degree))
+    if backend != "cpu":
+        raise InputError(f"rasterize: backend must be 'cpu' or 'gsplat', got {backend!r}")
     meta: dict = {}
     image, alpha, depth_acc = _Rasterize.apply(means, quats, log_scales, opacity_logits, sh,
                                                background, cam, int(sh_degree), meta)

@@ -27,6 +27,7 @@ from gs2e.common.errors import InputError
 from gs2e.common.log import get_logger, timed
 from gs2e.common.progress import progress
 from gs2e.io.scene import IMAGES_DIR, Scene, read_scene
+from gs2e.splat.backend import resolve_backend
 from gs2e.splat.init import init_from_points
 from gs2e.splat.loss import photometric_loss, psnr, ssim
 from gs2e.splat.ply import read_ply, write_cameras_json, write_ply
@@ -126,13 +127,14 @@ def from_params(p: dict[str, torch.Tensor]) -> dict[str, np.ndarray]:
             "opacity_logits": p["opacity_logits"].detach().numpy(), "sh": sh.detach().numpy()}
 
 
-def render(p: dict[str, torch.Tensor], cam: SplatCamera, background: torch.Tensor, sh_degree: int):
+def render(p: dict[str, torch.Tensor], cam: SplatCamera, background: torch.Tensor, sh_degree: int,
+           backend: str = "cpu"):
     sh = torch.cat([p["sh_dc"], p["sh_rest"]], dim=1)
     return rasterize(p["means"], p["quats"], p["log_scales"], p["opacity_logits"], sh, cam,
-                     background=background, sh_degree=sh_degree)
+                     background=background, sh_degree=sh_degree, backend=backend)
 
 
-def evaluate(p, views: list[View], background, sh_degree: int) -> dict[str, float]:
+def evaluate(p, views: list[View], background, sh_degree: int, backend: str = "cpu") -> dict[str, float]:
     """Mean PSNR (dB) and SSIM over ``views`` at full resolution."""
     if not views:
         return {"psnr": float("nan"), "ssim": float("nan")}
@@ -140,7 +142,7 @@ def evaluate(p, views: list[View], background, sh_degree: int) -> dict[str, floa
     with torch.no_grad():
         for v in views:
             cam, gt = v.camera(1)
-            img = render(p, cam, background, sh_degree)[0].clamp(0, 1)
+            img = render(p, cam, background, sh_degree, backend)[0].clamp(0, 1)
             ps.append(psnr(img, gt))
             ss.append(float(ssim(img, gt)))
     return {"psnr": float(np.mean(ps)), "ssim": float(np.mean(ss))}
@@ -194,6 +196,7 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     gradients become NaN/inf; no output is written then.
     """
     scene_dir, out_dir = Path(scene_dir), Path(out_dir)
+    backend = resolve_backend(cfg["backend"])
     set_threads(threads)
     scene = read_scene(scene_dir)
     t0 = time.perf_counter()
@@ -203,7 +206,7 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     extent = scene_extent(train_v)
     bg = torch.tensor(cfg["background"], dtype=torch.float32)
     timings: dict[str, float] = {}
-    stats: dict[str, Any] = {"n_views": len(views), "n_train_views": len(train_v),
+    stats: dict[str, Any] = {"backend": backend, "n_views": len(views), "n_train_views": len(train_v),
                              "n_test_views": len(test_v), "extent": extent,
                              "test_every": cfg["test_every"], "background": list(cfg["background"])}
 
@@ -290,7 +293,7 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
         for k in PARAMS:
             p[k].requires_grad_(True)
         try:
-            img, alpha, depth, meta = render(p, cam, bg, sh_deg)
+            img, alpha, depth, meta = render(p, cam, bg, sh_deg, backend)
             loss = photometric_loss(img, gt, cfg["lambda_ssim"])
             loss.backward()
         except NonFiniteError as exc:
@@ -316,7 +319,7 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
                 best, bad_evals = -math.inf, 0
         if n_it % cfg["eval_every"] == 0 or n_it == cfg["max_iterations"]:
             elapsed = time.perf_counter() - t_loop
-            ev = evaluate(p, test_v or train_v[:4], bg, sh_deg)
+            ev = evaluate(p, test_v or train_v[:4], bg, sh_deg, backend)
             curve.append({"iteration": n_it, "train_time_s": elapsed,
                           "cpu_time_s": time.process_time() - c_loop, "psnr": ev["psnr"],
                           "ssim": ev["ssim"], "n_gaussians": int(p["means"].shape[0]),
@@ -345,7 +348,7 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     train_s = time.perf_counter() - t_loop
     cpu_s = time.process_time() - c_loop
     sh_final = min(sh_max, max(0, n_iters - 1) // cfg["sh_increase_every"])
-    final = evaluate(p, test_v, bg, sh_final)
+    final = evaluate(p, test_v, bg, sh_final, backend)
     stats.update({"source": "trained", "iterations": n_iters, "stop_reason": stop_reason,
                   "n_gaussians": int(p["means"].shape[0]), "train_time_s": train_s, "train_cpu_s": cpu_s,
                   "test_psnr": final["psnr"], "test_ssim": final["ssim"], "test_lpips": None,
@@ -406,7 +409,7 @@ def _import_ply(scene, scene_dir, out_dir, cfg, views, test_v, bg, stats, scene_
     g = read_ply(path)
     sh_deg = int(round(math.sqrt(g["sh"].shape[1]))) - 1
     p = to_params(g)
-    ev = evaluate(p, test_v, bg, sh_deg)
+    ev = evaluate(p, test_v, bg, sh_deg, stats["backend"])
     stats.update({"source": "ply", "ply_path": str(path), "iterations": iterations,
                   "n_gaussians": int(len(g["means"])), "train_time_s": None,
                   "test_psnr": ev["psnr"], "test_ssim": ev["ssim"], "test_lpips": None,

@@ -12,6 +12,7 @@ from gs2e.common.log import get_logger
 from gs2e.common.progress import progress
 from gs2e.io.images import write_png
 from gs2e.io.scene import read_scene
+from gs2e.splat.backend import resolve_backend
 from gs2e.splat.loss import psnr, ssim
 from gs2e.splat.train import load_model, load_views, render, split_views
 
@@ -19,14 +20,16 @@ log = get_logger("gs2e.splat")
 
 
 def render_views(model_dir: str | Path, scene_dir: str | Path, out_dir: str | Path,
-                 which: str = "test", test_every: int | None = None) -> list[dict]:
+                 which: str = "test", test_every: int | None = None, backend: str = "cpu") -> list[dict]:
     """Render ``which`` views (test/train/all) of ``scene_dir`` with the model in
     ``model_dir``; writes ``<name>.png`` renders and ``metrics.parquet`` with
     per-view PSNR (dB) and SSIM against the scene's images. The hold-out split
-    (``test_every``) and background are the model's own unless given."""
+    (``test_every``) and background are the model's own unless given.
+    ``backend``: 'cpu', 'gsplat' or 'auto' (see gs2e.splat.backend)."""
     from gs2e.metrics.table import write_metrics
 
     p, info = load_model(model_dir)
+    backend = resolve_backend(backend, "--backend")
     scene_dir = Path(scene_dir)
     scene = read_scene(scene_dir)
     views = load_views(scene_dir, scene, [1])
@@ -39,7 +42,7 @@ def render_views(model_dir: str | Path, scene_dir: str | Path, out_dir: str | Pa
     with atomic_dir(out_dir) as out, torch.no_grad():
         for v in progress(sel, desc="rendering views"):
             cam, gt = v.camera(1)
-            img = render(p, cam, bg, int(info["sh_degree"]))[0].clamp(0, 1)
+            img = render(p, cam, bg, int(info["sh_degree"]), backend)[0].clamp(0, 1)
             write_png(out / (Path(v.name).stem + ".png"), (img.numpy() * 255 + 0.5).astype(np.uint8))
             rows.append({"view": v.name, "psnr": psnr(img, gt), "ssim": float(ssim(img, gt))})
         write_metrics(out / "metrics.parquet", rows, stage="render-views")
