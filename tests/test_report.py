@@ -200,10 +200,13 @@ def test_report_of_synthetic_tree_shows_sections_images_and_missing(tmp_path):
         assert what in joined, what
     assert "over sharp frame 1" in text  # the frame nearest the middle of the events
     assert {"read summary", "speed against error", "scenes (2)"} <= set(timings)
+    assert build_report(res) == text  # same results, same bytes (no date in the document)
     # benchmark rows come in pipeline order
     assert list(read_benchmarks(res / "a" / "benchmarks")["rule"]) == ["sfm", "train", "render_t1"]
     # a subset of scenes; an unknown scene is an error naming it
     assert _Parsed(build_report(res, scenes=["b"])).h2[-1] == "Scene b"
+    capped = build_report(res, cfg={"max_scene_sections": 1})
+    assert _Parsed(capped).h2[-1] == "Scene a" and "the first 1 of 2 scenes" in capped
     with pytest.raises(InputError, match="nope"):
         build_report(res, scenes=["nope"])
 

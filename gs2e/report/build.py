@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import datetime
 import logging
 from pathlib import Path
 
@@ -125,7 +124,8 @@ def build_report(results_dir: str | Path, real_events: str | Path | None = None,
     ``real_events``: a real recording to compare event statistics with;
     ``scenes``: restrict to these scene ids (default: all of the summary);
     ``cfg``: the ``metrics`` config section (preview_window_ms,
-    thumbnail_max_side_px). Missing inputs appear as 'missing'.
+    thumbnail_max_side_px, max_scene_sections). Missing inputs appear as
+    'missing'.
     """
     from gs2e.config import load_section
 
@@ -186,13 +186,18 @@ def build_report(results_dir: str | Path, real_events: str | Path | None = None,
                            "Drawn black and dashed in each scene's event statistics."))
     sections.append(rs)
 
-    with timed(f"scenes ({len(all_scenes)})", log, timings):
-        for scene in progress(all_scenes, desc="report scenes"):
+    shown = all_scenes[:cfg["max_scene_sections"]]
+    if len(shown) < len(all_scenes):
+        rs.add(H.paragraph(f"Scene sections below: the first {len(shown)} of {len(all_scenes)} "
+                           f"scenes (metrics.max_scene_sections); the overview and the training "
+                           "curves cover every scene.", "meta"))
+    with timed(f"scenes ({len(shown)})", log, timings):
+        for scene in progress(shown, desc="report scenes"):
             sections += _scene_section(results_dir, scene, summary, real, cfg)
 
-    now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    # No date in the document: the same results give the same bytes.
     return H.assemble(f"gs2e report: {results_dir}", sections,
-                      f"gs2e {__version__}, generated {now}; {len(all_scenes)} scene(s).")
+                      f"gs2e {__version__}; {len(all_scenes)} scene(s).")
 
 
 def write_report(path: str | Path, text: str) -> None:
