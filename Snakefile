@@ -8,6 +8,10 @@ import os
 # are merged on top and the result is validated in common.smk.
 configfile: os.path.join(workflow.basedir, "config", "config.yaml")
 
+# `snakemake --report report.html` (or .zip): this description, the run's
+# statistics and the outputs marked with report(...) in the rules.
+report: "workflow/report/workflow.rst"
+
 
 include: "workflow/rules/common.smk"
 

@@ -29,6 +29,7 @@ STAGE_CLIS = (
     "gs2e.render.cli",
     "gs2e.events.cli",
     "gs2e.metrics.cli",
+    "gs2e.report.cli",
 )
 
 

@@ -25,6 +25,7 @@ STAGE_DEPS: dict[str, tuple[str, ...]] = {
     "render": ("render", "splat", "trajectory", "io", "common", "metrics"),
     "events": ("events", "render", "splat", "trajectory", "io", "common", "metrics"),
     "metrics": ("metrics", "io", "common"),
+    "report": ("report", "events", "io", "common", "config.py"),
 }
 
 

@@ -3,6 +3,7 @@ import json
 from pathlib import Path
 
 from gs2e.codeversion import code_version
+from gs2e.common.errors import ConfigError
 from gs2e.config import (derive_seed, load_config, load_scenes, scene_config,
                          section_json)
 
@@ -57,5 +58,6 @@ def scene_products(sid):
 
 
 def all_targets():
-    """The dataset summary (which needs every scene's metrics and products)."""
-    return [res("summary.parquet")]
+    """The dataset summary (which needs every scene's metrics and products) and
+    the HTML report."""
+    return [res("summary.parquet"), res("report.html")]

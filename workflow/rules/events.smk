@@ -3,7 +3,10 @@ rule events:
         model=res("{scene}", "splat"),
         trajectories=res("{scene}", "trajectories"),
     output:
-        directory(res("{scene}", "events", "{traj}")),
+        report(directory(res("{scene}", "events", "{traj}")), patterns=["{video}.mp4"],
+               category="Event previews", subcategory="{scene}",
+               caption="../report/event_preview.rst",
+               labels={"scene": "{scene}", "trajectory": "{traj}"}),
     params:
         cfg=stage_cfg("events"),
         render_cfg=stage_cfg("render"),

@@ -1,3 +1,19 @@
+# Real recording the report compares event statistics with (None: no comparison).
+REAL_EVENTS = config["metrics"]["real_events"]
+
+
+def report_inputs(wildcards):
+    """The summary, every scene's products and the real recording if configured."""
+    out = {"summary": res("summary.parquet"),
+           "products": [p for sid in SCENES for p in scene_products(sid)]}
+    if REAL_EVENTS:
+        if not Path(REAL_EVENTS).is_file():
+            raise ConfigError(f"metrics.real_events: {REAL_EVENTS} does not exist "
+                              f"(relative paths start at the working directory {Path.cwd()})")
+        out["real"] = REAL_EVENTS
+    return out
+
+
 rule scene_metrics:
     input:
         lambda wc: scene_products(wc.scene),
@@ -38,3 +54,28 @@ rule summary:
     threads: 1
     shell:
         "python -m gs2e summary {input:q} --out {output:q} 2> {log:q}"
+
+
+rule report:
+    input:
+        unpack(report_inputs),
+    output:
+        report(res("report.html"), category="Dataset report",
+               caption="../report/gs2e_report.rst"),
+    params:
+        cfg=section_json(config, "metrics"),  # carries real_events
+        scenes=" ".join(SCENES),
+        code=code_version("report"),
+    conda:
+        ENV
+    log:
+        res("logs", "report.log"),
+    benchmark:
+        res("benchmarks", "report.tsv")
+    threads: 1
+    resources:
+        mem_mb=lambda wc, attempt: 2000 * attempt,
+        runtime=lambda wc, attempt: 30 * attempt,
+    shell:
+        "python -m gs2e report --results-dir {RESULTS:q} --out {output:q} --scenes {params.scenes}"
+        " --config-json {params.cfg:q} 2> {log:q}"

@@ -2,7 +2,9 @@ rule trajectory:
     input:
         rules.sfm.output,
     output:
-        directory(res("{scene}", "trajectories")),
+        report(directory(res("{scene}", "trajectories")), patterns=["{plot}.png"],
+               category="Trajectories", subcategory="{scene}",
+               caption="../report/trajectories.rst", labels={"scene": "{scene}"}),
     params:
         cfg=stage_cfg("trajectory"),
         seed=stage_seed("trajectory"),

@@ -1,0 +1,212 @@
+"""Assemble the HTML report of a results tree (what ``gs2e report`` runs)."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import pandas as pd
+
+from gs2e import __version__
+from gs2e.common.errors import InputError
+from gs2e.common.log import timed
+from gs2e.common.progress import progress
+from gs2e.report import html as H
+from gs2e.report import io as R
+from gs2e.report import plots as P
+
+log = logging.getLogger("gs2e.report")
+
+# Overview columns (those present are shown, in this order).
+OVERVIEW_COLUMNS = (
+    "scene_id", "trajectory", "sfm_n_registered", "sfm_n_views", "sfm_mean_reproj_error_px",
+    "train_n_gaussians", "train_iterations", "train_train_time_s", "train_test_psnr",
+    "train_test_ssim", "trajectory_duration_us", "render_n_frames", "render_frames_per_s",
+    "events_n_events", "events_duration_s", "events_rate_meps", "events_on_fraction",
+    "events_iei_median_ms",
+)
+
+
+def overview_table(summary: pd.DataFrame) -> pd.DataFrame:
+    """Key columns of the dataset summary, one row per scene x trajectory."""
+    cols = [c for c in OVERVIEW_COLUMNS if c in summary.columns]
+    return summary.loc[:, cols].reset_index(drop=True)
+
+
+def _scene_section(results_dir: Path, scene: str, summary: pd.DataFrame | None,
+                   real: P.EventSeries | None, cfg: dict) -> list[H.Section]:
+    sdir = results_dir / scene
+    out = [H.Section(f"Scene {scene}", anchor=f"scene-{scene}")]
+    if not sdir.is_dir():
+        out[0].add(H.missing(f"results folder {sdir}"))
+        return out
+    trajs = R.scene_trajectories(sdir, summary, scene)
+
+    cost = H.Section("Stage costs", level=3)
+    bench = R.read_benchmarks(sdir / "benchmarks")
+    fig = P.benchmark_figure(bench, f"{scene}: per-job cost (Snakemake benchmarks)") if bench is not None else None
+    cost.add(H.image(P.fig_png(fig), f"{scene} stage costs") if fig else
+             H.missing(f"benchmark tables {sdir / 'benchmarks'}/*.tsv"))
+
+    evs = H.Section("Event statistics", level=3)
+    previews = H.Section("Event previews", level=3)
+    thumbs = H.Section("Thumbnails", level=3)
+    series, notes = [], []
+    tpng = sdir / "trajectories" / "trajectories.png"
+    thumbs.add(H.image(tpng.read_bytes(), f"{scene} trajectories",
+                       "camera trajectories (trajectories/trajectories.png)")
+               if tpng.exists() else H.missing(f"trajectory plot {tpng}"))
+    window_us = cfg["preview_window_ms"] * 1e3
+    max_side = cfg["thumbnail_max_side_px"]
+    for traj in trajs:
+        fdir = sdir / "frames" / traj
+        frames = R.read_frames_index(fdir)
+        items = []
+        if frames is None or len(frames) == 0:
+            items.append(H.missing(f"{traj}: frames {fdir / 'frames.parquet'}"))
+        else:
+            mid = frames.iloc[len(frames) // 2]
+            for kind, what in (("rgb", "sharp"), ("blur", "motion-blurred")):
+                img = R.read_frame(fdir, kind, str(mid["file"]))
+                items.append(H.image(P.image_png(img, max_side), f"{traj} {what}",
+                                     f"{traj}: {what} frame {int(mid['frame'])} "
+                                     f"(t = {int(mid['t_us']) * 1e-6:.3f} s)")
+                             if img is not None else H.missing(f"{traj}: {what} frame {fdir / kind / str(mid['file'])}"))
+        thumbs.add(H.gallery(items))
+
+        edir = sdir / "events" / traj
+        sim = R.read_sim_events(edir)
+        if sim is None:
+            evs.add(H.missing(f"{traj}: events {edir / 'events.h5'}"))
+            previews.add(H.missing(f"{traj}: events {edir / 'events.h5'}"))
+            continue
+        ev, shape = sim
+        if len(ev) < 2:
+            notes.append(H.missing(f"{traj}: fewer than 2 events in {edir / 'events.h5'}"))
+            previews.add(H.missing(f"{traj}: events (fewer than 2)"))
+            continue
+        series.append(P.event_series(ev, shape, f"{traj} {shape[1]}x{shape[0]}"))
+        ft = frames["t_us"].to_numpy() if frames is not None and len(frames) else None
+        t0, t1, fi = P.preview_window_us(ev, ft, window_us)
+        bg = None
+        if fi is not None:
+            bg = R.read_frame(fdir, "rgb", str(frames.iloc[fi]["file"]))
+            if bg is not None and bg.shape[:2] != shape:
+                bg = None  # frames rendered at another size than the sensor: grey
+        img = P.event_preview(ev, shape, t0, t1, bg)
+        on_what = (f"over sharp frame {int(frames.iloc[fi]['frame'])}" if bg is not None
+                   else "over grey (no sharp frame)")
+        previews.add(H.image(P.image_png(img, max(max_side, 2 * shape[1]) if max_side else None),
+                             f"{traj} event preview",
+                             f"{traj}: events {t0 * 1e-6:.4f}-{t1 * 1e-6:.4f} s {on_what}; "
+                             "blue = net ON, red = net OFF"))
+        if (edir / "preview.mp4").exists():
+            previews.add(H.paragraph(f"preview video: {scene}/events/{traj}/preview.mp4", "meta"))
+    if real is not None:
+        series.append(real)
+    fig = P.event_stats_figure(series, f"{scene}: simulated events"
+                               + (" against the real recording" if real is not None else ""))
+    if fig is not None and any(not s.real for s in series):
+        evs.blocks.insert(0, H.image(P.fig_png(fig), f"{scene} event statistics",
+                                     "rates per pixel and interval densities are normalised "
+                                     "so sensors of different size compare"))
+    else:
+        evs.blocks.insert(0, H.missing(f"simulated events of scene {scene}"))
+    evs.blocks.extend(notes)
+    return out + [cost, evs, thumbs, previews]
+
+
+def build_report(results_dir: str | Path, real_events: str | Path | None = None,
+                 scenes: list[str] | None = None, cfg: dict | None = None,
+                 timings: dict[str, float] | None = None) -> str:
+    """The HTML report of ``results_dir`` as a string.
+
+    ``real_events``: a real recording to compare event statistics with;
+    ``scenes``: restrict to these scene ids (default: all of the summary);
+    ``cfg``: the ``metrics`` config section (preview_window_ms,
+    thumbnail_max_side_px, max_scene_sections). Missing inputs appear as
+    'missing'.
+    """
+    from gs2e.config import load_section
+
+    cfg = {**load_section("metrics"), **(cfg or {})}
+    results_dir = Path(results_dir)
+    if not results_dir.is_dir():
+        raise InputError(f"results folder {results_dir} does not exist")
+    timings = {} if timings is None else timings
+    with timed("read summary", log, timings):
+        summary = R.read_summary(results_dir)
+        all_scenes = R.list_scenes(results_dir, summary)
+    if scenes:
+        unknown = [s for s in scenes if not (results_dir / s).is_dir() and s not in all_scenes]
+        if unknown:
+            raise InputError(f"{results_dir}: no results for scene(s) {', '.join(unknown)}")
+        all_scenes = list(scenes)
+
+    sections = []
+    ov = H.Section("Dataset overview", anchor="overview")
+    if summary is None:
+        ov.add(H.missing(f"dataset summary {results_dir / 'summary.parquet'}"))
+    else:
+        sub = summary[summary["scene_id"].astype(str).isin(all_scenes)] if "scene_id" in summary else summary
+        ov.add(H.paragraph(f"{len(sub)} trajectories in {len(all_scenes)} scene(s); "
+                           "column units are in their names (_s seconds, _us microseconds, "
+                           "_px pixels, _meps million events/s, _ms milliseconds, psnr dB)."))
+        ov.add(H.table(overview_table(sub)))
+    wb = R.read_benchmarks(results_dir / "benchmarks")
+    if wb is not None:
+        ov.add(H.image(P.fig_png(P.benchmark_figure(wb, "dataset-level jobs")), "dataset-level jobs"))
+    sections.append(ov)
+
+    with timed("speed against error", log, timings):
+        tr = H.Section("Speed against error (training)", anchor="training")
+        curves = {s: R.read_curve(results_dir / s) for s in all_scenes}
+        fig = P.speed_error_figure(curves)
+        tr.add(H.image(P.fig_png(fig), "held-out quality against training time",
+                       "held-out views (never trained on); each point is one evaluation")
+               if fig else H.missing("training curves (splat/curve.parquet) of every scene"))
+        for s, c in curves.items():
+            if c is None:
+                tr.add(H.missing(f"training curve {results_dir / s / 'splat' / 'curve.parquet'}"))
+        sections.append(tr)
+
+    real = None
+    rs = H.Section("Real recording", anchor="real")
+    if real_events is None:
+        rs.add(H.missing("real recording for comparison (not configured: metrics.real_events / "
+                         "--real-events)"))
+    else:
+        with timed("real recording statistics", log, timings):
+            ev, shape, label = R.read_real_events(real_events)
+            real = P.event_series(ev, shape, label, real=True)
+        st = real.stats
+        rs.add(H.paragraph(f"{label}: {st['n_events']} events over {st['duration_s']:.3f} s, "
+                           f"{st['rate_meps']:.3g} M events/s, ON fraction {st['on_fraction']:.3f}, "
+                           f"median per-pixel inter-event interval {st['iei_median_ms']:.3g} ms. "
+                           "Drawn black and dashed in each scene's event statistics."))
+    sections.append(rs)
+
+    shown = all_scenes[:cfg["max_scene_sections"]]
+    if len(shown) < len(all_scenes):
+        rs.add(H.paragraph(f"Scene sections below: the first {len(shown)} of {len(all_scenes)} "
+                           f"scenes (metrics.max_scene_sections); the overview and the training "
+                           "curves cover every scene.", "meta"))
+    with timed(f"scenes ({len(shown)})", log, timings):
+        for scene in progress(shown, desc="report scenes"):
+            sections += _scene_section(results_dir, scene, summary, real, cfg)
+
+    # No date in the document: the same results give the same bytes.
+    return H.assemble(f"gs2e report: {results_dir}", sections,
+                      f"gs2e {__version__}; {len(all_scenes)} scene(s).")
+
+
+def write_report(path: str | Path, text: str) -> None:
+    from gs2e.common.atomic import atomic_file
+
+    with atomic_file(path, "w") as fh:
+        fh.write(text)
+
+
+def n_images(text: str) -> int:
+    """Number of embedded images of a report (for logs and tests)."""
+    return text.count('src="data:image/png;base64,')

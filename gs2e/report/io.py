@@ -1,0 +1,154 @@
+"""Reading a results tree for the report. Every reader returns None for an
+input that does not exist (the report shows it as missing); an input that
+exists but cannot be read is an InputError naming the file."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from gs2e.common.errors import InputError
+from gs2e.events.models import Events
+
+
+def _read_parquet(path: Path) -> pd.DataFrame | None:
+    if not path.exists():
+        return None
+    try:
+        return pd.read_parquet(path)
+    except Exception as exc:  # pyarrow raises several types on corrupt files
+        raise InputError(f"{path}: not a readable parquet table ({exc})") from exc
+
+
+def read_summary(results_dir: Path) -> pd.DataFrame | None:
+    return _read_parquet(Path(results_dir) / "summary.parquet")
+
+
+def list_scenes(results_dir: Path, summary: pd.DataFrame | None) -> list[str]:
+    """Scene ids: those of the summary, else every sub-folder with a metrics
+    table or a trained model."""
+    if summary is not None and "scene_id" in summary:
+        return list(dict.fromkeys(summary["scene_id"].astype(str)))
+    root = Path(results_dir)
+    return sorted(p.name for p in root.iterdir()
+                  if p.is_dir() and ((p / "metrics.parquet").exists() or (p / "splat").exists()))
+
+
+def scene_trajectories(scene_dir: Path, summary: pd.DataFrame | None, scene: str) -> list[str]:
+    """Trajectories with rendered frames or events (summary order first)."""
+    names: list[str] = []
+    if summary is not None and "trajectory" in summary:
+        names += [str(t) for t in summary.loc[summary["scene_id"].astype(str) == scene, "trajectory"]
+                  if t is not None]
+    for sub in ("frames", "events"):
+        d = scene_dir / sub
+        if d.is_dir():
+            names += sorted(p.name for p in d.iterdir() if p.is_dir() and not p.name.startswith("."))
+    return list(dict.fromkeys(names))
+
+
+def read_curve(scene_dir: Path) -> pd.DataFrame | None:
+    """splat/curve.parquet: held-out quality against training time."""
+    c = _read_parquet(scene_dir / "splat" / "curve.parquet")
+    if c is not None and not {"train_time_s", "psnr"} <= set(c.columns):
+        raise InputError(f"{scene_dir / 'splat' / 'curve.parquet'}: needs columns train_time_s and psnr")
+    return c
+
+
+# Workflow jobs in pipeline order (benchmark files are named after the job).
+STAGE_ORDER = ("demo_scene", "ingest", "sfm", "train", "trajectory", "render", "events",
+               "metrics", "summary", "report")
+
+
+def read_benchmarks(bench_dir: Path) -> pd.DataFrame | None:
+    """Snakemake benchmark TSVs of a folder, one row per file (its last
+    repeat), ``rule`` = the file name without .tsv, in pipeline order; None
+    if there are none."""
+    files = sorted(Path(bench_dir).glob("*.tsv")) if Path(bench_dir).is_dir() else []
+    rows = []
+    for f in files:
+        try:
+            df = pd.read_csv(f, sep="\t", na_values=["-", "NA"])
+        except Exception as exc:
+            raise InputError(f"{f}: not a readable benchmark table ({exc})") from exc
+        if len(df) == 0:
+            continue
+        rows.append({"rule": f.stem, **df.iloc[-1].to_dict()})
+    if not rows:
+        return None
+    df = pd.DataFrame(rows)
+    rank = df["rule"].map(lambda r: next((i for i, p in enumerate(STAGE_ORDER)
+                                          if r == p or r.startswith(p + "_")), len(STAGE_ORDER)))
+    return df.assign(_r=rank).sort_values(["_r", "rule"], kind="stable").drop(columns="_r")
+
+
+def read_frames_index(frames_dir: Path) -> pd.DataFrame | None:
+    """frames/<traj>/frames.parquet (frame, file, t_us, ...)."""
+    return _read_parquet(frames_dir / "frames.parquet")
+
+
+def read_frame(frames_dir: Path, kind: str, file: str) -> np.ndarray | None:
+    """uint8 RGB (H, W, 3) of frames/<traj>/<kind>/<file> (kind rgb = sharp,
+    blur = motion-blurred), None if absent."""
+    from gs2e.io.images import read_image
+
+    p = frames_dir / kind / file
+    return read_image(p) if p.exists() else None
+
+
+def aedat4_source(path: Path) -> str | None:
+    """Camera name recorded in an AEDAT4 header (e.g. 'DVXplorer'), or None."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(1 << 16).decode("latin-1")
+    except OSError:
+        return None
+    m = re.search(r'key="source" type="string">([^<]+)<', head)
+    # The source is '<model>_<serial>'; the serial says nothing to the reader.
+    return m.group(1).split("_")[0] if m else None
+
+
+def read_real_events(path: str | Path) -> tuple[Events, tuple[int, int], str]:
+    """A real recording (.aedat4, .h5, .npz; text needs a size so is refused)
+    -> (events, (H, W), label naming the sensor, resolution and file)."""
+    from gs2e.events.io import read_events
+
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"real event recording {path} does not exist "
+                         "(metrics.real_events / --real-events)")
+    ev, shape = read_events(path)
+    if not shape or not all(shape):
+        raise InputError(f"{path}: the sensor size is unknown (use an .aedat4, .h5 or .npz recording)")
+    if len(ev) < 2:
+        raise InputError(f"{path}: fewer than 2 events")
+    if np.any(np.diff(ev.t) < 0):
+        raise InputError(f"{path}: timestamps are not sorted")
+    sensor = aedat4_source(path) if path.suffix.lower() == ".aedat4" else None
+    H, W = shape
+    label = f"real: {sensor + ' ' if sensor else ''}{W}x{H} ({path.name})"
+    return ev, (int(H), int(W)), label
+
+
+def read_sim_events(events_dir: Path) -> tuple[Events, tuple[int, int]] | None:
+    """events/<traj>/events.h5 -> (events, (H, W)), None if absent."""
+    from gs2e.events.io import read_h5
+
+    p = events_dir / "events.h5"
+    if not p.exists():
+        return None
+    ev, attrs = read_h5(p)
+    return ev, (int(attrs["height"]), int(attrs["width"]))
+
+
+def read_json(path: Path) -> dict | None:
+    if not path.exists():
+        return None
+    try:
+        return json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise InputError(f"{path}: not readable JSON ({exc})") from exc
