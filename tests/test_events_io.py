@@ -159,6 +159,9 @@ def test_cli_image_folder_end_to_end(tmp_path):
     assert np.array_equal(read_text(out / "events.txt").t, ev.t)
     cap = cv2.VideoCapture(str(out / "preview.mp4"))
     assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 5  # 11 intervals / 2
+    # outputs get the permissions of plain files, not mkstemp's 0600
+    modes = {p.name: p.stat().st_mode & 0o777 for p in out.iterdir()}
+    assert len(set(modes.values())) == 1, modes
     # same seed -> same bytes
     out2 = tmp_path / "out2"
     main(["events", str(tmp_path / "imgs"), "--timestamps", str(tmp_path / "ts.txt"), "-o",

@@ -21,6 +21,12 @@ def _umask() -> int:
     return mask
 
 
+def default_file_mode() -> int:
+    """Mode a plain open() would give a new file (0o666 minus the umask);
+    mkstemp's temporaries are 0o600 and would keep that after the rename."""
+    return 0o666 & ~_umask()
+
+
 @contextlib.contextmanager
 def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary directory that replaces ``path`` on success.
@@ -53,7 +59,7 @@ def atomic_file(path: str | os.PathLike, mode: str = "wb") -> Iterator[Any]:
     final.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{final.name}.tmp-", dir=final.parent)
     os.close(fd)
-    os.chmod(tmp_name, 0o666 & ~_umask())
+    os.chmod(tmp_name, default_file_mode())
     try:
         with open(tmp_name, mode) as fh:
             yield fh
@@ -74,7 +80,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         prefix=f".{final.stem}.tmp-", suffix=final.suffix, dir=final.parent
     )
     os.close(fd)
-    os.chmod(tmp_name, 0o666 & ~_umask())
+    os.chmod(tmp_name, default_file_mode())
     try:
         yield Path(tmp_name)
         os.replace(tmp_name, final)

@@ -81,15 +81,19 @@ class PreviewWriter:
 
     def __init__(self, path: str | os.PathLike, shape: tuple[int, int], fps: float = 30.0,
                  every: int = 1, max_frames: int = 3000):
-        import cv2
-        from pathlib import Path
         import tempfile
+        from pathlib import Path
+
+        import cv2
+
+        from gs2e.common.atomic import default_file_mode
 
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{self.path.stem}.tmp-", suffix=".mp4",
                                    dir=self.path.parent)
         os.close(fd)
+        os.chmod(tmp, default_file_mode())
         self.tmp = tmp
         H, W = shape
         self.shape = shape
