@@ -3,9 +3,10 @@
 ``scene_table`` joins the one-row tables every stage writes (sfm, train,
 render, events) into one row per (scene, trajectory), each stage's columns
 prefixed with its name (``sfm_registration_rate``, ``train_test_psnr``,
-``render_frames_per_s``, ``events_rate_meps`` ...), plus the code version,
-config hash and seeds. ``summary`` concatenates scene tables and adds
-dataset-level rows. Missing values stay missing (null).
+``render_frames_per_s``, ``events_rate_meps`` ...), plus provenance: the
+package version, one ``code_version_<stage>`` per stage (see
+gs2e.codeversion), the config hash and the seeds. ``summary`` concatenates
+scene tables. Missing values stay missing (null).
 """
 
 from __future__ import annotations
@@ -17,9 +18,29 @@ from pathlib import Path
 import pandas as pd
 
 from gs2e import __version__
+from gs2e.codeversion import STAGE_DEPS, code_version
 from gs2e.common.errors import InputError
 
 STAGE_FILES = {"sfm": "sfm/metrics.parquet", "train": "splat/metrics.parquet"}
+# Where results go, not how they are made: left out of the config hash so the
+# same parameters hash the same wherever the run lives.
+LOCATION_KEYS = ("scenes", "results_dir")
+
+
+def config_hash(config: dict) -> str:
+    """16 hex digits of sha256 over the canonical JSON of a scene's config,
+    without the location keys (scenes table path, results_dir)."""
+    params = {k: v for k, v in config.items() if k not in LOCATION_KEYS}
+    return hashlib.sha256(json.dumps(params, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _events_seed(scene_dir: Path, name: str) -> int | None:
+    # The seed the events job actually used, as it recorded it.
+    p = scene_dir / "events" / name / "stats.json"
+    if not p.exists():
+        return None
+    seed = json.loads(p.read_text()).get("metadata", {}).get("seed")
+    return None if seed is None else int(seed)
 
 
 def _row(path: Path, prefix: str) -> dict:
@@ -31,10 +52,18 @@ def _row(path: Path, prefix: str) -> dict:
 
 def scene_table(scene_dir: str | Path, scene_id: str, trajectories: list[str], config: dict,
                 seeds: dict[str, int] | None = None) -> pd.DataFrame:
-    """One row per trajectory of the scene in ``scene_dir`` (results/<scene>)."""
+    """One row per trajectory of the scene in ``scene_dir`` (results/<scene>).
+
+    ``code_version_<stage>`` is the stage's code version when this table is
+    written; the workflow reruns a stage when its code version changes (rule
+    params), so with the default rerun triggers it is also the version that
+    made the stage's outputs. ``seed_events`` is per trajectory, read from the
+    events job's stats.json.
+    """
     scene_dir = Path(scene_dir)
     base = {"scene_id": scene_id, "gs2e_version": __version__,
-            "config_hash": hashlib.sha256(json.dumps(config, sort_keys=True).encode()).hexdigest()[:16],
+            **{f"code_version_{s}": code_version(s) for s in STAGE_DEPS},
+            "config_hash": config_hash(config),
             **{f"seed_{k}": v for k, v in (seeds or {}).items()}}
     for stage, rel in STAGE_FILES.items():
         p = scene_dir / rel
@@ -47,7 +76,7 @@ def scene_table(scene_dir: str | Path, scene_id: str, trajectories: list[str], c
             traj_info[t["name"]] = t
     rows = []
     for name in trajectories:
-        row = dict(base, trajectory=name)
+        row = dict(base, seed_events=_events_seed(scene_dir, name), trajectory=name)
         t = traj_info.get(name, {})
         for k in ("kind", "method", "preset", "n_poses", "duration_us", "length", "max_rel_step_error"):
             row[f"trajectory_{k}"] = t.get(k)
