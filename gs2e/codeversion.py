@@ -15,15 +15,19 @@ from pathlib import Path
 
 PKG = Path(__file__).resolve().parent
 
+# Stages write their one-row tables with gs2e.metrics.table only; the scene and
+# dataset tables (metrics/collect.py) are the metrics stage's own code.
+METRICS_WRITER = ("metrics/__init__.py", "metrics/table.py")
+
 # Subpackages (or modules) each stage's code path imports.
 STAGE_DEPS: dict[str, tuple[str, ...]] = {
     "demo": ("demo", "io", "common"),
     "ingest": ("io", "common", "config.py"),
-    "sfm": ("sfm", "io", "common", "metrics"),
-    "train": ("splat", "io", "common", "metrics"),
+    "sfm": ("sfm", "io", "common", *METRICS_WRITER),
+    "train": ("splat", "io", "common", *METRICS_WRITER),
     "trajectory": ("trajectory", "io", "common", "config.py"),
-    "render": ("render", "splat", "trajectory", "io", "common", "metrics"),
-    "events": ("events", "render", "splat", "trajectory", "io", "common", "metrics"),
+    "render": ("render", "splat", "trajectory", "io", "common", *METRICS_WRITER),
+    "events": ("events", "render", "splat", "trajectory", "io", "common", *METRICS_WRITER),
     "metrics": ("metrics", "io", "common"),
     "report": ("report", "events", "io", "common", "config.py"),
 }

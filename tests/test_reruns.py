@@ -9,8 +9,8 @@ checks that it agrees with the job-stats table of ``snakemake -n``.
 Keys set in the scene's ``overrides`` column (tests/conftest.py
 TINY_OVERRIDES) win over ``--configfile``, so they are changed through a copy
 of the scenes table (``--config scenes=<copy>``); the others through a
-``--configfile``. The ``metrics`` config section has no keys, so there is no
-metrics-only change to audit. Library edits rerun a stage through its
+``--configfile``. A report-only key (``metrics`` section) reruns the scene
+tables, the summary and the report, nothing upstream. Library edits rerun a stage through its
 ``code_version`` param, unit-tested at the end.
 
 Nothing here changes the fixture's outputs: dry runs only; change files are
@@ -155,6 +155,15 @@ def test_config_change_reruns_the_stage_and_downstream(tiny_pipeline, tmp_path, 
     assert own_params_changed(rows) == changed
 
 
+def test_report_key_change_reruns_only_tables_and_report(tiny_pipeline, tmp_path):
+    wd, args = tiny_pipeline
+    (tmp_path / "change.yaml").write_text("metrics: {preview_window_ms: 5}\n")
+    rows = summary_rows(*args, "--configfile", str(tmp_path / "change.yaml"))
+    plan = pending(rows)
+    check_stage_rules(set(plan), {"scene_metrics", "summary"})
+    assert "report" in plan and own_params_changed(rows) == set()
+
+
 # -- one key changed in the scene's overrides (scenes table) ------------------
 
 @pytest.mark.parametrize("changes, changed", [
@@ -203,20 +212,12 @@ def test_added_scene_leaves_the_existing_scene_alone(tiny_pipeline, tmp_path):
     assert plan["summary"] == {"results/summary.parquet"}
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "rule scene_metrics passes the whole scene config as a param, including the "
-    "location keys `scenes` and `results_dir`: a scenes table with the same rows "
-    "at another path reruns scene_metrics and summary (fix in workflow/rules/metrics.smk)"))
 def test_same_table_elsewhere_reruns_nothing(tiny_pipeline, tmp_path):
     wd, _ = tiny_pipeline
     shutil.copy(wd / "scenes.tsv", tmp_path / "scenes.tsv")
     assert pending(summary_rows(*sm_args(wd, tmp_path / "scenes.tsv"))) == {}
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "render and events take the whole render section as a param, including "
-    "render.trajectories: listing one more trajectory reruns the frames and "
-    "events of those already listed (fix: drop `trajectories` from the section stage_cfg passes, workflow/rules/common.smk)"))
 def test_listing_another_trajectory_renders_only_that_one(tiny_pipeline, tmp_path):
     wd, _ = tiny_pipeline
     over = tiny_overrides_with(render__trajectories="[mini00_medium,base_medium]")
@@ -269,17 +270,21 @@ def test_code_version_follows_the_stage_sources(tmp_path):
         before.update(now)
         return changed
 
-    assert edit_and_diff("events/__init__.py") == {"events"}
+    # the report reads event files with gs2e.events
+    assert edit_and_diff("events/__init__.py") == {"events", "report"}
     assert edit_and_diff("trajectory/__init__.py") == {"trajectory", "render", "events"}
     assert edit_and_diff("splat/__init__.py") == {"train", "render", "events"}
     assert edit_and_diff("sfm/__init__.py") == {"sfm"}
     assert edit_and_diff("demo/__init__.py") == {"demo"}
+    # stages write their tables with metrics/table.py; the scene tables are metrics' own
+    assert edit_and_diff("metrics/collect.py") == {"metrics"}
+    assert edit_and_diff("metrics/table.py") == {"sfm", "train", "render", "events", "metrics"}
     assert edit_and_diff("common/__init__.py") == set(stages)
     # a new file counts too, a non-.py file does not
     (pkg / "events" / "extra.py").write_text("x = 1\n")
     (pkg / "events" / "notes.txt").write_text("x\n")
     cv.code_version.cache_clear()
-    assert {s for s in stages if cv.code_version(s) != before[s]} == {"events"}
+    assert {s for s in stages if cv.code_version(s) != before[s]} == {"events", "report"}
 
 
 def test_every_rule_carries_its_stage_code_version():
@@ -287,7 +292,7 @@ def test_every_rule_carries_its_stage_code_version():
     the stage's sources changes its params and reruns it)."""
     expected = {"demo_scene": "demo", "ingest": "ingest", "sfm": "sfm", "train": "train",
                 "trajectory": "trajectory", "render": "render", "events": "events",
-                "scene_metrics": "metrics", "summary": "metrics"}
+                "scene_metrics": "metrics", "summary": "metrics", "report": "report"}
     found = {}
     for smk in sorted((REPO / "workflow" / "rules").glob("*.smk")):
         for m in re.finditer(r"^rule (\w+):(.*?)(?=^rule |\Z)", smk.read_text(), flags=re.M | re.S):

@@ -28,9 +28,24 @@ def res(*parts):
     return str(Path(RESULTS, *parts))
 
 
+# Keys that say which jobs exist, not what a job computes: left out of params
+# so that listing one more trajectory does not rerun the others.
+NOT_PARAMS = {"render": ("trajectories",)}
+# Where files are, not what they hold: left out of the scene's config params.
+LOCATION_KEYS = ("scenes", "results_dir")
+
+
 def stage_cfg(section):
     """params: function giving one scene's config section as canonical JSON."""
-    return lambda wc: section_json(SCENE_CFG[wc.scene], section)
+    drop = NOT_PARAMS.get(section, ())
+    return lambda wc: section_json(
+        {section: {k: v for k, v in SCENE_CFG[wc.scene][section].items() if k not in drop}}, section)
+
+
+def scene_params(sid):
+    """The scene's whole config (without file locations) as canonical JSON."""
+    return json.dumps({k: v for k, v in SCENE_CFG[sid].items() if k not in LOCATION_KEYS},
+                      sort_keys=True)
 
 
 def stage_seed(stage):

@@ -21,7 +21,7 @@ rule scene_metrics:
         res("{scene}", "metrics.parquet"),
     params:
         trajectories=lambda wc: " ".join(SCENE_CFG[wc.scene]["render"]["trajectories"]),
-        config=lambda wc: json.dumps(SCENE_CFG[wc.scene], sort_keys=True),
+        config=lambda wc: scene_params(wc.scene),
         seeds=lambda wc: json.dumps({s: derive_seed(SCENE_CFG[wc.scene]["seed"], wc.scene, s)
                                      for s in ("sfm", "train", "trajectory")}),
         code=code_version("metrics"),
