@@ -8,6 +8,9 @@ CORES ?= all
 # Torch first and pinned: on the project's machines pip takes the local CPU
 # wheel for this version; an unpinned torch would pull several GB of CUDA wheels.
 TORCH ?= torch==2.13.0
+# The demo's report compares its event statistics with this real recording when it exists.
+REAL_EVENTS ?= ../shared/data/events/dvxplorer_sample.aedat4
+DEMO_CONFIG := $(if $(wildcard $(REAL_EVENTS)),--config 'metrics={real_events: $(abspath $(REAL_EVENTS))}',)
 
 .PHONY: setup demo test test-slow test-all bench dryrun clean-results help
 
@@ -31,8 +34,8 @@ $(STAMP): pyproject.toml | $(BIN)/python
 setup: $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/snakemake --cores $(CORES) --configfile config/config.yaml
-	@echo "demo outputs: results/demo/ (see README.md, 'What the demo produces')"
+	$(BIN)/snakemake --cores $(CORES) --configfile config/config.yaml $(DEMO_CONFIG)
+	@echo "demo outputs: results/demo/, report: results/report.html (see README.md, 'What the demo produces')"
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -m "not slow" tests
