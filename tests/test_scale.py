@@ -230,7 +230,7 @@ def test_paper_selection_dry_run(tmp_path):
 # ---------------------------------------------------------------- real scenes
 
 REAL_OVERRIDES = ";".join([
-    "ingest.max_side=320", "ingest.max_views=16", "sfm.max_num_features=2048",
+    "ingest.max_side=320", "sfm.max_num_features=2048",
     "splat.max_iterations=200", "splat.min_iterations=200", "splat.eval_every=100",
     "splat.densify_from=40", "splat.densify_until=150", "splat.densify_every=20",
     "splat.resolution_schedule=[[0,2],[100,1]]", "splat.checkpoint_every=0",
