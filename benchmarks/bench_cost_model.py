@@ -134,11 +134,10 @@ def main() -> int:
                          "train=405 for 15x the steps at 27x the pixels); memory is not scaled")
     ap.add_argument("--quick", action="store_true", help="accepted for uniformity (always quick)")
     args = ap.parse_args()
-    dirs = args.results or ([DEFAULT_RESULTS] if DEFAULT_RESULTS.is_dir() else [])
-    dirs = [d for d in dirs if d.is_dir()]
-    jobs = [j for d in dirs for j in read_jobs(d)]
+    asked = args.results or [DEFAULT_RESULTS]
+    jobs = [j for d in asked if d.is_dir() for j in read_jobs(d)]
     if not jobs:
-        print(f"no benchmark files found (looked in {', '.join(map(str, dirs)) or DEFAULT_RESULTS}); "
+        print(f"no benchmark files found (looked in {', '.join(map(str, asked))}); "
               "run the workflow first (e.g. `make demo`) and pass --results results")
         print("cost model: nothing measured")
         return 0
