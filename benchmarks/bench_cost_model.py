@@ -88,11 +88,37 @@ def scene_info(results: Path, scene: str) -> str:
         return f"(metrics unreadable: {exc.__class__.__name__})"
 
 
+def scene_megapixels(results: Path, scene: str) -> float:
+    """Rendered image size (W x H of the events stage, = the SfM-undistorted views) in megapixels."""
+    p = results / scene / "metrics.parquet"
+    try:
+        import pandas as pd
+
+        r = pd.read_parquet(p, columns=["events_width", "events_height"]).iloc[0]
+        return float(r["events_width"]) * float(r["events_height"]) / 1e6
+    except Exception:
+        return math.nan
+
+
+def rss_fit(jobs: list[dict]) -> tuple[float, float] | None:
+    """Least-squares peak RSS (MB) = a + b * megapixels over jobs with a known size;
+    None unless at least two distinct sizes were measured."""
+    pts = [(j["megapixels"], j["max_rss_mb"]) for j in jobs if math.isfinite(j.get("megapixels", math.nan))]
+    xs = sorted({round(x, 3) for x, _ in pts})
+    if len(xs) < 2 or xs[-1] < 1.5 * xs[0]:
+        return None
+    n = len(pts)
+    mx = sum(x for x, _ in pts) / n
+    my = sum(y for _, y in pts) / n
+    b = sum((x - mx) * (y - my) for x, y in pts) / sum((x - mx) ** 2 for x, _ in pts)
+    return my - b * mx, b
+
+
 def round_up(x: float, step: int) -> int:
     return int(math.ceil(x / step) * step) if math.isfinite(x) else 0
 
 
-def model(jobs: list[dict], n_traj: int, n_scenes: int) -> list[dict]:
+def model(jobs: list[dict], n_traj: int, n_scenes: int, at_mp: float = 2.07) -> list[dict]:
     """Per-stage cost model (see the module docstring)."""
     scenes = sorted({(j["results"], j["scene"]) for j in jobs if j["scene"] != "(dataset)"})
     out = []
@@ -108,6 +134,7 @@ def model(jobs: list[dict], n_traj: int, n_scenes: int) -> list[dict]:
         cpu_min_scene = per_job_cpu * jobs_per_scene / 60
         peak = max(j["max_rss_mb"] for j in sj)
         scaled = stage not in NOT_SCALED
+        fit = rss_fit(sj)
         out.append({
             "stage": stage, "jobs_measured": len(sj), "scenes_measured": len(scenes),
             "jobs_per_scene": jobs_per_scene,
@@ -117,8 +144,14 @@ def model(jobs: list[dict], n_traj: int, n_scenes: int) -> list[dict]:
             "max_wall_s": round(max(j["wall_s"] for j in sj), 1),
             "cpu_h_n_scenes": round(cpu_min_scene * n_scenes / 60, 2) if scaled else math.nan,
             "in_extrapolation": scaled,
+            "rss_mb_per_mp": round(fit[1], 1) if fit else math.nan,
+            f"rss_mb_at_{at_mp:g}mp": round(fit[0] + fit[1] * at_mp) if fit else math.nan,
         })
     return out
+
+
+def _fmt(x: float) -> str:
+    return "-" if not math.isfinite(x) else f"{x:.0f}"
 
 
 def main() -> int:
@@ -132,6 +165,9 @@ def main() -> int:
     ap.add_argument("--scale", nargs="+", default=[], metavar="STAGE=FACTOR",
                     help="multiply a stage's CPU time by FACTOR (a scaling assumption, e.g. "
                          "train=405 for 15x the steps at 27x the pixels); memory is not scaled")
+    ap.add_argument("--at-megapixels", type=float, default=2.07,
+                    help="image size for the memory prediction (linear fit of peak RSS in megapixels "
+                         "when scenes of different sizes were measured); default 1920x1080")
     ap.add_argument("--quick", action="store_true", help="accepted for uniformity (always quick)")
     args = ap.parse_args()
     asked = args.results or [DEFAULT_RESULTS]
@@ -156,10 +192,16 @@ def main() -> int:
         if stage not in STAGES or not val:
             ap.error(f"--scale {item}: expected STAGE=FACTOR with STAGE one of {', '.join(STAGES)}")
         factors[stage] = float(val)
+    mp_cache: dict = {}
+    for j in jobs:
+        key = (j["results"], j["scene"])
+        if key not in mp_cache:
+            mp_cache[key] = scene_megapixels(Path(j["results"]), j["scene"])
+        j["megapixels"] = mp_cache[key]
     write_csv("bench_cost_model_jobs", jobs)  # as measured
     jobs = [{**j, "cpu_s": j["cpu_s"] * factors.get(j["stage"], 1.0),
              "wall_s": j["wall_s"] * factors.get(j["stage"], 1.0)} for j in jobs]
-    rows = model(jobs, n_traj, args.scenes)
+    rows = model(jobs, n_traj, args.scenes, args.at_megapixels)
     csv_path = write_csv("bench_cost_model", rows)
 
     scenes = sorted({(j["results"], j["scene"]) for j in jobs if j["scene"] != "(dataset)"})
@@ -170,13 +212,15 @@ def main() -> int:
     print(f"trajectories per scene: {n_traj} ({traj_src})"
           + (f"; CPU and wall times scaled by {factors} (assumption, not measured)" if factors else ""))
     hdr = (f"{'stage':11s} {'jobs/scene':>10} {'wall s/job':>10} {'CPU s/job':>9} {'CPU min/scene':>13} "
-           f"{'peak RSS MB':>11} {'mem_mb 2x':>9} {f'CPU h x{args.scenes}':>12}")
+           f"{'peak RSS MB':>11} {'mem_mb 2x':>9} {f'CPU h x{args.scenes}':>12} "
+           f"{'MB/MP':>6} {f'MB@{args.at_megapixels:g}MP':>9}")
     print(hdr)
     for r in rows:
         cph = "-" if not r["in_extrapolation"] else f"{r['cpu_h_n_scenes']:.1f}"
         print(f"{r['stage']:11s} {r['jobs_per_scene']:>10} {r['wall_s_per_job']:>10.1f} "
               f"{r['cpu_s_per_job']:>9.1f} {r['cpu_min_per_scene']:>13.2f} {r['peak_rss_mb']:>11.0f} "
-              f"{r['suggested_mem_mb']:>9} {cph:>12}")
+              f"{r['suggested_mem_mb']:>9} {cph:>12} {_fmt(r['rss_mb_per_mp']):>6} "
+              f"{_fmt(r[f'rss_mb_at_{args.at_megapixels:g}mp']):>9}")
     scaled = [r for r in rows if r["in_extrapolation"]]
     cpu_min_scene = sum(r["cpu_min_per_scene"] for r in scaled)
     total_h = cpu_min_scene * args.scenes / 60
