@@ -61,7 +61,8 @@ def _register_scenes(subparsers) -> None:
                        help=f"overrides column for every {name} scene (default: the paper's "
                             f"'{over}'; '' for none)")
     p.add_argument("--no-check", action="store_true",
-                   help="do not check that the folders exist (audit or dry-run without the data)")
+                   help="do not check that the folders exist (write or review the table on a machine "
+                        "without the data; `snakemake -n` still needs the folders, empty ones will do)")
     p.add_argument("--out", required=True, metavar="TSV", help="scenes table to write")
     p.set_defaults(func=run_scenes)
 
