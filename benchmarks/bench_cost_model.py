@@ -16,7 +16,8 @@ headline is the CPU-hours for N scenes and the largest job's memory.
     python benchmarks/bench_cost_model.py [--results DIR ...] [--scenes 1050]
                                           [--trajectories 4] [--scale train=405 ...] [--quick]
 
-Default results: /tmp/ciclone/results when it exists (a complete demo run).
+Default results: /tmp/ciclone/results when it exists (a complete demo run), else
+the repository's results/ (after `make demo`).
 Writes benchmarks/results/bench_cost_model.csv (per stage), bench_cost_model_jobs.csv
 (per job) and bench_cost_model.png; the last line printed is the headline.
 """
@@ -157,7 +158,8 @@ def _fmt(x: float) -> str:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--results", nargs="+", type=Path, default=None,
-                    help=f"results dirs of finished runs (default {DEFAULT_RESULTS} if present)")
+                    help=f"results dirs of finished runs (default {DEFAULT_RESULTS}, else the repo's "
+                         "results/, whichever exists)")
     ap.add_argument("--scenes", type=int, default=1050, help="scene count to extrapolate to")
     ap.add_argument("--trajectories", type=int, default=None,
                     help="render/events jobs per scene (len(render.trajectories); config/paper.yaml: 4); "
@@ -170,7 +172,8 @@ def main() -> int:
                          "when scenes of different sizes were measured); default 1920x1080")
     ap.add_argument("--quick", action="store_true", help="accepted for uniformity (always quick)")
     args = ap.parse_args()
-    asked = args.results or [DEFAULT_RESULTS]
+    asked = args.results or [next((d for d in (DEFAULT_RESULTS, REPO / "results") if d.is_dir()),
+                                  DEFAULT_RESULTS)]
     jobs = [j for d in asked if d.is_dir() for j in read_jobs(d)]
     if not jobs:
         print(f"no benchmark files found (looked in {', '.join(map(str, asked))}); "
