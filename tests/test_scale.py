@@ -70,6 +70,10 @@ def test_scene_ids_match_the_workflow_wildcard():
         sid = scene_id_for(SceneId(ds, raw, "x:1"))
         assert SCENE_ID_RE.match(sid), sid
     assert scene_id_for(SceneId("mvimgnet", "7/0a1b", "x:1")) == "mvi_7_0a1b"
+    # Snakemake refuses wildcard values ending in a 20-fold repeat; caught here with the id's line
+    assert scene_id_for(SceneId("dl3dv", "ab" * 19 + "c", "x:1"))
+    with pytest.raises(InputError, match="d.txt:4: dl3dv id '1K/f0+' .*repeated pattern"):
+        scene_id_for(SceneId("dl3dv", "1K/f" + "0" * 63, "d.txt:4"))
     assert scene_id_for(SceneId("dl3dv", "1K/ff00", "x:1")) == "dl3dv_ff00"
 
 
@@ -145,9 +149,10 @@ def test_missing_paths_error_names_every_id_and_path(tmp_path):
 def test_cli_writes_a_table_load_scenes_accepts(tmp_path):
     mvi, dl = tmp_path / "mvi", tmp_path / "dl3dv"
     _mvimgnet_tree(mvi, ["7/aaa", "26/bbb"])
-    _dl3dv_tree(dl, ["1K/" + "f" * 64])
+    h = "3f8a9c0d2b7e41f6a5c9d8e7b6a5f4e3d2c1b0a99887766554433221100ffeed"  # hash-like
+    _dl3dv_tree(dl, ["1K/" + h])
     (tmp_path / "m.txt").write_text("# mine\n7/aaa\nbbb\n")
-    (tmp_path / "d.txt").write_text("1K/" + "f" * 64 + "\n")
+    (tmp_path / "d.txt").write_text("1K/" + h + "\n")
     out = tmp_path / "cfg" / "paper_scenes.tsv"
     run_cli("scenes", "--mvimgnet-root", str(mvi), "--mvimgnet-ids", str(tmp_path / "m.txt"),
             "--dl3dv-root", str(dl), "--dl3dv-ids", str(tmp_path / "d.txt"),
@@ -157,7 +162,7 @@ def test_cli_writes_a_table_load_scenes_accepts(tmp_path):
     assert [(r["scene_id"], r["layout"], r["path"]) for r in rows] == [
         ("mvi_7_aaa", "mvimgnet", str(mvi / "7" / "aaa")),
         ("mvi_26_bbb", "mvimgnet", str(mvi / "26" / "bbb")),
-        ("dl3dv_" + "f" * 64, "dl3dv", str(dl / "1K" / ("f" * 64))),
+        ("dl3dv_" + h, "dl3dv", str(dl / "1K" / h)),
     ]
     cfg = load_config({})
     assert scene_config(cfg, rows[0])["ingest"]["max_views"] == 30  # the paper's N

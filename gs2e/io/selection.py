@@ -40,6 +40,8 @@ _ID_CHARS = re.compile(r"^[A-Za-z0-9_.\-/]+$")
 _UNSAFE = re.compile(r"[^A-Za-z0-9_.-]")
 SCENE_ID_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")  # = workflow wildcard constraint
 HEADER = ("scene_id", "layout", "path", "overrides")
+# Snakemake rejects a wildcard value ending in a unit repeated >= 20 times (PeriodicWildcardError)
+_PERIODIC_TAIL = re.compile(r"(.+?)\1{19,99}$")
 
 
 @dataclass(frozen=True)
@@ -102,6 +104,9 @@ def scene_id_for(sid: SceneId) -> str:
     name = sid.id.rsplit("/", 1)[-1] if sid.dataset == "dl3dv" else sid.id
     out = _UNSAFE.sub("_", f"{prefix}_{name}")
     assert SCENE_ID_RE.match(out), out
+    if _PERIODIC_TAIL.search(out):
+        raise InputError(f"{sid.where}: {sid.dataset} id '{sid.id}' gives scene_id '{out}', which ends "
+                         f"in a repeated pattern that Snakemake rejects as a wildcard value")
     return out
 
 
