@@ -37,6 +37,61 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="output scene folder")
     add_config_args(p)
     p.set_defaults(func=run)
+    _register_scenes(subparsers)
+
+
+def _register_scenes(subparsers) -> None:
+    from gs2e.io.selection import DATASETS
+
+    p = subparsers.add_parser(
+        "scenes",
+        help="write a scenes table from MVImgNet / DL3DV scene id lists (the paper's selection)",
+        description="Map user-supplied scene ids to folders by the datasets' release layouts "
+                    "(MVImgNet <root>/<category>/<clip>, DL3DV <root>/<hash>), check that each "
+                    "exists (unless --no-check), and write a scenes table atomically. Id lists: "
+                    "one id per line, '#' comments; MVImgNet ids are 'category/clip' (or a bare "
+                    "clip, found under <root>/*/), DL3DV ids a hash or a path below the root "
+                    "such as '1K/<hash>'. Scene ids become mvi_<category>_<clip> and dl3dv_<hash>.",
+    )
+    for ds, (_, _, over) in DATASETS.items():
+        name = {"mvimgnet": "MVImgNet", "dl3dv": "DL3DV"}[ds]
+        p.add_argument(f"--{ds}-root", metavar="DIR", help=f"{name} dataset root")
+        p.add_argument(f"--{ds}-ids", metavar="TXT", help=f"{name} id list (needs --{ds}-root)")
+        p.add_argument(f"--overrides-{ds}", metavar="OVERRIDES", default=over,
+                       help=f"overrides column for every {name} scene (default: the paper's "
+                            f"'{over}'; '' for none)")
+    p.add_argument("--no-check", action="store_true",
+                   help="do not check that the folders exist (write or review the table on a machine "
+                        "without the data; `snakemake -n` still needs the folders, empty ones will do)")
+    p.add_argument("--out", required=True, metavar="TSV", help="scenes table to write")
+    p.set_defaults(func=run_scenes)
+
+
+def run_scenes(args: argparse.Namespace) -> int:
+    from gs2e.common.errors import ConfigError
+    from gs2e.io.selection import DATASETS, build_rows, read_id_list, write_scenes_table
+
+    log = logging.getLogger("gs2e.scenes")
+    selections, summary = [], []
+    for ds in DATASETS:
+        root, ids = getattr(args, f"{ds}_root"), getattr(args, f"{ds}_ids")
+        if bool(root) != bool(ids):
+            raise ConfigError(f"--{ds}-root and --{ds}-ids go together")
+        if ids:
+            lst = read_id_list(ids, ds)
+            selections.append((lst, root, getattr(args, f"overrides_{ds}")))
+            summary.append(f"{len(lst)} {ds}")
+    if not selections:
+        raise ConfigError("no id list given (--mvimgnet-ids and/or --dl3dv-ids)")
+    rows = build_rows(selections, check=not args.no_check)
+    comment = ("written by `gs2e scenes` from " + ", ".join(
+        f"{getattr(args, f'{ds}_ids')} ({getattr(args, f'{ds}_root')})"
+        for ds in DATASETS if getattr(args, f"{ds}_ids"))
+        + ("\nfolders NOT checked (--no-check)" if args.no_check else ""))
+    write_scenes_table(rows, args.out, comment)
+    log.info("wrote %s: %d scenes (%s)%s", args.out, len(rows), ", ".join(summary),
+             "; folders not checked" if args.no_check else "")
+    return 0
 
 
 def run(args: argparse.Namespace) -> int:

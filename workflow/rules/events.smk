@@ -21,7 +21,9 @@ rule events:
         res("{scene}", "benchmarks", "events_{traj}.tsv")
     threads: workflow.cores
     resources:
-        mem_mb=lambda wc, attempt: 3000 * attempt,
+        # measured peak RSS ~0.5 GB + ~0.5 GB/megapixel, +0.4 GB on a cold numba cache
+        # (benchmarks/bench_cost_model.py): ~2 GB at 1080p, x2 headroom
+        mem_mb=lambda wc, attempt: 4000 * attempt,
         runtime=lambda wc, attempt: 240 * attempt,
     shell:
         "python -m gs2e events --model {input.model:q} --trajectory {params.trajectory:q}"
