@@ -259,8 +259,9 @@ def test_dry_run_over_many_scenes_is_fast_and_bounded(tmp_path):
     out = (tmp_path / "out.txt").read_text()
     assert os.waitstatus_to_exitcode(status) == 0, out[-3000:]
     n_traj = len(load_config({})["render"]["trajectories"])
-    # per scene: ingest, sfm, train, trajectory, render + events per trajectory, metrics; + summary, all
-    assert f"total {(5 + 2 * n_traj) * n + 2}" in " ".join(out.split())
+    # per scene: ingest, sfm, train, trajectory, render + events per trajectory, metrics;
+    # + summary, report, all
+    assert f"total {(5 + 2 * n_traj) * n + 3}" in " ".join(out.split())
     assert wall < 90, wall
     assert ru.ru_maxrss / 1024 < 600, ru.ru_maxrss  # MB; 1-scene dry-run ~160 MB, 1050 scenes ~330 MB
 
@@ -292,7 +293,6 @@ def read_benchmarks(results: Path) -> dict[tuple[str, str], dict]:
     return out
 
 
-@pytest.mark.slow
 def test_workflow_over_real_scenes(tmp_path):
     """temple_ring (47 views, Middlebury ring) and llff_fern (20 views), both as plain
     image folders (full SfM), tiny budgets: the summary has both scenes and no job
@@ -316,6 +316,8 @@ def test_workflow_over_real_scenes(tmp_path):
     assert (df["train_test_psnr"] > 10).all(), df["train_test_psnr"]
     assert (df["events_n_events"] > 0).all(), df["events_n_events"]
     assert (df["sfm_registration_rate"] >= 0.8).all()
+    html = (tmp_path / "results" / "report.html").read_text()
+    assert "temple_ring" in html and "llff_fern" in html
     bench = read_benchmarks(tmp_path / "results")
     jobs = {j for _, j in bench}
     assert {"ingest", "sfm", "train", "trajectory", "render_mini00_medium",
