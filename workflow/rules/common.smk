@@ -52,6 +52,17 @@ def stage_seed(stage):
     return lambda wc: derive_seed(SCENE_CFG[wc.scene]["seed"], wc.scene, stage)
 
 
+# Training time grows with the step budget: 20 min per 1000 steps covers ~1080p
+# views on 8 cores (about 3-4 CPU-s per step per megapixel, benchmarks/
+# bench_cost_model.py), so the paper's 30k steps get 10 h, not a fixed limit.
+TRAIN_MIN_PER_1000_STEPS = 20
+
+
+def train_runtime_min(wc, attempt):
+    steps = SCENE_CFG[wc.scene]["splat"]["max_iterations"]
+    return attempt * max(30, -(-steps * TRAIN_MIN_PER_1000_STEPS // 1000))
+
+
 def scene_layout(wc):
     return SCENES[wc.scene]["layout"]
 

@@ -17,7 +17,7 @@ rule train:
     threads: workflow.cores
     resources:
         mem_mb=lambda wc, attempt: 6000 * attempt,
-        runtime=lambda wc, attempt: 240 * attempt,
+        runtime=train_runtime_min,
     shell:
         "python -m gs2e train --scene {input:q} --out {output:q} --seed {params.seed}"
         " --threads {threads} --scene-id {wildcards.scene} --checkpoint-dir {params.ckpt:q}"
