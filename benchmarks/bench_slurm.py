@@ -164,10 +164,10 @@ def submissions(out: str) -> dict[str, str]:
                            r"\(log: .*?/slurm_logs/rule_(\w+)/", out))
 
 
-def slurm_job_times(job_ids: list[str], env: dict) -> dict[str, tuple[float, float]]:
-    """Slurm job id -> (queue wait s, run time s) from slurmctld's submit,
-    start and end times (1 s resolution; finished jobs stay in squeue for the
-    local cluster's MinJobAge). Empty when squeue no longer knows the jobs."""
+def slurm_job_times(job_ids: list[str], env: dict) -> dict[str, tuple[float, float, float]]:
+    """Slurm job id -> (submit, start, end) epoch s from slurmctld (1 s
+    resolution; finished jobs stay in squeue for the local cluster's
+    MinJobAge). Empty when squeue no longer knows the jobs."""
     from datetime import datetime
 
     if not job_ids:
@@ -178,11 +178,20 @@ def slurm_job_times(job_ids: list[str], env: dict) -> dict[str, tuple[float, flo
     for line in proc.stdout.split():
         jid, *stamps = line.split("|")
         try:
-            sub, start, end = (datetime.fromisoformat(t).timestamp() for t in stamps)
+            out[jid] = tuple(datetime.fromisoformat(t).timestamp() for t in stamps)
         except ValueError:  # NONE / Unknown: not finished
             continue
-        out[jid] = (start - sub, end - start)
     return out
+
+
+def union_s(intervals: list[tuple[float, float]]) -> float:
+    """Total length of the union of [start, end] intervals (s)."""
+    total, cur_end = 0.0, float("-inf")
+    for a, b in sorted(intervals):
+        if b > cur_end:
+            total += b - max(a, cur_end)
+            cur_end = b
+    return total
 
 
 def collect(wd: Path, wall_s: float, load: float) -> dict:
@@ -302,13 +311,18 @@ def main() -> None:
                      "summary_rows": r["summary_rows"], "load_1min_at_start": round(r["load_1min"], 2)})
     st = slu["slurm_times"]
     if len(st) == n_sub and n_sub:
-        # where the Slurm run's extra time went (the DAG is a chain on 2 CPUs)
-        queue = sum(q for q, _ in st.values())
-        in_job = sum(e for _, e in st.values()) - rows[1]["job_wall_sum_s"]
-        poll = slu["wall_s"] - sum(q + e for q, e in st.values())
-        rows[1].update(slurm_queue_s=round(queue, 1), slurm_in_job_overhead_s=round(in_job, 1),
-                       submit_and_poll_s=round(poll, 1))
-        rows[0].update(slurm_queue_s="", slurm_in_job_overhead_s="", submit_and_poll_s="")
+        # Where the Slurm run's extra time went. Job start-up: a job's time in
+        # Slurm (start -> end) minus its rule's command (the benchmark file).
+        # Idle: no job running on the cluster (submission, queueing, status
+        # polling, Snakemake's own scheduling); queued: sum of submit -> start,
+        # which on a busy node includes waiting for CPUs other jobs hold.
+        in_job = sum(e - s for _, s, e in st.values()) - rows[1]["job_wall_sum_s"]
+        idle = slu["wall_s"] - union_s([(s, e) for _, s, e in st.values()])
+        rows[1].update(slurm_job_startup_s=round(in_job, 1),
+                       slurm_rest_s=round(slu["wall_s"] - rows[1]["job_wall_sum_s"] - in_job, 1),
+                       slurm_idle_s=round(idle, 1),
+                       slurm_queued_sum_s=round(sum(s - q for q, s, _ in st.values()), 1))
+        rows[0].update({k: "" for k in rows[1] if k not in rows[0]})
     else:
         print(f"note: squeue knows {len(st)} of the {n_sub} Slurm jobs: no queue/run split", file=sys.stderr)
     write_csv(name, rows)
@@ -325,7 +339,16 @@ def main() -> None:
     comp = [r["job_wall_sum_s"] for r in rows]
     rest = [r["non_job_s"] for r in rows]
     ax.bar(labels, comp, 0.55, label="sum of job wall times (compute)")
-    ax.bar(labels, rest, 0.55, bottom=comp, label="rest: scheduling, start-up, polling")
+    if "slurm_job_startup_s" in rows[1]:
+        # the Slurm bar split by where its time outside the jobs' commands went
+        r = rows[1]
+        ax.bar(labels[0], rest[0], 0.55, bottom=comp[0], color="0.6", label="local scheduler")
+        ax.bar(labels[1], r["slurm_job_startup_s"], 0.55, bottom=comp[1], color="tab:orange",
+               label="job start-up in Slurm (Snakemake in the job)")
+        ax.bar(labels[1], r["slurm_rest_s"], 0.55, bottom=comp[1] + r["slurm_job_startup_s"],
+               color="tab:purple", label="submission, queueing, status polling")
+    else:
+        ax.bar(labels, rest, 0.55, bottom=comp, label="rest: scheduling, start-up, polling")
     for i, r in enumerate(rows):
         ax.text(i, r["wall_s"], f"{r['wall_s']:.0f} s", ha="center", va="bottom")
     ax.set_ylabel("wall time (s)")
@@ -351,12 +374,13 @@ def main() -> None:
     print(f"\n{'job':>22} {'local s':>8} {'Slurm s':>8}")
     for r in job_rows:
         print(f"{r['job']:>22} {r['local_s']:>8.2f} {r['slurm_s']:>8.2f}")
-    if "slurm_queue_s" in rows[1]:
+    if "slurm_job_startup_s" in rows[1]:
         r = rows[1]
-        print(f"\nSlurm run's {r['non_job_s']:.1f} s outside the jobs' own work (sums over {n_sub} jobs): "
-              f"queued {r['slurm_queue_s']:.0f} s, inside the job but outside the rule's command "
-              f"(Snakemake start-up in the job) {r['slurm_in_job_overhead_s']:.0f} s, "
-              f"submission + status polling + local scheduler {r['submit_and_poll_s']:.0f} s")
+        print(f"\nSlurm run, {r['non_job_s']:.1f} s beyond its {n_sub} jobs' commands: job start-up "
+              f"inside Slurm (Snakemake in the job) {r['slurm_job_startup_s']:.0f} s, submission + "
+              f"queueing + status polling {r['slurm_rest_s']:.0f} s; no job running for "
+              f"{r['slurm_idle_s']:.0f} s of {r['wall_s']:.0f} s; sum of queue waits "
+              f"{r['slurm_queued_sum_s']:.0f} s")
     if started:
         print(f"\ncluster start (not in the Slurm wall time): {start_s:.1f} s")
     print(f"events: {len(slu['events'])} file(s), {n_events} events, local vs Slurm {identical}")
