@@ -51,26 +51,37 @@ def _extract(db: Path, image_dir: Path, names: list[str], cfg: dict, threads: in
     extraction.num_threads = threads
     extraction.use_gpu = bool(cfg.get("gpu"))
     extraction.sift.max_num_features = int(cfg["max_num_features"])
+    # Images (and cameras) enter the database first, one by one in name order:
+    # the extractor's threads would otherwise number them in the order they
+    # finish, and the mapper's result depends on the image ids.
+    pycolmap.Database.open(str(db)).close()  # creates the (empty) database
+    pycolmap.import_images(db, image_dir, camera_mode=camera_mode, image_names=names,
+                           options=reader)
     pycolmap.extract_features(db, image_dir, image_names=names, camera_mode=camera_mode,
                               reader_options=reader, extraction_options=extraction,
                               device=_device(cfg))
 
 
-def _match(db: Path, matcher: str, cfg: dict, threads: int) -> None:
+def _match(db: Path, matcher: str, cfg: dict, threads: int, seed: int) -> None:
     import pycolmap
 
     mopts = pycolmap.FeatureMatchingOptions()
     mopts.num_threads = threads
     mopts.use_gpu = bool(cfg.get("gpu"))
+    # Geometric verification's RANSAC draws from a time-seeded PRNG unless
+    # given a seed: unseeded, two runs keep different inlier matches.
+    vopts = pycolmap.TwoViewGeometryOptions()
+    vopts.ransac.random_seed = int(seed)
     if matcher == "exhaustive":
-        pycolmap.match_exhaustive(db, matching_options=mopts, device=_device(cfg))
+        pycolmap.match_exhaustive(db, matching_options=mopts, verification_options=vopts,
+                                  device=_device(cfg))
     else:
         popts = pycolmap.SequentialPairingOptions()
         popts.overlap = int(cfg["sequential_overlap"])
         popts.loop_detection = bool(cfg["sequential_loop_detection"])
         popts.num_threads = threads
         pycolmap.match_sequential(db, matching_options=mopts, pairing_options=popts,
-                                  device=_device(cfg))
+                                  verification_options=vopts, device=_device(cfg))
 
 
 def _mapper_options(threads: int, seed: int):
@@ -179,7 +190,7 @@ def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0
             with timed("extraction", log, timings):
                 _extract(db, image_dir, names, cfg, threads, mode, cam_model)
             with timed("matching", log, timings):
-                _match(db, matcher, cfg, threads)
+                _match(db, matcher, cfg, threads, seed)
         if keep_points:
             pass
         elif reuse:
