@@ -251,19 +251,28 @@ def test_dry_run_over_many_scenes_is_fast_and_bounded(tmp_path):
     cmd = [str(BIN / "snakemake"), "--snakefile", str(REPO / "Snakefile"), "-n", "--quiet", "rules",
            "--directory", str(tmp_path), "--config", f"scenes={table}"]
     env = {**os.environ, "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}"}
+    # Peak memory from the process's own VmHWM: rusage's ru_maxrss of a child
+    # also counts the (large) pytest process it was forked from.
     t0 = time.perf_counter()
+    peak_kb = 0
     with open(tmp_path / "out.txt", "w") as fh:
         proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=fh, stderr=subprocess.STDOUT, env=env)
-        _, status, ru = os.wait4(proc.pid, 0)
+        while proc.poll() is None:
+            try:
+                status_txt = Path(f"/proc/{proc.pid}/status").read_text()
+                peak_kb = max(peak_kb, int(status_txt.split("VmHWM:")[1].split()[0]))
+            except (OSError, IndexError, ValueError):
+                pass
+            time.sleep(0.05)
     wall = time.perf_counter() - t0
     out = (tmp_path / "out.txt").read_text()
-    assert os.waitstatus_to_exitcode(status) == 0, out[-3000:]
+    assert proc.returncode == 0, out[-3000:]
     n_traj = len(load_config({})["render"]["trajectories"])
     # per scene: ingest, sfm, train, trajectory, render + events per trajectory, metrics;
     # + summary, report, all
     assert f"total {(5 + 2 * n_traj) * n + 3}" in " ".join(out.split())
     assert wall < 90, wall
-    assert ru.ru_maxrss / 1024 < 600, ru.ru_maxrss  # MB; 1-scene dry-run ~160 MB, 1050 scenes ~330 MB
+    assert 0 < peak_kb / 1024 < 600, peak_kb  # MB; 1-scene dry-run ~160 MB, 1050 scenes ~330 MB
 
 
 # ---------------------------------------------------------------- real scenes

@@ -195,19 +195,29 @@ def test_reuse_poses_keeps_given_points_without_colmap(tmp_path):
     assert json.loads((tmp_path / "sfm" / "sfm_stats.json").read_text())["mean_reproj_error_px"] is None
 
 
-def test_multithreaded_sfm_is_reproducible(tmp_path):
-    """Same scene + seed + threads -> same bytes: with 2 threads the feature
-    extractor used to number images in the order its threads finished, and
-    geometric verification's RANSAC was time-seeded (found comparing a local
-    and a Slurm run of the default demo, whose events differed by 12%)."""
+def test_sfm_is_reproducible_under_load(tmp_path):
+    """Same scene + seed -> same bytes, whatever the job's threads and the
+    machine's load: multi-threaded COLMAP numbered images in the order its
+    threads finished and kept thread-timing-dependent matches (found comparing
+    a local and a Slurm run of the demo, whose events differed by 12%), so
+    ``sfm.deterministic`` runs COLMAP on one thread."""
+    import hashlib
+    import subprocess
+    import sys
+
     run_cli("demo-scene", "--out", str(tmp_path / "demo"), "--config-json", '{"n_views": 24}',
             check=True)
     run_cli("ingest", "--layout", "demo", "--src", str(tmp_path / "demo"),
             "--out", str(tmp_path / "ingest"), check=True)
     outs = [tmp_path / f"sfm{i}" for i in range(2)]
-    for out in outs:
-        stats = run_sfm(tmp_path / "ingest", out, sfm_cfg(), seed=7, threads=2)
-        assert stats["mode"] == "incremental" and stats["n_registered"] == 24
+    stats = run_sfm(tmp_path / "ingest", outs[0], sfm_cfg(), seed=7, threads=2)
+    assert stats["mode"] == "incremental" and stats["n_registered"] == 24
+    # the second run has more threads and competes with a busy process for the CPU
+    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        run_sfm(tmp_path / "ingest", outs[1], sfm_cfg(), seed=7, threads=4)
+    finally:
+        busy.kill()
     import pycolmap
 
     rec = pycolmap.Reconstruction(str(outs[0] / "sparse" / "0"))
@@ -215,6 +225,10 @@ def test_multithreaded_sfm_is_reproducible(tmp_path):
     assert names == sorted(names), "image ids must follow the image names"
     files = sorted(p.relative_to(outs[0]) for p in outs[0].rglob("*") if p.is_file())
     timing = {Path("sfm_stats.json"), Path("metrics.parquet")}  # carry run times
-    for rel in files:
-        if rel not in timing:
-            assert (outs[0] / rel).read_bytes() == (outs[1] / rel).read_bytes(), rel
+
+    def digest(path: Path) -> str:
+        return hashlib.sha256(path.read_bytes()).hexdigest()
+
+    differ = [str(rel) for rel in files if rel not in timing
+              and digest(outs[0] / rel) != digest(outs[1] / rel)]
+    assert differ == [], f"{len(differ)} files differ, e.g. {differ[:5]}"

@@ -155,12 +155,17 @@ def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0
     if n_views < 2:
         raise InputError(f"{scene_dir}: SfM needs at least 2 views, got {n_views}")
     threads = int(cfg["num_threads"] if threads is None else threads)
+    # COLMAP's multi-threaded extraction, matching and mapping depend on thread
+    # timing (which job finishes first), so runs differ under load; one thread
+    # gives the same bytes on every machine (undistortion stays parallel).
+    colmap_threads = 1 if cfg["deterministic"] else threads
     reuse = bool(cfg["reuse_poses"]) and scene.has_poses
     matcher = choose_matcher(cfg, n_views)
     timings: dict[str, float] = {}
     t_start = time.perf_counter()
-    log.info("SfM on %s: %d views, matcher=%s, mode=%s, threads=%d", scene_dir, n_views,
-             matcher, "triangulate (reuse poses)" if reuse else "incremental mapping", threads)
+    log.info("SfM on %s: %d views, matcher=%s, mode=%s, threads=%d (COLMAP %d)", scene_dir, n_views,
+             matcher, "triangulate (reuse poses)" if reuse else "incremental mapping", threads,
+             colmap_threads)
 
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     with atomic_dir(out_dir) as out, tempfile.TemporaryDirectory(
@@ -175,7 +180,7 @@ def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0
         else:
             mode = pycolmap.CameraMode.SINGLE if cfg["single_camera"] else pycolmap.CameraMode.PER_IMAGE
             cam_model = cfg["camera_model"]
-        opts = _mapper_options(threads, seed)
+        opts = _mapper_options(colmap_threads, seed)
         model_dir = work / "model"
         model_dir.mkdir()
         keep_points = reuse and scene.points_xyz is not None and len(scene.points_xyz) > 0
@@ -188,9 +193,9 @@ def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0
             rec.write(model_dir)
         else:
             with timed("extraction", log, timings):
-                _extract(db, image_dir, names, cfg, threads, mode, cam_model)
+                _extract(db, image_dir, names, cfg, colmap_threads, mode, cam_model)
             with timed("matching", log, timings):
-                _match(db, matcher, cfg, threads, seed)
+                _match(db, matcher, cfg, colmap_threads, seed)
         if keep_points:
             pass
         elif reuse:
