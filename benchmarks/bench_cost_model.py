@@ -16,8 +16,7 @@ headline is the CPU-hours for N scenes and the largest job's memory.
     python benchmarks/bench_cost_model.py [--results DIR ...] [--scenes 1050]
                                           [--trajectories 4] [--scale train=405 ...] [--quick]
 
-Default results: /tmp/ciclone/results when it exists (a complete demo run), else
-the repository's results/ (after `make demo`).
+Default results: the repository's results/ (after `make demo`).
 Writes benchmarks/results/bench_cost_model.csv (per stage), bench_cost_model_jobs.csv
 (per job) and bench_cost_model.png; the last line printed is the headline.
 """
@@ -25,7 +24,6 @@ Writes benchmarks/results/bench_cost_model.csv (per stage), bench_cost_model_job
 from __future__ import annotations
 
 import argparse
-import csv
 import math
 import sys
 from pathlib import Path
@@ -34,8 +32,9 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from _results import RESULTS, pyplot, write_csv  # noqa: E402
+from gs2e.report.io import read_results_benchmarks  # noqa: E402
 
-DEFAULT_RESULTS = Path("/tmp/ciclone/results")
+DEFAULT_RESULTS = REPO / "results"
 STAGES = ("demo_scene", "ingest", "sfm", "train", "trajectory", "render", "events", "metrics", "summary")
 PER_TRAJECTORY = ("render", "events")
 NOT_SCALED = ("demo_scene", "summary")
@@ -49,28 +48,13 @@ def stage_of(job: str) -> str:
     return job
 
 
-def _num(v: str) -> float:
-    try:
-        return float(v)
-    except (TypeError, ValueError):
-        return math.nan
-
-
 def read_jobs(results: Path) -> list[dict]:
     """One dict per benchmark file: scene, job, stage, wall_s, cpu_s, max_rss_mb, mean_load."""
-    rows = []
-    files = sorted(results.glob("*/benchmarks/*.tsv")) + sorted(results.glob("benchmarks/*.tsv"))
-    for f in files:
-        scene = f.parent.parent.name if f.parent.parent != results else "(dataset)"
-        with open(f, newline="") as fh:
-            recs = list(csv.DictReader(fh, delimiter="\t"))
-        if not recs:
-            continue
-        r = recs[-1]  # repeated benchmarks (snakemake --benchmark-repeats): the last
-        rows.append({"results": str(results), "scene": scene, "job": f.stem, "stage": stage_of(f.stem),
-                     "wall_s": _num(r.get("s")), "cpu_s": _num(r.get("cpu_time")),
-                     "max_rss_mb": _num(r.get("max_rss")), "mean_load": _num(r.get("mean_load"))})
-    return rows
+    return [{"results": str(results), "scene": r["scene"] or "(dataset)", "job": r["job"],
+             "stage": stage_of(r["job"]), "wall_s": r.get("s", math.nan),
+             "cpu_s": r.get("cpu_time", math.nan), "max_rss_mb": r.get("max_rss", math.nan),
+             "mean_load": r.get("mean_load", math.nan)}
+            for r in read_results_benchmarks(results)]
 
 
 def scene_info(results: Path, scene: str) -> str:
@@ -158,8 +142,7 @@ def _fmt(x: float) -> str:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--results", nargs="+", type=Path, default=None,
-                    help=f"results dirs of finished runs (default {DEFAULT_RESULTS}, else the repo's "
-                         "results/, whichever exists)")
+                    help=f"results dirs of finished runs (default {DEFAULT_RESULTS})")
     ap.add_argument("--scenes", type=int, default=1050, help="scene count to extrapolate to")
     ap.add_argument("--trajectories", type=int, default=None,
                     help="render/events jobs per scene (len(render.trajectories); config/paper.yaml: 4); "
@@ -172,8 +155,7 @@ def main() -> int:
                          "when scenes of different sizes were measured); default 1920x1080")
     ap.add_argument("--quick", action="store_true", help="accepted for uniformity (always quick)")
     args = ap.parse_args()
-    asked = args.results or [next((d for d in (DEFAULT_RESULTS, REPO / "results") if d.is_dir()),
-                                  DEFAULT_RESULTS)]
+    asked = args.results or [DEFAULT_RESULTS]
     jobs = [j for d in asked if d.is_dir() for j in read_jobs(d)]
     if not jobs:
         print(f"no benchmark files found (looked in {', '.join(map(str, asked))}); "

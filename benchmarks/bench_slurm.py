@@ -66,11 +66,11 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "benchmarks"))
 
 from _results import RESULTS, pyplot, write_csv  # noqa: E402
-from tests.conftest import TINY_OVERRIDES  # noqa: E402
+from gs2e.report.io import read_results_benchmarks  # noqa: E402
+from tests.conftest import TINY_OVERRIDES, slurm_local, why_no_slurm_cluster  # noqa: E402
 
 BIN = Path(sys.executable).parent
 PROFILE = REPO / "workflow" / "profiles" / "slurm"
-SCRIPT = REPO / "workflow" / "scripts" / "slurm_local.sh"
 PARTITION = "gs2e"
 
 
@@ -100,22 +100,6 @@ def bench_env() -> dict:
             "PYTHONPATH": os.pathsep.join(p for p in (str(REPO), os.environ.get("PYTHONPATH")) if p)}
 
 
-def cluster(action: str, env: dict, timeout_s: int = 600) -> subprocess.CompletedProcess:
-    return subprocess.run(["bash", str(SCRIPT), action], capture_output=True, text=True,
-                          env=env, timeout=timeout_s)
-
-
-def cannot_run_cluster() -> str | None:
-    """Why no local cluster can be started here, or None."""
-    if shutil.which("slurmctld") and shutil.which("munged"):
-        return None if os.geteuid() == 0 else "starting slurmctld/slurmd needs root"
-    if os.geteuid() != 0:
-        return "slurm-wlm/munge are not installed and installing them needs root"
-    if shutil.which("apt-get") is None:
-        return "slurm-wlm/munge are not installed and apt-get is unavailable"
-    return None
-
-
 def run_workflow(wd: Path, scene: str, overrides: str, cores: int, env: dict,
                  slurm: bool, timeout_s: int) -> tuple[float, str]:
     """Run the whole workflow in ``wd``; returns (wall s, Snakemake's output)."""
@@ -141,13 +125,8 @@ def run_workflow(wd: Path, scene: str, overrides: str, cores: int, env: dict,
 def job_times(wd: Path) -> dict[str, tuple[float, float]]:
     """benchmark file stem -> (wall s, CPU s) measured inside each job, in the
     order the jobs finished."""
-    out = {}
-    for tsv in sorted((wd / "results").glob("**/benchmarks/*.tsv"), key=lambda p: p.stat().st_mtime):
-        with open(tsv) as fh:
-            row = next(csv.DictReader(fh, delimiter="\t"))
-        cpu = row.get("cpu_time", "")
-        out[tsv.stem] = (float(row["s"]), float(cpu) if cpu not in ("", "NA", "-") else float("nan"))
-    return out
+    rows = sorted(read_results_benchmarks(wd / "results"), key=lambda r: r["path"].stat().st_mtime)
+    return {r["job"]: (r["s"], r.get("cpu_time", float("nan"))) for r in rows}
 
 
 def product_hashes(wd: Path) -> dict[str, str]:
@@ -239,7 +218,7 @@ def main() -> None:
     ap.add_argument("--keep", action="store_true", help="keep the run directories")
     args = ap.parse_args()
 
-    reason = cannot_run_cluster()
+    reason = why_no_slurm_cluster()
     if reason:
         raise SystemExit(f"bench_slurm: no local Slurm cluster: {reason}")
     if args.cores > (os.cpu_count() or 1):
@@ -264,9 +243,9 @@ def main() -> None:
         runs["local"] = collect(root / "local", wall, load)
         print(f"local run: {wall:.1f} s", flush=True)
 
-        if cluster("status", env).returncode != 0:
+        if slurm_local("status", env).returncode != 0:
             t0 = time.perf_counter()
-            proc = cluster("start", env)
+            proc = slurm_local("start", env, 600)
             start_s = time.perf_counter() - t0
             if proc.returncode != 0:
                 raise SystemExit(f"slurm_local.sh start failed:\n{proc.stderr[-3000:]}")
@@ -283,7 +262,7 @@ def main() -> None:
         ok = True
     finally:
         if started:
-            stop = cluster("stop", env, 120)
+            stop = slurm_local("stop", env, 120)
             if stop.returncode != 0:
                 print(f"WARNING: slurm_local.sh stop failed:\n{stop.stderr[-2000:]}", file=sys.stderr)
         if ok and not args.keep:

@@ -26,6 +26,9 @@ SCHEMA_DIR = REPO_ROOT / "workflow" / "schemas"
 CONFIG_SCHEMA = SCHEMA_DIR / "config.schema.yaml"
 SCENES_SCHEMA = SCHEMA_DIR / "scenes.schema.yaml"
 DEFAULT_CONFIG = REPO_ROOT / "config" / "config.yaml"
+# Where files are, not what a scene computes: left out of config hashes and params.
+LOCATION_KEYS = ("scenes", "results_dir")
+
 SECTIONS = ("demo", "ingest", "sfm", "splat", "trajectory", "render", "events", "metrics")
 
 
@@ -203,6 +206,12 @@ def load_section(section: str, text: str | None = None, path: str | None = None)
     if path:
         return load_config(path)[section]
     return load_config({})[section]
+
+
+def scene_params_json(config: dict) -> str:
+    """Canonical JSON of a scene's whole config without its file locations
+    (``LOCATION_KEYS``): moving the scenes table or results changes nothing."""
+    return json.dumps({k: v for k, v in config.items() if k not in LOCATION_KEYS}, sort_keys=True)
 
 
 def derive_seed(seed: int, scene_id: str, stage: str) -> int:

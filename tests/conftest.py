@@ -7,6 +7,7 @@ import os
 # Before torch/numba load OpenMP (see gs2e/__init__.py): spinning waits halve
 # throughput on a shared 2-core machine.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -49,6 +50,26 @@ def run_snakemake(*args: str, cwd: Path | None = None, timeout: float = 1500) ->
 @pytest.fixture
 def repo() -> Path:
     return REPO
+
+
+SLURM_SCRIPT = REPO / "workflow" / "scripts" / "slurm_local.sh"
+
+
+def slurm_local(action: str, env: dict, timeout_s: int = 300) -> subprocess.CompletedProcess:
+    """workflow/scripts/slurm_local.sh start|stop|status (the one-node test cluster)."""
+    return subprocess.run(["bash", str(SLURM_SCRIPT), action], capture_output=True, text=True,
+                          env=env, timeout=timeout_s)
+
+
+def why_no_slurm_cluster() -> str | None:
+    """Why a local Slurm cluster cannot be started here, or None if it can."""
+    if shutil.which("slurmctld") and shutil.which("munged"):
+        return None if os.geteuid() == 0 else "starting slurmctld/slurmd needs root"
+    if os.geteuid() != 0:
+        return "slurm-wlm/munge are not installed and installing them needs root"
+    if shutil.which("apt-get") is None:
+        return "slurm-wlm/munge are not installed and apt-get is unavailable"
+    return None
 
 
 # The whole workflow on a tiny demo scene (16 views at 128x96, 120 training

@@ -3,7 +3,6 @@ dry-runs, and a workflow run over several real scenes."""
 
 from __future__ import annotations
 
-import csv
 import math
 import time
 from pathlib import Path
@@ -292,14 +291,10 @@ JOB_MEM_BOUND_MB = 1500  # per job: one scene's data (320x240 views, <= a few 10
 
 
 def read_benchmarks(results: Path) -> dict[tuple[str, str], dict]:
-    """{(scene, job): first row of results/<scene>/benchmarks/<job>.tsv} as floats."""
-    out = {}
-    for f in sorted(results.glob("*/benchmarks/*.tsv")):
-        with open(f, newline="") as fh:
-            row = next(csv.DictReader(fh, delimiter="\t"))
-        out[(f.parent.parent.name, f.stem)] = {k: float(v) if v not in ("", "-", "NA") else math.nan
-                                               for k, v in row.items() if k != "h:m:s"}
-    return out
+    """{(scene, job): results/<scene>/benchmarks/<job>.tsv as floats}."""
+    from gs2e.report.io import read_results_benchmarks
+
+    return {(r["scene"], r["job"]): r for r in read_results_benchmarks(results) if r["scene"]}
 
 
 def test_workflow_over_real_scenes(tmp_path):

@@ -22,10 +22,9 @@ from pathlib import Path
 import pytest
 
 from gs2e.io.scene import read_scene
-from tests.conftest import BIN, REPO
+from tests.conftest import BIN, REPO, slurm_local, why_no_slurm_cluster
 
 PROFILE = REPO / "workflow" / "profiles" / "slurm"
-SCRIPT = REPO / "workflow" / "scripts" / "slurm_local.sh"
 TARGET = "results/demo/sfm"
 N_VIEWS = 24  # a reduced demo keeps the cluster run short
 RULES = ("demo_scene", "ingest", "sfm")
@@ -106,40 +105,24 @@ def _cluster_env() -> dict:
             "GS2E_SLURM_PARTITION": "gs2e"}
 
 
-def _script(action: str, env: dict, timeout_s: int = 300) -> subprocess.CompletedProcess:
-    return subprocess.run(["bash", str(SCRIPT), action], capture_output=True, text=True,
-                          env=env, timeout=timeout_s)
-
-
-def _can_run_cluster() -> str | None:
-    """Why a local cluster cannot be started here, or None if it can."""
-    if shutil.which("slurmctld") and shutil.which("munged"):
-        return None if os.geteuid() == 0 else "starting slurmctld/slurmd needs root"
-    if os.geteuid() != 0:
-        return "slurm-wlm/munge are not installed and installing them needs root"
-    if shutil.which("apt-get") is None:
-        return "slurm-wlm/munge are not installed and apt-get is unavailable"
-    return None
-
-
 @pytest.fixture(scope="module")
 def cluster():
-    reason = _can_run_cluster()
+    reason = why_no_slurm_cluster()
     if reason:
         pytest.skip(f"no local Slurm cluster: {reason}")
     env = _cluster_env()
-    was_running = _script("status", env).returncode == 0
+    was_running = slurm_local("status", env).returncode == 0
     try:
         t0 = time.monotonic()
-        proc = _script("start", env)
+        proc = slurm_local("start", env)
         start_s = time.monotonic() - t0
         assert proc.returncode == 0, f"slurm_local.sh start failed:\n{proc.stderr[-3000:]}"
         yield env, start_s
     finally:
         if not was_running:  # leave a cluster the user started alone
-            stop = _script("stop", env, 120)
+            stop = slurm_local("stop", env, 120)
             assert stop.returncode == 0, stop.stderr[-2000:]
-            assert _script("status", env).returncode != 0, "daemons still running after stop"
+            assert slurm_local("status", env).returncode != 0, "daemons still running after stop"
 
 
 def _squeue_history() -> dict[str, tuple[str, str, str]]:

@@ -20,18 +20,15 @@ import pandas as pd
 from gs2e import __version__
 from gs2e.codeversion import STAGE_DEPS, code_version
 from gs2e.common.errors import InputError
+from gs2e.config import scene_params_json
 
 STAGE_FILES = {"sfm": "sfm/metrics.parquet", "train": "splat/metrics.parquet"}
-# Where results go, not how they are made: left out of the config hash so the
-# same parameters hash the same wherever the run lives.
-LOCATION_KEYS = ("scenes", "results_dir")
 
 
 def config_hash(config: dict) -> str:
     """16 hex digits of sha256 over the canonical JSON of a scene's config,
     without the location keys (scenes table path, results_dir)."""
-    params = {k: v for k, v in config.items() if k not in LOCATION_KEYS}
-    return hashlib.sha256(json.dumps(params, sort_keys=True).encode()).hexdigest()[:16]
+    return hashlib.sha256(scene_params_json(config).encode()).hexdigest()[:16]
 
 
 def _events_seed(scene_dir: Path, name: str) -> int | None:

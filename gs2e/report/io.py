@@ -64,26 +64,48 @@ STAGE_ORDER = ("demo_scene", "ingest", "sfm", "train", "trajectory", "render", "
                "metrics", "summary", "report")
 
 
+def read_benchmark_file(path: Path) -> dict[str, float] | None:
+    """The last row (the last repeat) of one Snakemake benchmark TSV as floats
+    (s, max_rss in MB, cpu_time in s, ...; '-'/'NA' -> nan, the h:m:s text
+    column dropped); None if it has no rows."""
+    try:
+        df = pd.read_csv(path, sep="\t", na_values=["-", "NA"])
+    except Exception as exc:
+        raise InputError(f"{path}: not a readable benchmark table ({exc})") from exc
+    if len(df) == 0:
+        return None
+    row = pd.to_numeric(df.iloc[-1].drop(labels=["h:m:s"], errors="ignore"), errors="coerce")
+    return {str(k): float(v) for k, v in row.items()}
+
+
 def read_benchmarks(bench_dir: Path) -> pd.DataFrame | None:
     """Snakemake benchmark TSVs of a folder, one row per file (its last
     repeat), ``rule`` = the file name without .tsv, in pipeline order; None
     if there are none."""
     files = sorted(Path(bench_dir).glob("*.tsv")) if Path(bench_dir).is_dir() else []
-    rows = []
-    for f in files:
-        try:
-            df = pd.read_csv(f, sep="\t", na_values=["-", "NA"])
-        except Exception as exc:
-            raise InputError(f"{f}: not a readable benchmark table ({exc})") from exc
-        if len(df) == 0:
-            continue
-        rows.append({"rule": f.stem, **df.iloc[-1].to_dict()})
+    rows = [{"rule": f.stem, **row} for f in files if (row := read_benchmark_file(f)) is not None]
     if not rows:
         return None
     df = pd.DataFrame(rows)
     rank = df["rule"].map(lambda r: next((i for i, p in enumerate(STAGE_ORDER)
                                           if r == p or r.startswith(p + "_")), len(STAGE_ORDER)))
     return df.assign(_r=rank).sort_values(["_r", "rule"], kind="stable").drop(columns="_r")
+
+
+def read_results_benchmarks(results_dir: Path) -> list[dict]:
+    """Every job's benchmark in a results tree: one dict per
+    ``<scene>/benchmarks/<job>.tsv`` (``scene`` = the folder) and per
+    dataset-level ``benchmarks/<job>.tsv`` (``scene`` = None), with ``job``,
+    ``path`` and the values of :func:`read_benchmark_file`."""
+    results_dir = Path(results_dir)
+    files = sorted(results_dir.glob("*/benchmarks/*.tsv")) + sorted(results_dir.glob("benchmarks/*.tsv"))
+    out = []
+    for f in files:
+        row = read_benchmark_file(f)
+        if row is not None:
+            scene = f.parent.parent.name if f.parent.parent != results_dir else None
+            out.append({"scene": scene, "job": f.stem, "path": f, **row})
+    return out
 
 
 def read_frames_index(frames_dir: Path) -> pd.DataFrame | None:

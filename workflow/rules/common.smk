@@ -5,7 +5,7 @@ from pathlib import Path
 from gs2e.codeversion import code_version
 from gs2e.common.errors import ConfigError
 from gs2e.config import (derive_seed, load_config, load_scenes, scene_config,
-                         section_json)
+                         scene_params_json, section_json)
 
 # Reject invalid config / scenes table before any job runs.
 config = load_config(config)
@@ -31,8 +31,6 @@ def res(*parts):
 # Keys that say which jobs exist, not what a job computes: left out of params
 # so that listing one more trajectory does not rerun the others.
 NOT_PARAMS = {"render": ("trajectories",)}
-# Where files are, not what they hold: left out of the scene's config params.
-LOCATION_KEYS = ("scenes", "results_dir")
 
 
 def stage_cfg(section):
@@ -44,8 +42,7 @@ def stage_cfg(section):
 
 def scene_params(sid):
     """The scene's whole config (without file locations) as canonical JSON."""
-    return json.dumps({k: v for k, v in SCENE_CFG[sid].items() if k not in LOCATION_KEYS},
-                      sort_keys=True)
+    return scene_params_json(SCENE_CFG[sid])
 
 
 def stage_seed(stage):
