@@ -30,7 +30,8 @@ from gs2e.splat.rasterize import NonFiniteError
 from gs2e.splat.scene_stats import choose_sh_degree, detail_budget
 from gs2e.splat.strategy import (PARAMS, Adam, DensifyConfig, GradStats, densify_and_prune,
                                  reset_opacity)
-from gs2e.splat.train import evaluate, load_views, split_views, to_params, train
+from gs2e.splat.model import to_params
+from gs2e.splat.train import evaluate, load_views, split_views, train
 from gs2e.splat.views import render_views
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")

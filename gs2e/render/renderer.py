@@ -11,7 +11,7 @@ from gs2e.common.color import luminance, srgb_to_linear
 from gs2e.common.errors import InputError
 from gs2e.splat.backend import resolve_backend
 from gs2e.splat.rasterize import SplatCamera
-from gs2e.splat.train import load_model, render
+from gs2e.splat.model import load_model, render
 from gs2e.trajectory import load_trajectory
 
 

@@ -30,7 +30,8 @@ from gs2e.io.scene import IMAGES_DIR, Scene, read_scene
 from gs2e.splat.backend import resolve_backend
 from gs2e.splat.init import init_from_points
 from gs2e.splat.loss import photometric_loss, psnr, ssim
-from gs2e.splat.ply import read_ply, write_cameras_json, write_ply
+from gs2e.splat.model import from_params, render, save_model, to_params
+from gs2e.splat.ply import read_ply, write_cameras_json
 from gs2e.splat.rasterize import NonFiniteError, SplatCamera, rasterize
 from gs2e.splat.scene_stats import choose_sh_degree, detail_budget, view_dependence
 from gs2e.splat.strategy import PARAMS, Adam, DensifyConfig, GradStats, densify_and_prune, reset_opacity
@@ -107,33 +108,7 @@ def scene_extent(views: list[View]) -> float:
     return 1.1 * r if r > 0 else 1.0
 
 
-# ----------------------------------------------------------------- model
-def to_params(g: dict[str, np.ndarray], dtype=torch.float32) -> dict[str, torch.Tensor]:
-    sh = torch.as_tensor(np.asarray(g["sh"]), dtype=dtype)
-    return {
-        "means": torch.as_tensor(np.asarray(g["means"]), dtype=dtype).contiguous(),
-        "quats": torch.as_tensor(np.asarray(g["quats"]), dtype=dtype).contiguous(),
-        "log_scales": torch.as_tensor(np.asarray(g["log_scales"]), dtype=dtype).contiguous(),
-        "opacity_logits": torch.as_tensor(np.asarray(g["opacity_logits"]), dtype=dtype).contiguous(),
-        "sh_dc": sh[:, :1].contiguous(),
-        "sh_rest": sh[:, 1:].contiguous(),
-    }
-
-
-def from_params(p: dict[str, torch.Tensor]) -> dict[str, np.ndarray]:
-    sh = torch.cat([p["sh_dc"], p["sh_rest"]], dim=1)
-    return {"means": p["means"].detach().numpy(), "quats": p["quats"].detach().numpy(),
-            "log_scales": p["log_scales"].detach().numpy(),
-            "opacity_logits": p["opacity_logits"].detach().numpy(), "sh": sh.detach().numpy()}
-
-
-def render(p: dict[str, torch.Tensor], cam: SplatCamera, background: torch.Tensor, sh_degree: int,
-           backend: str = "cpu"):
-    sh = torch.cat([p["sh_dc"], p["sh_rest"]], dim=1)
-    return rasterize(p["means"], p["quats"], p["log_scales"], p["opacity_logits"], sh, cam,
-                     background=background, sh_degree=sh_degree, backend=backend)
-
-
+# ----------------------------------------------------------------- evaluation
 def evaluate(p, views: list[View], background, sh_degree: int, backend: str = "cpu") -> dict[str, float]:
     """Mean PSNR (dB) and SSIM over ``views`` at full resolution."""
     if not views:
@@ -373,18 +348,12 @@ def _write_model(out_dir: Path, scene: Scene, g: dict[str, np.ndarray], iteratio
 
     from gs2e.metrics.table import write_metrics
 
-    k = (sh_degree + 1) ** 2
-    g = dict(g)
-    g["sh"] = g["sh"][:, :k]  # store only the active degree
-    rel = f"point_cloud/iteration_{iterations}/point_cloud.ply"
     with atomic_dir(out_dir) as out:
-        write_ply(out / rel, **g)
+        save_model(out, g, iterations, sh_degree, {
+            "scene": str(scene_dir), "width": scene.width, "height": scene.height,
+            "source": stats.get("source"), "background": stats["background"],
+            "test_every": stats["test_every"]})
         write_cameras_json(out / "cameras.json", scene)
-        write_json_atomic(out / "model.json", {
-            "format": "gs2e-splat", "version": 1, "ply": rel, "iterations": iterations,
-            "sh_degree": sh_degree, "n_gaussians": int(len(g["means"])), "scene": str(scene_dir),
-            "width": scene.width, "height": scene.height, "source": stats.get("source"),
-            "background": stats["background"], "test_every": stats["test_every"]})
         write_json_atomic(out / "train_stats.json", stats)
         write_metrics(out / "metrics.parquet", stats, scene_id=scene_id or out_dir.parent.name,
                       stage="train")
@@ -417,13 +386,3 @@ def _import_ply(scene, scene_dir, out_dir, cfg, views, test_v, bg, stats, scene_
     _write_model(out_dir, scene, g, iterations or 0, sh_deg, stats, [], scene_id, scene_dir)
     stats["time_total_s"] = time.perf_counter() - t0
     return stats
-
-
-def load_model(model_dir: str | Path) -> tuple[dict[str, torch.Tensor], dict]:
-    """Read a ``gs2e train`` output folder: (params, model.json)."""
-    model_dir = Path(model_dir)
-    try:
-        info = json.loads((model_dir / "model.json").read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise InputError(f"cannot read {model_dir / 'model.json'}: {exc}") from exc
-    return to_params(read_ply(model_dir / info["ply"])), info

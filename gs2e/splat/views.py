@@ -14,7 +14,8 @@ from gs2e.io.images import write_png
 from gs2e.io.scene import read_scene
 from gs2e.splat.backend import resolve_backend
 from gs2e.splat.loss import psnr, ssim
-from gs2e.splat.train import load_model, load_views, render, split_views
+from gs2e.splat.model import load_model, render
+from gs2e.splat.train import load_views, split_views
 
 log = get_logger("gs2e.splat")
 
