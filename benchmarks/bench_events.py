@@ -11,11 +11,20 @@ implementation of the same voltmeter model, written here) and the peak RSS of
 the streaming pipeline (model + DSEC HDF5 writer + stats) at two sequence
 lengths, each in a fresh process.
 
-Reference figure (REFERENCE.md section 2, not re-measured here): the public
-DVS-Voltmeter code runs this kind of sequence at ~4.3 M pixel-frames/s on 2
-cores (torch CPU). Target: >= 65 M pixel-frames/s.
+Whole command, side by side in one run (issue 11): the same 480 frames as
+8-bit PNGs with timestamps, simulated by the official DVS-Voltmeter
+(``main.py``, dvs346; read from a checkout given by ``--voltmeter-repo`` or the
+GS2E_VOLTMETER_REPO variable, a git directory or a folder; it needs torch and
+easydict: ``pip install -e .[bench]``) and by ``gs2e events`` (same frames,
+``--encoding linear``, dvs346, no preview), each as a fresh process, wall
+time including start-up and file I/O; event count and ON fraction of both,
+and gs2e's own split of its run (reading frames, model, statistics, writing).
+Without the official code that part is reported as not measured.
 
-Usage: python benchmarks/bench_events.py [--quick]
+Reference figure (REFERENCE.md section 2): the public DVS-Voltmeter code runs
+this kind of sequence at ~4.3 M pixel-frames/s on 2 cores (torch CPU).
+
+Usage: python benchmarks/bench_events.py [--quick] [--voltmeter-repo PATH]
 Writes benchmarks/results/bench_events.csv and bench_events.png; the last
 printed line is the headline.
 """
@@ -142,6 +151,76 @@ def measure_memory(n_frames: int) -> dict:
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
+# ---------------------------------------------------------------- whole command
+def write_png_sequence(ts, frames, root: Path) -> Path:
+    """The frames as 8-bit grey PNGs (linear values x 255) in the official
+    code's layout: root/seq/{NNNN.png, info.txt ('path t_us' lines)}, plus
+    root/ts.txt for gs2e."""
+    import cv2
+
+    seq = root / "seq"
+    seq.mkdir(parents=True)
+    lines = []
+    for i, (t, f) in enumerate(zip(ts, frames)):
+        p = seq / f"{i:04d}.png"
+        cv2.imwrite(str(p), np.round(np.clip(f, 0, 1) * 255).astype(np.uint8))
+        lines.append(f"{p} {int(t)}")
+    (seq / "info.txt").write_text("\n".join(lines) + "\n")
+    (root / "ts.txt").write_text("\n".join(str(int(t)) for t in ts) + "\n")
+    return seq
+
+
+def official_checkout(path: str | None, dest: Path) -> Path | None:
+    """A working copy of the official DVS-Voltmeter code (from a folder or a
+    bare git directory), or None."""
+    if not path or not Path(path).exists():
+        return None
+    p = Path(path)
+    if (p / "main.py").exists():
+        return p
+    dest.mkdir(parents=True)
+    arch = subprocess.run(["git", "--git-dir", str(p), "archive", "HEAD"], capture_output=True,
+                          check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(dest)], input=arch, check=True)
+    return dest
+
+
+def whole_commands(ts, frames, repo_path: str | None) -> dict:
+    """Wall time of the official DVS-Voltmeter and of `gs2e events` on the same PNGs."""
+    import tempfile
+
+    out = {}
+    with tempfile.TemporaryDirectory() as d:
+        root = Path(d)
+        seq = write_png_sequence(ts, frames, root / "in")
+        env = dict(os.environ, PYTHONPATH=str(ROOT), GS2E_PROGRESS="0")
+        a = time.perf_counter()
+        subprocess.run([sys.executable, "-m", "gs2e", "events", str(seq), "--timestamps",
+                        str(root / "in" / "ts.txt"), "--encoding", "linear", "-o",
+                        str(root / "gs2e"), "--set", "preset=dvs346", "--set", "preview=false",
+                        "--seed", "1"], check=True, env=env, capture_output=True)
+        wall = time.perf_counter() - a
+        st = json.loads((root / "gs2e" / "stats.json").read_text())["stats"]
+        out["gs2e"] = {"wall_s": wall, "events": st["n_events"], "on_fraction": st["on_fraction"],
+                       **{k: st[k] for k in ("simulate_s", "source_s", "model_s", "stats_s",
+                                             "write_s", "close_s")}}
+        code = official_checkout(repo_path, root / "official")
+        if code is None:
+            return out
+        a = time.perf_counter()
+        r = subprocess.run([sys.executable, "main.py", "--camera_type", "DVS346", "--input_dir",
+                            str(root / "in"), "--output_dir", str(root / "off")], cwd=code,
+                           capture_output=True, text=True)
+        wall = time.perf_counter() - a
+        if r.returncode != 0:
+            out["official_error"] = r.stderr.strip().splitlines()[-1] if r.stderr.strip() else "failed"
+            return out
+        ev = np.loadtxt(root / "off" / "seq.txt", ndmin=2)
+        out["official"] = {"wall_s": wall, "events": int(len(ev)),
+                           "on_fraction": float((ev[:, -1] > 0).mean()) if len(ev) else None}
+    return out
+
+
 # ---------------------------------------------------------------- main
 def time_model(make, ts, frames, batch=32, reps=1):
     best = None
@@ -153,6 +232,9 @@ def time_model(make, ts, frames, batch=32, reps=1):
             ev = m.process_batch(ts[i:i + batch], frames[i:i + batch])
             n += len(ev)
             n_on += int(ev.p.sum())
+        ev = m.flush()
+        n += len(ev)
+        n_on += int(ev.p.sum())
         wall, cpu = time.perf_counter() - w0, time.process_time() - c0
         if best is None or wall < best[0]:
             best = (wall, cpu, n, n_on)
@@ -163,6 +245,9 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="under 60 s")
     ap.add_argument("--child-memory", nargs=2, metavar=("N_FRAMES", "OUT"))
+    ap.add_argument("--voltmeter-repo", default=os.environ.get(
+        "GS2E_VOLTMETER_REPO", "/work/.mirror/Lynn0306+DVS-Voltmeter/repo"),
+        help="checkout (or git dir) of the official DVS-Voltmeter code")
     args = ap.parse_args()
     if args.child_memory:
         child_memory(int(args.child_memory[0]), args.child_memory[1])
@@ -179,8 +264,8 @@ def main() -> None:
     pf = (len(ts) - 1) * H * W
     load0 = os.getloadavg()[0]
     # compile / load the kernels outside the timings
-    VoltmeterModel((H, W), preset="dvs346").process_batch(ts[:3], frames[:3])
-    IdealModel((H, W)).process_batch(ts[:3], frames[:3])
+    VoltmeterModel((H, W), preset="dvs346").simulate(ts[:3], frames[:3])
+    IdealModel((H, W)).simulate(ts[:3], frames[:3])
 
     reps = 1 if args.quick else 3
     rows = []
@@ -216,12 +301,13 @@ def main() -> None:
     wall_b, cpu_b = time.perf_counter() - w0, time.process_time() - c0
     pf_b = (nb - 1) * H * W
     m_ours = VoltmeterModel((H, W), preset="dvs346", seed=1)
-    ours_nb = m_ours.process_batch(ts[:nb], frames[:nb])
+    ours_nb = m_ours.simulate(ts[:nb], frames[:nb])
     rows.append({"impl": "numpy baseline", "model": "voltmeter", "preset": "dvs346", "frames": nb,
                  "wall_s": wall_b, "cpu_s": cpu_b, "threads": 1, "events": nbe,
                  "on_fraction": nbon / max(nbe, 1), "mpf_per_s": pf_b / wall_b / 1e6,
                  "mpf_per_s_cpu_x_threads": pf_b / cpu_b / 1e6, "mev_per_s": nbe / wall_b / 1e6,
                  "eff_threshold_rel": effective_threshold(PRESETS["dvs346"], 1.0, 0.5)})
+    whole = whole_commands(ts, frames, args.voltmeter_repo)
     # memory at two lengths
     lens = (120, 480) if args.quick else (480, 1920)
     mem = [measure_memory(n) for n in lens]
@@ -257,6 +343,26 @@ def main() -> None:
         print(f"streaming pipeline (model + HDF5 + stats), {m['n_frames']} frames: "
               f"peak RSS {m['peak_rss_mb']:.0f} MB, {m['n_events']} events")
 
+    g = whole["gs2e"]
+    print(f"whole command on {len(ts)} PNG frames: gs2e events {g['wall_s']:.2f} s wall "
+          f"({g['events']} events, ON {g['on_fraction']:.3f}; inside: frames {g['source_s']:.2f} s, "
+          f"model {g['model_s']:.2f} s, statistics {g['stats_s']:.2f} s, HDF5 {g['write_s']:.2f} s, "
+          f"closing {g['close_s']:.2f} s)")
+    if "official" in whole:
+        o = whole["official"]
+        print(f"official DVS-Voltmeter main.py: {o['wall_s']:.2f} s wall ({o['events']} events, "
+              f"ON {o['on_fraction']:.3f}) -> gs2e is {o['wall_s'] / g['wall_s']:.1f}x faster "
+              f"(target >= 15x)")
+        whole_head = (f"whole command {o['wall_s'] / g['wall_s']:.1f}x faster than the official "
+                      f"DVS-Voltmeter ({g['wall_s']:.2f} vs {o['wall_s']:.2f} s, {g['events'] / 1e6:.2f} vs "
+                      f"{o['events'] / 1e6:.2f} M events)")
+    else:
+        whole_head = ("official DVS-Voltmeter not measured ("
+                      f"{whole.get('official_error', 'no checkout at --voltmeter-repo')})")
+        print(whole_head)
+    pd.DataFrame([{"impl": k, **v} for k, v in whole.items() if isinstance(v, dict)]).to_csv(
+        RESULTS / "bench_events_whole.csv", index=False)
+
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -275,7 +381,7 @@ def main() -> None:
     ax[1].set_title("streaming pipeline memory")
     fig.tight_layout()
     fig.savefig(RESULTS / "bench_events.png", dpi=100)
-    print(f"HEADLINE: voltmeter dvs346 {ours_b['mpf_per_s']:.1f} M pixel-frames/s wall on "
+    print(f"HEADLINE: {whole_head}; voltmeter dvs346 {ours_b['mpf_per_s']:.1f} M pixel-frames/s wall on "
           f"{threads} threads, shared machine (1-thread CPU-time: "
           f"{one['mpf_per_s_cpu_x_threads']:.1f}/core, x2 = "
           f"{2 * one['mpf_per_s_cpu_x_threads']:.1f}), "

@@ -27,7 +27,7 @@ STAGE_DEPS: dict[str, tuple[str, ...]] = {
     "train": ("splat", "io", "common", *METRICS_WRITER),
     "trajectory": ("trajectory", "io", "common", "config.py"),
     "render": ("render", "splat", "trajectory", "io", "common", *METRICS_WRITER),
-    "events": ("events", "render", "splat", "trajectory", "io", "common", *METRICS_WRITER),
+    "events": ("events", "splat", "trajectory", "io", "common", *METRICS_WRITER),
     "metrics": ("metrics", "io", "common", "config.py"),
     "report": ("report", "events", "io", "common", "config.py"),
 }

@@ -274,7 +274,13 @@ def schema_markdown(schema: dict | None = None) -> str:
             lines.append("_No keys yet._")
             continue
         lines += ["| key | type | default | description |", "|---|---|---|---|"]
-        for k, s in props.items():
-            lines.append(f"| `{key}.{k}` | {_type_str(s)} | `{json.dumps(s.get('default'))}` | "
-                         f"{' '.join(s.get('description', '').split())} |")
+
+        def rows(prefix: str, props: dict) -> None:
+            for k, s in props.items():
+                lines.append(f"| `{prefix}.{k}` | {_type_str(s)} | `{json.dumps(s.get('default'))}` | "
+                             f"{' '.join(s.get('description', '').split())} |")
+                if s.get("type") == "object" and s.get("properties"):
+                    rows(f"{prefix}.{k}", s["properties"])
+
+        rows(key, props)
     return "\n".join(lines) + "\n"

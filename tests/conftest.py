@@ -85,7 +85,7 @@ TINY_OVERRIDES = ";".join([
     "trajectory.speed_presets=[medium]", "trajectory.mini_groups=1", "trajectory.mini_frames=30",
     "trajectory.plot=false",
     "render.trajectories=[mini00_medium]", "render.fps=10", "render.exposure_us=20000",
-    "render.events_max_duration_s=0.03", "render.min_coverage=0.0",
+    "events.max_duration_s=0.03", "render.min_coverage=0.0",
     "events.model=ideal", "events.theta_on=0.3", "events.theta_off=0.3", "events.preview=false",
 ])
 

@@ -25,7 +25,8 @@ def test_exact_on_log_linear_ramps(t0_us):
     ts, fr = _ramp(rates, 41, 2500, 0.05, eps, t0_us)  # 0.1 s, ends below 1.0
     assert fr.max() <= 1.0 and fr.min() >= 0.0
     m = IdealModel((H, W), theta_on=th, theta_off=th, log_eps=eps)
-    ev = Events.concat([m.process_batch(ts[:17], fr[:17]), m.process_batch(ts[17:], fr[17:])])
+    ev = Events.concat([m.process_batch(ts[:17], fr[:17]), m.process_batch(ts[17:], fr[17:]),
+                        m.flush()])
     assert np.all(np.diff(ev.t) >= 0)
     T = (ts[-1] - ts[0]) * 1e-6
     n_expected = 0
@@ -48,9 +49,9 @@ def test_refractory_drops_but_reference_advances():
     rates = np.array([[19.7, -19.7]])
     eps, th = 1e-3, 0.1  # a crossing every 5076 us, 19 in 0.1 s
     ts, fr = _ramp(rates, 21, 5000, 0.1, eps)
-    free = IdealModel((H, W), theta_on=th, theta_off=th, log_eps=eps).process_batch(ts, fr)
+    free = IdealModel((H, W), theta_on=th, theta_off=th, log_eps=eps).simulate(ts, fr)
     m = IdealModel((H, W), theta_on=th, theta_off=th, log_eps=eps, refractory_us=12000)
-    ref = m.process_batch(ts, fr)
+    ref = m.simulate(ts, fr)
     assert len(free) == 38
     for x in (0, 1):
         t = ref.t[ref.x == x]
@@ -66,16 +67,16 @@ def test_black_saturated_constant_and_bad_input():
     ts = np.arange(0, 10_001, 1000)
     for val in (0.0, 1.0, 0.5):
         m = IdealModel((H, W), theta_on=0.2, theta_off=0.2)
-        assert len(m.process_batch(ts, np.full((len(ts), H, W), val))) == 0
+        assert len(m.simulate(ts, np.full((len(ts), H, W), val))) == 0
     m = IdealModel((H, W))
     # black -> white in one step: many ON events, all inside the interval
-    ev = m.process_batch([0, 1000], np.stack([np.zeros((H, W)), np.ones((H, W))]))
+    ev = m.simulate([0, 1000], np.stack([np.zeros((H, W)), np.ones((H, W))]))
     assert len(ev) == H * W * int(np.floor(np.log(1.001 / 0.001) / 1.0 + 1e-12))
     assert ev.t.min() >= 0 and ev.t.max() <= 1000
     with pytest.raises(InputError, match="NaN"):
         m.process(2000, np.full((H, W), np.inf))
     with pytest.raises(InputError, match="increase"):
-        m.process_batch([3000, 3000], np.zeros((2, H, W)))
+        m.simulate([3000, 3000], np.zeros((2, H, W)))
 
 
 def test_make_model_theta_sampling_and_mismatch():
@@ -101,10 +102,10 @@ def test_noise_off_by_default_and_calibrated_rates():
     H, W, T = 40, 50, 2_000_000
     ts = np.arange(0, T + 1, 20_000)
     fr = np.full((len(ts), H, W), 0.5, np.float32)
-    assert len(IdealModel((H, W)).process_batch(ts, fr)) == 0
+    assert len(IdealModel((H, W)).simulate(ts, fr)) == 0
     m = IdealModel((H, W), shot_noise_rate_hz=0.56, shot_noise_on_fraction=0.54,
                    leak_rate_hz=0.2, seed=2)
-    ev = m.process_batch(ts, fr)
+    ev = m.simulate(ts, fr)
     # luminance 0.5: shot rate x 2 (1 - 0.5) = nominal; leak events are ON
     lam = (0.56 + 0.2) * H * W * T * 1e-6
     assert abs(len(ev) - lam) < 5 * np.sqrt(lam)
@@ -112,5 +113,5 @@ def test_noise_off_by_default_and_calibrated_rates():
     assert abs(ev.p.mean() - on_expected) < 5 * np.sqrt(0.25 / len(ev))
     assert np.all(np.diff(ev.t) >= 0)
     ev2 = IdealModel((H, W), shot_noise_rate_hz=0.56, shot_noise_on_fraction=0.54,
-                     leak_rate_hz=0.2, seed=2).process_batch(ts, fr)
+                     leak_rate_hz=0.2, seed=2).simulate(ts, fr)
     assert np.array_equal(ev.t, ev2.t) and np.array_equal(ev.x, ev2.x)

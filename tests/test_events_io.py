@@ -144,7 +144,7 @@ def test_cli_image_folder_end_to_end(tmp_path):
     out = tmp_path / "out"
     rc = main(["events", str(tmp_path / "imgs"), "--timestamps", str(tmp_path / "ts.txt"), "-o",
                str(out), "--seed", "3", "--set", "preset=dvs346", "--set", "write_text=true",
-               "--set", "write_npz=true", "--set", "preview_every=2", "--set", "theta_on=0.3",
+               "--set", "write_npz=true", "--set", "preview_window_ms=2", "--set", "theta_on=0.3",
                "--set", "theta_off=0.3"])
     assert rc == 0
     assert {p.name for p in out.iterdir()} == {"events.h5", "events.txt", "events.npz",
@@ -158,7 +158,7 @@ def test_cli_image_folder_end_to_end(tmp_path):
     assert st["n_events"] == len(ev) and st["n_frames"] == 12
     assert np.array_equal(read_text(out / "events.txt").t, ev.t)
     cap = cv2.VideoCapture(str(out / "preview.mp4"))
-    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 5  # 11 intervals / 2
+    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 6  # 11 ms of events in 2 ms windows
     # outputs get the permissions of plain files, not mkstemp's 0600
     modes = {p.name: p.stat().st_mode & 0o777 for p in out.iterdir()}
     assert len(set(modes.values())) == 1, modes

@@ -24,7 +24,7 @@ def _first_events(mu, sigma, theta_on=1.0, theta_off=1.0, n_side=100, T=2_000_00
     m = VoltmeterModel((n_side, n_side), preset=_preset(mu, sigma), theta_on=theta_on,
                        theta_off=theta_off, max_events_per_pixel=1, seed=seed)
     f = np.full((n_side, n_side), 0.5, np.float32)
-    ev = m.process_batch([0, T], np.stack([f, f]))
+    ev = m.simulate([0, T], np.stack([f, f]))
     pix = ev.y.astype(np.int64) * n_side + ev.x
     assert len(np.unique(pix)) == len(pix)  # one event per pixel at most
     return ev, n_side * n_side
@@ -173,10 +173,10 @@ def test_residual_carried_between_frames():
     pr = _preset(mu, sigma)
     f = np.full((30, 30), 0.5, np.float32)
     m1 = VoltmeterModel((30, 30), preset=pr, seed=3)
-    ev1 = m1.process_batch([0, 1_000_000], np.stack([f, f]))
+    ev1 = m1.simulate([0, 1_000_000], np.stack([f, f]))
     m2 = VoltmeterModel((30, 30), preset=pr, seed=3)
     ts = np.arange(0, 1_000_001, 1000)
-    ev2 = m2.process_batch(ts, np.repeat(f[None], len(ts), 0))
+    ev2 = m2.simulate(ts, np.repeat(f[None], len(ts), 0))
     # ~10 crossings per pixel (the 10th falls at ~T +- 1e4 us, about half of them in)
     assert 9.0 * 900 <= len(ev1) <= 10.0 * 900
     assert len(ev2) == pytest.approx(len(ev1), abs=5 * math.sqrt(len(ev1) * 0.1) + 10)
@@ -191,6 +191,7 @@ def _run(seq, threads=None, batch=32, seed=7, preset="dvs346", **kw):
         out = []
         for i in range(0, len(seq[0]), batch):
             out.append(m.process_batch(seq[0][i:i + batch], seq[1][i:i + batch]))
+        out.append(m.flush())
         return Events.concat(out)
     finally:
         numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
@@ -240,7 +241,7 @@ def test_black_saturated_constant_pixels():
     for val in (0.0, 1.0, 0.37):
         f = np.full((len(ts), H, W), val, np.float32)
         m = VoltmeterModel((H, W), preset="dvs346", seed=1)
-        ev = m.process_batch(ts, f)
+        ev = m.simulate(ts, f)
         mu = 1e-7 + 5e-9 * val * 255  # leak drift per us (k4 + k5 L)
         # constant pixels only leak: quasi-periodic ON events every 1/mu us
         # (jitter ~1e4 us), so every pixel has floor(T mu) of them
@@ -275,7 +276,7 @@ def test_bad_frames_rejected():
     with pytest.raises(InputError, match=r"\[0, 1\]"):
         m.process(10, f + 2)
     with pytest.raises(InputError, match="integer"):
-        m.process_batch(np.array([10.5]), f[None])
+        m.simulate(np.array([10.5]), f[None])
     m.process(10, f)  # still usable after rejected frames
     with pytest.raises(ConfigError):
         VoltmeterModel((4, 5), preset="nope")
@@ -374,6 +375,7 @@ def _first_events_tu(mu, sigma, exit_law, ts, n_side=80, seed=2):
     out = []
     for i in range(0, len(ts), 256):
         out.append(m.process_batch(ts[i:i + 256], np.repeat(f[None], len(ts[i:i + 256]), 0)))
+    out.append(m.flush())
     ev = Events.concat(out)
     # max_events_per_pixel is per interval: keep each pixel's first event
     pix = ev.y.astype(np.int64) * n_side + ev.x

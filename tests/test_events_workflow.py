@@ -1,5 +1,5 @@
-"""The event stage on rendered frames (workflow mode): the render stage's
-frame source feeds the simulator directly; adaptive and fixed sampling."""
+"""The event stage in workflow mode: luminance rendered on demand from the
+model along the trajectory; tile, adaptive and fixed sampling."""
 
 from __future__ import annotations
 
@@ -19,24 +19,27 @@ def scene(tmp_path_factory):
     return _plane_model(tmp), _straight_trajectory(tmp, dx=0.3)
 
 
-@pytest.mark.parametrize("sampling", ["adaptive", "fixed"])
-def test_events_from_rendered_trajectory(scene, tmp_path, sampling):
+@pytest.mark.parametrize("mode", ["tile", "adaptive", "fixed"])
+def test_events_from_rendered_trajectory(scene, tmp_path, mode):
     from gs2e.events.io import read_h5
 
     model, traj = scene
-    cfg = load_config({"events": {"model": "ideal", "theta_on": 0.3, "theta_off": 0.3},
-                       "render": {"sampling": sampling, "fixed_fps": 2000.0,
-                                  "events_max_duration_s": 0.05}})
+    cfg = load_config({"events": {"model": "ideal", "theta_on": 0.3, "theta_off": 0.3,
+                                  "max_duration_s": 0.05,
+                                  "sampling": {"mode": mode, "fixed_fps": 2000.0}}})
     out = tmp_path / "ev"
     proc = run_cli("events", "--model", str(model), "--trajectory", str(traj), "-o", str(out),
                    "--seed", "1", "--config-json", section_json(cfg, "events"),
-                   "--render-config-json", section_json(cfg, "render"))
+                   "--background", "0.1,0.2,0.3")
     assert proc.returncode == 0, proc.stderr[-3000:]
     ev, meta = read_h5(out / "events.h5")
     assert len(ev) > 100, "a textured plane panning past the camera must produce events"
     assert np.all(np.diff(ev.t) >= 0) and ev.t.dtype == np.int64
     assert ev.x.max() < 64 and ev.y.max() < 48
-    assert "frame source" in proc.stderr and sampling in proc.stderr
+    assert f"sampling ({mode})" in proc.stderr
+    st = json.loads((out / "stats.json").read_text())["stats"]
+    assert st["sampling_mode"] == mode and st["duration_s"] == pytest.approx(0.05)
+    assert json.loads(meta["metadata"])["render"]["background"] == [0.1, 0.2, 0.3]
 
 
 def test_workflow_mode_needs_both_model_and_trajectory(scene, tmp_path):

@@ -1,4 +1,4 @@
-"""Rendering along trajectories: motion blur, adaptive sampling, records."""
+"""Rendering along trajectories: motion blur, records."""
 
 from __future__ import annotations
 
@@ -13,7 +13,6 @@ from gs2e.common.errors import ConfigError, InputError
 from gs2e.config import load_config
 from gs2e.io.scene import Camera, Frame, Scene
 from gs2e.render.blur import average_srgb, subframe_times_us, subframes_needed
-from gs2e.render.sampler import SamplerStats, adaptive_samples
 
 W, H, F = 64, 48, 60.0
 DEPTH = 2.0
@@ -77,53 +76,6 @@ def test_subframe_rules():
 def test_color_round_trip():
     x = np.linspace(0, 1, 1001)
     np.testing.assert_allclose(linear_to_srgb(srgb_to_linear(x)), x, atol=1e-12)
-
-
-def _ramp_sampler(rate: np.ndarray, bound: float, t1: int = 100_000, dt_min: int = 1, dt_max: int = 20_000):
-    """A per-pixel log-linear signal with piecewise rates (per us)."""
-    calls = []
-
-    def render_log(t):
-        calls.append(t)
-        # rate changes at t = 50_000: quiet, then fast
-        return np.where(t < 50_000, rate[0] * t, rate[0] * 50_000 + rate[1] * (t - 50_000)) * np.ones(4)
-
-    st = SamplerStats()
-    out = list(adaptive_samples(render_log, 0, t1, bound, dt_min, dt_max, 100, st))
-    return out, st, calls
-
-
-def test_adaptive_sampler_never_exceeds_bound_and_idles_when_static():
-    out, st, calls = _ramp_sampler(np.array([0.0, 1e-4]), bound=0.1)
-    ts = [t for t, _ in out]
-    assert ts[0] == 0 and ts[-1] == 100_000 and np.all(np.diff(ts) > 0)
-    diffs = [np.max(np.abs(b - a)) for (_, a), (_, b) in zip(out, out[1:])]
-    assert max(diffs) <= 0.1 + 1e-12
-    assert st.forced == 0
-    quiet = [t for t in ts if t < 50_000]
-    assert len(quiet) < 12, "static half should take few, growing steps"
-    # fast half: 5 log units over 50 ms at <= 0.1 per step needs >= 50 steps
-    assert 50 <= len(ts) - len(quiet) <= 80
-    assert st.rendered == len(calls) and st.rendered < 1.3 * len(ts)
-
-
-def test_adaptive_sampler_random_signals_respect_bound():
-    rng = np.random.default_rng(0)
-    for trial in range(5):
-        knots = np.sort(rng.integers(0, 200_000, 8))
-        vals = rng.normal(size=(8, 16)) * 2
-
-        def render_log(t):
-            return np.array([np.interp(t, knots, vals[:, j]) for j in range(16)])
-
-        out = list(adaptive_samples(render_log, 0, 200_000, 0.05, 1, 10_000, 50))
-        diffs = [np.max(np.abs(b - a)) for (_, a), (_, b) in zip(out, out[1:])]
-        assert max(diffs) <= 0.05 + 1e-9
-
-
-def test_sampler_rejects_bad_arguments():
-    with pytest.raises(ValueError):
-        list(adaptive_samples(lambda t: np.zeros(1), 10, 0, 0.1, 1, 10))
 
 
 @pytest.fixture(scope="module")
@@ -230,90 +182,3 @@ def test_empty_view_rejected(plane, tmp_path):
     with pytest.raises(InputError, match="empty"):
         render_dataset(model, tmp_path / "away.npz", tmp_path / "out", cfg)
     assert not (tmp_path / "out").exists()
-
-
-def test_max_log_change_outlier_fraction():
-    from gs2e.render.sampler import max_log_change
-
-    a = np.zeros(10)
-    b = np.arange(10) / 10.0
-    assert max_log_change(a, b) == pytest.approx(0.9)
-    assert max_log_change(a, -b, 0.1) == pytest.approx(0.8)  # the largest 1 of 10 set aside
-    assert max_log_change(a, b, 0.05) == pytest.approx(0.9)  # floor(0.5) = 0 pixels set aside
-
-
-def test_adaptive_sampler_reuses_rejected_trials_and_never_renders_twice():
-    """A quiet signal that turns fast: the grown step overshoots and is
-    rejected; its frame is then the next sample instead of a wasted render."""
-    out, st, calls = _ramp_sampler(np.array([1e-5, 1.6e-5]), bound=0.1)
-    assert len(set(calls)) == len(calls), "no time is rendered twice"
-    assert st.rendered == st.accepted + st.rejected - st.reused
-    assert st.rejected == 1 and st.reused == 1 and st.rendered == st.accepted
-    ts = [t for t, _ in out]
-    assert set(ts) <= set(calls) and len(ts) == st.accepted
-    rng = np.random.default_rng(1)
-    for trial in range(5):
-        knots = np.sort(rng.choice(100_000, 6, replace=False))
-        vals = rng.normal(size=(6, 8)) * 2
-        calls = []
-
-        def render_log(t):
-            calls.append(t)
-            return np.array([np.interp(t, knots, vals[:, j]) for j in range(8)])
-
-        st = SamplerStats()
-        out = list(adaptive_samples(render_log, 0, 100_000, 0.05, 1, 10_000, 50, st))
-        assert len(set(calls)) == len(calls)
-        assert st.rendered == len(calls) == st.accepted + st.rejected - st.reused and st.forced == 0
-        diffs = [np.max(np.abs(b - a)) for (_, a), (_, b) in zip(out, out[1:])]
-        assert max(diffs) <= 0.05 + 1e-9
-
-
-def test_adaptive_sampler_outlier_fraction_ignores_a_jumping_pixel():
-    """One pixel of 100 jumps (a silhouette edge passing it): bounding every
-    pixel holds the step at dt_min around the jump; setting 1% of the pixels
-    aside keeps the step free and still bounds the other 99 pixels."""
-    def render_log(t):
-        g = np.full(100, 2e-6 * t)
-        g[7] = 5.0 if t >= 30_000 else 0.0
-        return g
-
-    runs = {}
-    for q in (0.0, 0.01):
-        st = SamplerStats()
-        out = list(adaptive_samples(render_log, 0, 60_000, 0.05, 10, 5000, 100, st, outlier_fraction=q))
-        runs[q] = (out, st)
-        others = [np.max(np.abs(np.delete(b - a, 7))) for (_, a), (_, b) in zip(out, out[1:])]
-        assert max(others) <= 0.05 + 1e-12
-    assert runs[0.0][1].forced >= 1, "a jump cannot be bounded: the step at dt_min is forced"
-    assert runs[0.01][1].forced == 0
-    assert runs[0.01][1].rendered < runs[0.0][1].rendered
-    with pytest.raises(ValueError):
-        list(adaptive_samples(render_log, 0, 10, 0.1, 1, 10, outlier_fraction=1.0))
-
-
-def test_adaptive_source_yields_the_rendered_frames_without_rerendering(plane, tmp_path):
-    """The source keeps the linear frames of rejected trials the sampler may
-    still accept: every yielded frame equals a fresh render at its time and
-    no frame is rendered twice."""
-    from gs2e.render.renderer import TrajectoryRenderer
-    from gs2e.render.source import RenderedFrameSource
-
-    model, _ = plane
-    traj = _straight_trajectory(tmp_path, dx=3.0)
-    r = TrajectoryRenderer(model, traj)
-    r.t0_us, r.t1_us = 200_000, 260_000
-    src = RenderedFrameSource(r, "adaptive", fps=2400.0, bound_log=0.05, dt_min_us=20, dt_max_us=5000,
-                              outlier_fraction=1e-3)
-    items = list(src)
-    ts = [t for t, _ in items]
-    assert ts[0] == r.t0_us and ts[-1] == r.t1_us and np.all(np.diff(ts) > 0)
-    assert r.renders == src.stats.rendered == src.stats.accepted + src.stats.rejected - src.stats.reused
-    r2 = TrajectoryRenderer(model, traj)
-    for t, f in items[:: max(1, len(items) // 8)] + [items[-1]]:
-        assert f.dtype == np.float32 and f.shape == (H, W)
-        np.testing.assert_array_equal(f, r2.linear_luminance(t))
-    logs = [np.log(f.astype(np.float64) + 1e-3) for _, f in items]
-    d = np.sort(np.concatenate([np.abs(b - a).ravel()[None] for a, b in zip(logs, logs[1:])]), axis=1)
-    k = int(1e-3 * H * W)
-    assert np.all(d[:, -1 - k] <= 0.05 + 1e-9) or src.stats.forced > 0

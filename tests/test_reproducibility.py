@@ -17,8 +17,9 @@ parquet tables...), except:
     ``train_time_s``, ``cpu_time_s``
   * frames/<t>/render_stats.json, frames/<t>/metrics.parquet: ``time_s``,
     ``frames_per_s``, ``renders_per_s``
-  * events/<t>/stats.json, events/<t>/stats.parquet: ``pixel_frames_per_s``,
-    ``simulate_s``
+  * events/<t>/stats.json, events/<t>/stats.parquet: ``simulate_s``,
+    ``simulate_s_per_s`` and its split ``source_s``, ``model_s``, ``stats_s``,
+    ``write_s``, ``close_s``
   * <scene>/metrics.parquet and summary.parquet: the same, prefixed with the
     stage (``sfm_time_total_s``, ``train_train_cpu_s``, ``render_time_s``,
     ``events_simulate_s`` ...; TABLE_TIMING below).
@@ -44,7 +45,8 @@ from tests.conftest import run_tiny_pipeline
 _SFM = {"time_undistortion_s", "time_writing_s", "time_total_s"}
 _TRAIN = {"train_time_s", "train_cpu_s", "time_scene_analysis_s"}
 _RENDER = {"time_s", "frames_per_s", "renders_per_s"}
-_EVENTS = {"pixel_frames_per_s", "simulate_s"}
+_EVENTS = {"simulate_s", "simulate_s_per_s", "source_s", "model_s", "stats_s", "write_s",
+           "close_s"}
 STAGE_TIMING = {
     "tiny/sfm/sfm_stats.json": _SFM,
     "tiny/sfm/metrics.parquet": _SFM,
@@ -61,7 +63,7 @@ TABLE_TIMING = {
     "sfm_time_undistortion_s", "sfm_time_writing_s", "sfm_time_total_s",
     "train_train_time_s", "train_train_cpu_s", "train_time_scene_analysis_s",
     "render_time_s", "render_frames_per_s", "render_renders_per_s",
-    "events_pixel_frames_per_s", "events_simulate_s",
+    *(f"events_{k}" for k in _EVENTS),
 }
 TABLES = ("tiny/metrics.parquet", "summary.parquet")
 

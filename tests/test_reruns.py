@@ -38,7 +38,8 @@ FEEDS: dict[str, set[str]] = {
     "sfm": {"train", "trajectory"},
     "train": {"render", "events"},
     "trajectory": {"render", "events"},
-    # events renders its own frames: it takes the render section too (render.smk, events.smk)
+    # events renders its own samples from the model: of the render section it
+    # takes only what changes pixels (background, scale, backend; events.smk)
     "render": {"scene_metrics"},
     "events": {"scene_metrics"},
     "scene_metrics": {"summary"},
@@ -139,8 +140,10 @@ def test_unchanged_config_reruns_nothing(tiny_pipeline):
     ("ingest: {max_side: 100}", {"ingest"}),
     ("sfm: {max_num_features: 4096}", {"sfm"}),
     ("trajectory: {velocity: '0.3*sin(t)+1.0'}", {"trajectory"}),
-    ("render: {write_depth: false}", {"render", "events"}),
+    ("render: {write_depth: false}", {"render"}),
+    ("render: {background: [0.2, 0.2, 0.2]}", {"render", "events"}),
     ("events: {theta_mismatch_sigma: 0.01}", {"events"}),
+    ("events: {sampling: {bound_fraction: 0.5}}", {"events"}),
     # seeds are derived per (scene, stage) from the global seed: sfm, train,
     # trajectory and events use one; demo (own demo.seed), ingest and render do not
     ("seed: 5", {"sfm", "train", "trajectory", "events"}),
@@ -169,7 +172,7 @@ def test_report_key_change_reruns_only_tables_and_report(tiny_pipeline, tmp_path
 @pytest.mark.parametrize("changes, changed", [
     ({"splat__max_iterations": "100", "splat__min_iterations": "100"}, {"train"}),
     ({"trajectory__mini_frames": "40"}, {"trajectory"}),
-    ({"render__fps": "20"}, {"render", "events"}),
+    ({"render__fps": "20"}, {"render"}),
     ({"events__theta_on": "0.25"}, {"events"}),
     ({"events__model": "voltmeter"}, {"events"}),
 ], ids=lambda x: ",".join(f"{k.replace('__', '.')}={v}" for k, v in x.items()) if isinstance(x, dict) else None)
@@ -274,6 +277,8 @@ def test_code_version_follows_the_stage_sources(tmp_path):
     assert edit_and_diff("events/__init__.py") == {"events", "report"}
     assert edit_and_diff("trajectory/__init__.py") == {"trajectory", "render", "events"}
     assert edit_and_diff("splat/__init__.py") == {"train", "render", "events"}
+    # the event stage renders with gs2e.splat, not the render stage's code
+    assert edit_and_diff("render/__init__.py") == {"render"}
     assert edit_and_diff("sfm/__init__.py") == {"sfm"}
     assert edit_and_diff("demo/__init__.py") == {"demo"}
     # stages write their tables with metrics/table.py; the scene tables are metrics' own

@@ -319,38 +319,58 @@ def bridge_crossing_time(s, eps, d, nu2, u, sg):
 
 
 @njit(cache=True)
-def row_order(H):
-    """Rows in golden-ratio order, so that the equal contiguous chunks of
-    iterations each thread gets cover the whole image (event load is uneven
-    across the image). Only the processing order changes, not the output."""
-    key = np.empty(H)
-    for y in range(H):
-        key[y] = (y * 0.6180339887498949) % 1.0
+def slot_order(n):
+    """Slots in golden-ratio order, so that the equal contiguous chunks of
+    iterations each thread gets cover tiles from the whole image (event load
+    is uneven across the image). Only the processing order changes, not the
+    output."""
+    key = np.empty(n)
+    for i in range(n):
+        key[i] = (i * 0.6180339887498949) % 1.0
     return np.argsort(key)
 
 
+@njit(inline="always", cache=True)
+def tile_box(t, tiles_x, tile, H, W):
+    """Pixel rows [y0, y1) and columns [x0, x1) of tile t."""
+    ty = t // tiles_x
+    tx = t - ty * tiles_x
+    y0 = ty * tile
+    x0 = tx * tile
+    return y0, min(H, y0 + tile), x0, min(W, x0 + tile)
+
+
 @njit(cache=True, parallel=True)
-def voltmeter_batch(Lp, Lb, scale, ts_us, frame_idx0, seed, k, tu_us, th_on, th_off, res_in,
-                    ready_in, res_out, ready_out, refractory_us, max_events_px, cap,
-                    ev_t, ev_x, ev_p, fn, two_barrier=False):
-    """DVS-Voltmeter pixel model over a batch of frame intervals.
+def voltmeter_tiles(btiles, boff, t0_us, t1_us, key_idx, lum, H, W, tile, scale, seed, k, tu_us,
+                    th_on, th_off, prev_in, res_in, ready_in, prev_out, res_out, ready_out,
+                    refractory_us, max_events_px, cap, ev_t, ev_x, ev_y, ev_p, fn,
+                    two_barrier=False):
+    """DVS-Voltmeter pixel model over a batch of tile intervals.
 
     Parameters
     ----------
-    Lp, Lb : (H, W) previous frame and (B, H, W) new frames, linear luminance
-        in [0, 1] (float32 or float64); interval b runs from frame b - 1 (Lp for
-        b = 0) to Lb[b]. ``scale`` converts to the preset's intensity unit.
-    ts_us : (B + 1,) int64 frame times in microseconds (absolute).
-    frame_idx0 : index of frame L[1] in the sequence (keys the random streams).
+    btiles : (m,) tile numbers (row-major, ``tile`` x ``tile`` px) of the batch's
+        slots; slot s holds the intervals boff[s] .. boff[s + 1] - 1 of tile
+        btiles[s], consecutive in time.
+    t0_us, t1_us : (n,) int64 start and end of each interval (absolute us).
+    key_idx : (n,) int64 index of the interval's end sample in its tile's
+        sequence (the first sample is 0): keys the random streams together
+        with the pixel, so events do not depend on batching or threads.
+    lum : (n, tile, tile) linear luminance in [0, 1] at t1 of each interval
+        (rows/columns beyond the image unused); ``scale`` converts to the
+        preset's intensity unit.
     k : (6,) float64, k1..k6 in the preset's units (time unit ``tu_us`` us).
-    th_on, th_off : (H, W) float64, barrier heights (normalised voltage, > 0).
-    res_in, ready_in : (H, W) float64 state: residual voltage and the time (us,
-        relative to the batch's first frame) until which the pixel is held
-        after its last event (refractory; -inf if not held).
-    cap : events per row reserved in ``ev_t`` (float64 us relative to the
-        start of the event's interval), ``ev_x`` (int32),
-        ``ev_p`` (int8, +1/-1); ``fn[b, y]`` receives the number of events of
-        row y in interval b (a row total above ``cap`` means overflow).
+    th_on, th_off : (H, W) float64 barrier heights (normalised voltage, > 0).
+    prev_in, res_in, ready_in : (H, W) float64 state per pixel: luminance of
+        its last sample, residual voltage, and the time (us, relative to the
+        start of its next interval) until which it is held after its last
+        event (refractory; -inf if not held). Read only; the state after the
+        batch goes to ``*_out`` for the batch's tiles (a re-run after a
+        buffer overflow sees the same input).
+    cap : events per slot reserved in ``ev_t`` (float64 us relative to the
+        start of the event's interval), ``ev_x``, ``ev_y`` (int32), ``ev_p``
+        (int8, +1/-1); ``fn[i]`` receives the number of events of interval i
+        (a slot total above ``cap`` means overflow).
     two_barrier : False = DVS-Voltmeter's law (below); True = the exact exit of
         the drift-diffusion from the band (-theta_off, theta_on) (see the
         in-line comments and gs2e/events/models.py).
@@ -368,386 +388,400 @@ def voltmeter_batch(Lp, Lb, scale, ts_us, frame_idx0, seed, k, tu_us, th_on, th_
     U ~ IG(eps s / |eps - y|, eps^2 / sigma^2). Without a crossing the
     residual is the end point itself.
     """
-    B = Lb.shape[0]
-    H = Lb.shape[1]
-    W = Lb.shape[2]
+    m = btiles.shape[0]
+    tiles_x = (W + tile - 1) // tile
     k1, k2, k3, k4, k5, k6 = k[0], k[1], k[2], k[3], k[4], k[5]
-    capped = np.zeros(H, np.int64)
-    order = row_order(H)
-    for i in prange(H):
-        y = order[i]
+    capped = np.zeros(m, np.int64)
+    order = slot_order(m)
+    for si in prange(m):
+        sl = order[si]
+        y0, y1, x0, x1 = tile_box(btiles[sl], tiles_x, tile, H, W)
         n = 0
-        base = y * cap
-        mu_r = np.empty(W)
-        sg_r = np.empty(W)
-        is_r = np.empty(W)
-        for x in range(W):
-            res_out[y, x] = res_in[y, x]
-            ready_out[y, x] = ready_in[y, x]
-        for bi in range(B):
+        base = sl * cap
+        mu_r = np.empty((tile, tile))
+        sg_r = np.empty((tile, tile))
+        is_r = np.empty((tile, tile))
+        for y in range(y0, y1):
+            for x in range(x0, x1):
+                prev_out[y, x] = prev_in[y, x]
+                res_out[y, x] = res_in[y, x]
+                ready_out[y, x] = ready_in[y, x]
+        for iv in range(boff[sl], boff[sl + 1]):
             # times within an interval are float64 us RELATIVE to its start
             # (small numbers: exact and shift-invariant at any absolute time)
-            t0_us = 0.0
-            t1_us = float(ts_us[bi + 1] - ts_us[bi])
-            inv_dt_m = tu_us / t1_us
-            # drift and diffusion of the row first (a branch-free loop the
-            # compiler vectorises), then the sampling loop
-            if bi == 0:
-                for x in range(W):
-                    a0 = scale * Lp[y, x]
-                    a1 = scale * Lb[0, y, x]
+            t0_rel = 0.0
+            t1_rel = float(t1_us[iv] - t0_us[iv])
+            inv_dt_m = tu_us / t1_rel
+            # drift and diffusion first (a branch-free loop the compiler
+            # vectorises), then the sampling loop
+            for y in range(y0, y1):
+                for x in range(x0, x1):
+                    a0 = scale * prev_out[y, x]
+                    a1 = scale * float(lum[iv, y - y0, x - x0])
                     lbar = 0.5 * (a0 + a1)
                     den = 1.0 / (lbar + k2)
-                    mu_r[x] = k1 * (a1 - a0) * inv_dt_m * den + k4 + k5 * lbar
-                    sg_r[x] = k3 * math.sqrt(max(lbar, 0.0)) * den + k6
-            else:
-                for x in range(W):
-                    a0 = scale * Lb[bi - 1, y, x]
-                    a1 = scale * Lb[bi, y, x]
-                    lbar = 0.5 * (a0 + a1)
-                    den = 1.0 / (lbar + k2)
-                    mu_r[x] = k1 * (a1 - a0) * inv_dt_m * den + k4 + k5 * lbar
-                    sg_r[x] = k3 * math.sqrt(max(lbar, 0.0)) * den + k6
-            for x in range(W):
-                is_r[x] = 1.0 / (sg_r[x] * sg_r[x])  # inf when sigma = 0
+                    mu_r[y - y0, x - x0] = k1 * (a1 - a0) * inv_dt_m * den + k4 + k5 * lbar
+                    sgv = k3 * math.sqrt(max(lbar, 0.0)) * den + k6
+                    sg_r[y - y0, x - x0] = sgv
+                    is_r[y - y0, x - x0] = 1.0 / (sgv * sgv)  # inf when sigma = 0
             s_full = 1.0 / inv_dt_m
             sqrt_dt_m = math.sqrt(s_full)
             inv_tu = 1.0 / tu_us
-            n_frame0 = n
-            key = frame_key(seed, frame_idx0 + bi, SALT_SIGNAL)
-            for x in range(W):
-                mu = mu_r[x]
-                sg = sg_r[x]
-                ton = th_on[y, x]
-                toff = th_off[y, x]
-                v = res_out[y, x]
-                t = max(t0_us, ready_out[y, x])
-                st = pixel_state(key, y * W + x)
-                cm = abs(mu)
-                inv_sg2 = is_r[x]
-                if sg > 0.0:
-                    z2 = 2.0 * mu * inv_sg2
-                else:
-                    z2 = math.inf if mu > 0 else -math.inf
-                npx = 0
-                while t < t1_us:
-                    if two_barrier:
-                        # exact two-barrier exit of the free drift-diffusion
-                        if t == t0_us:
-                            s = s_full
-                            sq = sqrt_dt_m
-                        else:
-                            s = (t1_us - t) * inv_tu
-                            sq = math.sqrt(s)
-                        st, zn = normal_zig(st)
-                        yend = v + mu * s + sg * sq * zn
-                        A = ton - v
-                        Bv = ton - yend
-                        C = v + toff
-                        D = yend + toff
-                        if Bv <= 0.0 or D <= 0.0:
-                            cross = True
-                        else:
-                            eu = 2.0 * A * Bv * inv_sg2
-                            ed = 2.0 * C * D * inv_sg2
-                            if eu > 40.0 * s and ed > 40.0 * s:
-                                cross = False  # 1 - P(stay) < 2^-54
+            n_iv0 = n
+            key = frame_key(seed, key_idx[iv], SALT_SIGNAL)
+            for y in range(y0, y1):
+                for x in range(x0, x1):
+                    prev_out[y, x] = float(lum[iv, y - y0, x - x0])
+                    mu = mu_r[y - y0, x - x0]
+                    sg = sg_r[y - y0, x - x0]
+                    inv_sg2 = is_r[y - y0, x - x0]
+                    ton = th_on[y, x]
+                    toff = th_off[y, x]
+                    v = res_out[y, x]
+                    t = max(t0_rel, ready_out[y, x])
+                    st = pixel_state(key, y * W + x)
+                    cm = abs(mu)
+                    if sg > 0.0:
+                        z2 = 2.0 * mu * inv_sg2
+                    else:
+                        z2 = math.inf if mu > 0 else -math.inf
+                    npx = 0
+                    while t < t1_rel:
+                        if two_barrier:
+                            # exact two-barrier exit of the free drift-diffusion
+                            if t == t0_rel:
+                                s = s_full
+                                sq = sqrt_dt_m
                             else:
+                                s = (t1_rel - t) * inv_tu
+                                sq = math.sqrt(s)
+                            st, zn = normal_zig(st)
+                            yend = v + mu * s + sg * sq * zn
+                            A = ton - v
+                            Bv = ton - yend
+                            C = v + toff
+                            D = yend + toff
+                            if Bv <= 0.0 or D <= 0.0:
+                                cross = True
+                            else:
+                                eu = 2.0 * A * Bv * inv_sg2
+                                ed = 2.0 * C * D * inv_sg2
+                                if eu > 40.0 * s and ed > 40.0 * s:
+                                    cross = False  # 1 - P(stay) < 2^-54
+                                else:
+                                    st, u = uniform_open(st)
+                                    cross = u >= bridge_stay_probability(v, yend, -toff, ton,
+                                                                         sg * sg * s)
+                            if not cross:
+                                v = min(max(yend, -toff * (1.0 - 1e-9)), ton * (1.0 - 1e-9))
+                                break
+                            # exit side and time given the bridge: propose from the
+                            # single-barrier bridge laws (weights = their crossing
+                            # probabilities), accept with g_two / g_single
+                            p_up = 1.0 if Bv <= 0.0 else math.exp(-2.0 * A * Bv * inv_sg2 / s)
+                            p_dn = 1.0 if D <= 0.0 else math.exp(-2.0 * C * D * inv_sg2 / s)
+                            wdt = ton + toff
+                            for _ in range(1000):
                                 st, u = uniform_open(st)
-                                cross = u >= bridge_stay_probability(v, yend, -toff, ton,
-                                                                     sg * sg * s)
-                        if not cross:
-                            v = min(max(yend, -toff * (1.0 - 1e-9)), ton * (1.0 - 1e-9))
-                            break
-                        # exit side and time given the bridge: propose from the
-                        # single-barrier bridge laws (weights = their crossing
-                        # probabilities), accept with g_two / g_single
-                        p_up = 1.0 if Bv <= 0.0 else math.exp(-2.0 * A * Bv * inv_sg2 / s)
-                        p_dn = 1.0 if D <= 0.0 else math.exp(-2.0 * C * D * inv_sg2 / s)
-                        wdt = ton + toff
-                        for _ in range(1000):
-                            st, u = uniform_open(st)
-                            on = u * (p_up + p_dn) < p_up
-                            eps = A if on else C
-                            dd = Bv if on else D
+                                on = u * (p_up + p_dn) < p_up
+                                eps = A if on else C
+                                dd = Bv if on else D
+                                st, zu = normal_zig(st)
+                                st, u = uniform_open(st)
+                                tau = bridge_crossing_time(s, eps, dd, zu * zu, u, sg)
+                                var_tau = sg * sg * tau
+                                # the ratio is 1 - c e^-E with E = 2 w (w - eps) /
+                                # (sigma^2 tau), c <= 2 w / eps + 1: E > 80 makes it
+                                # 1 to double precision for eps > 1e-16 w
+                                if var_tau <= 0.0 or 2.0 * wdt * (wdt - eps) > 80.0 * var_tau:
+                                    break
+                                st, u = uniform_open(st)
+                                if u < two_barrier_ratio(eps, wdt, var_tau):
+                                    break
+                        else:
+                            a = ton - v
+                            b = toff + v
+                            # |z| min(a, b) > 38 decides the polarity exactly at the
+                            # 2^-54 resolution of our uniforms: no draw needed then
+                            if z2 * b > 38.0:
+                                on = True
+                            elif z2 * a < -38.0:
+                                on = False
+                            else:
+                                pon = p_on_two_barrier(mu, sg, a, b)
+                                st, u = uniform_open(st)
+                                on = u < pon
+                            eps = a if on else b
+                            if t == t0_rel:
+                                s = s_full
+                                sq = sqrt_dt_m
+                            else:
+                                s = (t1_rel - t) * inv_tu
+                                sq = math.sqrt(s)
+                            st, zn = normal_zig(st)
+                            yv = cm * s + sg * sq * zn
+                            d = eps - yv
+                            if d > 0.0:
+                                # bridge crossing probability exp(-e), e = 2 eps d / (sigma^2 s);
+                                # e > 38 is decided without a draw (and without dividing)
+                                e_s = 2.0 * eps * d * inv_sg2
+                                if e_s > 38.0 * s:
+                                    cross = False
+                                else:
+                                    st, u = uniform_open(st)
+                                    cross = u < math.exp(-e_s / s)
+                            else:
+                                cross = True
+                            if not cross:
+                                v = v + yv if on else v - yv
+                                # the model fixes the polarity first, so the end point
+                                # may lie past the other barrier: keep it in the band
+                                lo = -toff * (1.0 - 1e-9)
+                                hi = ton * (1.0 - 1e-9)
+                                if v < lo:
+                                    v = lo
+                                elif v > hi:
+                                    v = hi
+                                break
                             st, zu = normal_zig(st)
                             st, u = uniform_open(st)
-                            tau = bridge_crossing_time(s, eps, dd, zu * zu, u, sg)
-                            var_tau = sg * sg * tau
-                            # the ratio is 1 - c e^-E with E = 2 w (w - eps) /
-                            # (sigma^2 tau), c <= 2 w / eps + 1: E > 80 makes it
-                            # 1 to double precision for eps > 1e-16 w
-                            if var_tau <= 0.0 or 2.0 * wdt * (wdt - eps) > 80.0 * var_tau:
-                                break
-                            st, u = uniform_open(st)
-                            if u < two_barrier_ratio(eps, wdt, var_tau):
-                                break
+                            tau = bridge_crossing_time(s, eps, d, zu * zu, u, sg)
                         te = t + tau * tu_us
-                        if te > t1_us:
-                            te = t1_us
+                        if te > t1_rel:
+                            te = t1_rel
                         if n < cap:
                             ev_t[base + n] = te
                             ev_x[base + n] = x
+                            ev_y[base + n] = y
                             ev_p[base + n] = 1 if on else -1
                         n += 1
                         npx += 1
                         v = 0.0
                         t = te + refractory_us
                         if npx >= max_events_px:
-                            capped[y] += 1
+                            capped[sl] += 1
                             break
-                        continue
-                    a = ton - v
-                    b = toff + v
-                    # |z| min(a, b) > 38 decides the polarity exactly at the
-                    # 2^-54 resolution of our uniforms: no draw needed then
-                    if z2 * b > 38.0:
-                        on = True
-                    elif z2 * a < -38.0:
-                        on = False
-                    else:
-                        pon = p_on_two_barrier(mu, sg, a, b)
-                        st, u = uniform_open(st)
-                        on = u < pon
-                    eps = a if on else b
-                    if t == t0_us:
-                        s = s_full
-                        sq = sqrt_dt_m
-                    else:
-                        s = (t1_us - t) * inv_tu
-                        sq = math.sqrt(s)
-                    st, zn = normal_zig(st)
-                    yv = cm * s + sg * sq * zn
-                    d = eps - yv
-                    if d > 0.0:
-                        # bridge crossing probability exp(-e), e = 2 eps d / (sigma^2 s);
-                        # e > 38 is decided without a draw (and without dividing)
-                        e_s = 2.0 * eps * d * inv_sg2
-                        if e_s > 38.0 * s:
-                            cross = False
-                        else:
-                            st, u = uniform_open(st)
-                            cross = u < math.exp(-e_s / s)
-                    else:
-                        cross = True
-                    if not cross:
-                        v = v + yv if on else v - yv
-                        # the model fixes the polarity first, so the end point
-                        # may lie past the other barrier: keep it in the band
-                        lo = -toff * (1.0 - 1e-9)
-                        hi = ton * (1.0 - 1e-9)
-                        if v < lo:
-                            v = lo
-                        elif v > hi:
-                            v = hi
-                        break
-                    st, zu = normal_zig(st)
-                    st, u = uniform_open(st)
-                    tau = bridge_crossing_time(s, eps, d, zu * zu, u, sg)
-                    te = t + tau * tu_us
-                    if te > t1_us:
-                        te = t1_us
-                    if n < cap:
-                        ev_t[base + n] = te
-                        ev_x[base + n] = x
-                        ev_p[base + n] = 1 if on else -1
-                    n += 1
-                    npx += 1
-                    v = 0.0
-                    t = te + refractory_us
-                    if npx >= max_events_px:
-                        capped[y] += 1
-                        break
-                res_out[y, x] = v
-                ready_out[y, x] = t - t1_us if t > t1_us else -math.inf
-            fn[bi, y] = n - n_frame0
+                    res_out[y, x] = v
+                    ready_out[y, x] = t - t1_rel if t > t1_rel else -math.inf
+            fn[iv] = n - n_iv0
     return capped.sum()
 
 
 @njit(cache=True, parallel=True)
-def ideal_batch(Lp, Lb, log_eps, ts_us, th_on, th_off, ref_in, last_in, ref_out,
-                last_out, refractory_us, max_events_px, cap, ev_t, ev_x, ev_p, fn):
-    """Ideal (ESIM-style) model over a batch of frame intervals.
+def ideal_tiles(btiles, boff, t0_us, t1_us, lum, H, W, tile, log_eps, th_on, th_off,
+                prev_in, ref_in, last_in, prev_out, ref_out, last_out, refractory_us,
+                max_events_px, cap, ev_t, ev_x, ev_y, ev_p, fn):
+    """Ideal (ESIM-style) model over a batch of tile intervals (layout as
+    :func:`voltmeter_tiles`).
 
-    Lp, Lb : previous (H, W) and new (B, H, W) frames, linear luminance in
-        [0, 1]; the log intensity G = log(L + log_eps) is taken as linear in
-        time within an interval.
-    ref_in : reference per pixel as LINEAR value exp(G_ref) (level of the last
-        crossing), so that the common no-crossing case needs no logarithm:
-        a crossing exists iff L + log_eps >= ref e^theta_on (or <= ref
-        e^-theta_off); only then are the logs taken.
-    last_in : time (us, relative to the batch's first frame) of the last
-        emitted event per pixel (-inf if none).
-    Crossings of G_ref + theta_on (upward) / G_ref - theta_off (downward) are
-    timed by linear interpolation of G; an event within ``refractory_us`` of
-    the previous emitted one is dropped but the reference still advances (as
-    ESIM). Buffers as in ``voltmeter_batch``.
+    The log intensity G = log(L + log_eps) is taken as linear in time within
+    an interval. ``ref_in``: reference per pixel as LINEAR value exp(G_ref)
+    (level of the last crossing), so that the common no-crossing case needs no
+    logarithm: a crossing exists iff L + log_eps >= ref e^theta_on (or <= ref
+    e^-theta_off); only then are the logs taken. ``last_in``: time (us,
+    relative to the start of the pixel's next interval) of its last emitted
+    event (-inf if none). Crossings of G_ref + theta_on (upward) / G_ref -
+    theta_off (downward) are timed by linear interpolation of G; an event
+    within ``refractory_us`` of the previous emitted one is dropped but the
+    reference still advances (as ESIM).
     """
-    B = Lb.shape[0]
-    H = Lb.shape[1]
-    W = Lb.shape[2]
-    capped = np.zeros(H, np.int64)
-    order = row_order(H)
-    for i in prange(H):
-        y = order[i]
+    m = btiles.shape[0]
+    tiles_x = (W + tile - 1) // tile
+    capped = np.zeros(m, np.int64)
+    order = slot_order(m)
+    for si in prange(m):
+        sl = order[si]
+        y0, y1, x0, x1 = tile_box(btiles[sl], tiles_x, tile, H, W)
         n = 0
-        base = y * cap
-        for x in range(W):
-            ref_out[y, x] = ref_in[y, x]
-            last_out[y, x] = last_in[y, x]
-        for bi in range(B):
-            t0_us = 0.0  # relative times, as in voltmeter_batch
-            dt = float(ts_us[bi + 1] - ts_us[bi])
-            n_frame0 = n
-            for x in range(W):
-                x1 = Lb[bi, y, x] + log_eps
-                rl = ref_out[y, x]
-                ton = th_on[y, x]
-                toff = th_off[y, x]
-                up = x1 > rl
-                # no-crossing certificates without exp/log (e^th >= 1 + th):
-                # most pixels do not move by a threshold in one interval
-                if up:
-                    if x1 < rl * (1.0 + ton):
+        base = sl * cap
+        for y in range(y0, y1):
+            for x in range(x0, x1):
+                prev_out[y, x] = prev_in[y, x]
+                ref_out[y, x] = ref_in[y, x]
+                last_out[y, x] = last_in[y, x]
+        for iv in range(boff[sl], boff[sl + 1]):
+            t0_rel = 0.0  # relative times, as in voltmeter_tiles
+            dt = float(t1_us[iv] - t0_us[iv])
+            n_iv0 = n
+            for y in range(y0, y1):
+                for x in range(x0, x1):
+                    lnew = float(lum[iv, y - y0, x - x0])
+                    x1v = lnew + log_eps
+                    x0v = prev_out[y, x] + log_eps
+                    prev_out[y, x] = lnew
+                    rl = ref_out[y, x]
+                    ton = th_on[y, x]
+                    toff = th_off[y, x]
+                    up = x1v > rl
+                    # no-crossing certificates without exp/log (e^th >= 1 + th):
+                    # most pixels do not move by a threshold in one interval
+                    if up:
+                        if x1v < rl * (1.0 + ton):
+                            last_out[y, x] -= dt
+                            continue
+                    elif x1v * (1.0 + toff) > rl:
+                        last_out[y, x] -= dt
                         continue
-                elif x1 * (1.0 + toff) > rl:
-                    continue
-                x0 = (Lp[y, x] if bi == 0 else Lb[bi - 1, y, x]) + log_eps
-                g0 = math.log(x0)
-                g1 = math.log(x1)
-                ref = math.log(rl)
-                last = last_out[y, x]
-                d = g1 - g0
-                th = ton if up else toff
-                npx = 0
-                moved = False
-                if d != 0.0:
-                    while (g1 - ref >= th) if up else (ref - g1 >= th):
-                        lev = ref + th if up else ref - th
-                        te = t0_us + (lev - g0) / d * dt
-                        if te < t0_us:
-                            te = t0_us
-                        ref = lev
-                        moved = True
-                        if refractory_us <= 0.0 or te - last >= refractory_us:
-                            if n < cap:
-                                ev_t[base + n] = te
-                                ev_x[base + n] = x
-                                ev_p[base + n] = 1 if up else -1
-                            n += 1
-                            last = te
-                        npx += 1
-                        if npx >= max_events_px:
-                            capped[y] += 1
-                            ref = g1
-                            break
-                if moved:
-                    ref_out[y, x] = math.exp(ref)
-                    last_out[y, x] = last
-            for x in range(W):
-                last_out[y, x] -= dt  # relative to the next interval's start
-            fn[bi, y] = n - n_frame0
+                    g0 = math.log(x0v)
+                    g1 = math.log(x1v)
+                    ref = math.log(rl)
+                    last = last_out[y, x]
+                    d = g1 - g0
+                    th = ton if up else toff
+                    npx = 0
+                    moved = False
+                    if d != 0.0:
+                        while (g1 - ref >= th) if up else (ref - g1 >= th):
+                            lev = ref + th if up else ref - th
+                            te = t0_rel + (lev - g0) / d * dt
+                            if te < t0_rel:
+                                te = t0_rel
+                            ref = lev
+                            moved = True
+                            if refractory_us <= 0.0 or te - last >= refractory_us:
+                                if n < cap:
+                                    ev_t[base + n] = te
+                                    ev_x[base + n] = x
+                                    ev_y[base + n] = y
+                                    ev_p[base + n] = 1 if up else -1
+                                n += 1
+                                last = te
+                            npx += 1
+                            if npx >= max_events_px:
+                                capped[sl] += 1
+                                ref = g1
+                                break
+                    if moved:
+                        ref_out[y, x] = math.exp(ref)
+                    last_out[y, x] = last - dt  # relative to the next interval's start
+            fn[iv] = n - n_iv0
     return capped.sum()
 
 
 @njit(cache=True, parallel=True)
-def noise_batch(Lp, Lb, ts_us, frame_idx0, seed, leak_rate_hz, shot_rate_hz,
-                shot_on_fraction, cap, row0, ev_t, ev_x, ev_p, fn):
-    """Noise events over a batch of frame intervals (v2e-like, Poisson per pixel).
+def noise_tiles(btiles, boff, t0_us, t1_us, key_idx, lum, H, W, tile, prev, seed, leak_rate_hz,
+                shot_rate_hz, shot_on_fraction, cap, slot0, ev_t, ev_x, ev_y, ev_p, fn):
+    """Noise events over a batch of tile intervals (v2e-like, Poisson per pixel).
 
-    Lp, Lb : previous (H, W) and new (B, H, W) frames, linear luminance in [0, 1].
-    Leak events: ON, rate ``leak_rate_hz`` per pixel. Shot noise: rate
-    ``shot_rate_hz`` per pixel scaled by 2 (1 - L) for the pixel's mean linear
-    luminance L over the interval (more in the dark; the mean over a uniform
-    histogram is the nominal rate), ON with probability ``shot_on_fraction``.
-    Times uniform in the interval. Noise events are independent of the pixel
-    model's state (they neither reset it nor obey its refractory period, as
-    they stand for activity outside the modelled signal path). Row y uses
-    buffer row ``row0 + y`` and
-    ``fn[b, row0 + y]``; otherwise as ``voltmeter_batch``.
+    ``prev`` (H, W): luminance of each pixel's sample before the batch (the
+    models' state before the batch). Leak events: ON, rate ``leak_rate_hz``
+    per pixel. Shot noise: rate ``shot_rate_hz`` per pixel scaled by 2 (1 - L)
+    for the pixel's mean linear luminance L over the interval (more in the
+    dark; the mean over a uniform histogram is the nominal rate), ON with
+    probability ``shot_on_fraction``. Times uniform in the interval. Noise
+    events are independent of the pixel model's state (they neither reset it
+    nor obey its refractory period, as they stand for activity outside the
+    modelled signal path). Slot s writes to buffer slot ``slot0 + s``;
+    otherwise as :func:`voltmeter_tiles`.
     """
-    B = Lb.shape[0]
-    H = Lb.shape[1]
-    W = Lb.shape[2]
-    for y in prange(H):
+    m = btiles.shape[0]
+    tiles_x = (W + tile - 1) // tile
+    for sl in prange(m):
+        y0, y1, x0, x1 = tile_box(btiles[sl], tiles_x, tile, H, W)
         n = 0
-        base = (row0 + y) * cap
-        for bi in range(B):
-            dt_us = float(ts_us[bi + 1] - ts_us[bi])
+        base = (slot0 + sl) * cap
+        for iv in range(boff[sl], boff[sl + 1]):
+            dt_us = float(t1_us[iv] - t0_us[iv])
             dt_s = dt_us * 1e-6
             lam_leak = leak_rate_hz * dt_s
-            n_frame0 = n
-            for x in range(W):
-                st = stream_state(seed, frame_idx0 + bi, y * W + x, SALT_NOISE)
-                l0 = Lp[y, x] if bi == 0 else Lb[bi - 1, y, x]
-                lval = min(max(0.5 * (l0 + Lb[bi, y, x]), 0.0), 1.0)
-                lam_shot = shot_rate_hz * 2.0 * (1.0 - lval) * dt_s
-                lam = lam_leak + lam_shot
-                st, kk = poisson_small(st, lam)
-                for _ in range(kk):
-                    st, u = uniform_open(st)
-                    st, u2 = uniform_open(st)
-                    if u2 * lam < lam_leak:
-                        sgn = 1
-                    else:
-                        st, u3 = uniform_open(st)
-                        sgn = 1 if u3 < shot_on_fraction else -1
-                    if n < cap:
-                        ev_t[base + n] = u * dt_us
-                        ev_x[base + n] = x
-                        ev_p[base + n] = sgn
-                    n += 1
-            fn[bi, row0 + y] = n - n_frame0
+            n_iv0 = n
+            for y in range(y0, y1):
+                for x in range(x0, x1):
+                    st = stream_state(seed, key_idx[iv], y * W + x, SALT_NOISE)
+                    l0 = prev[y, x] if iv == boff[sl] else float(lum[iv - 1, y - y0, x - x0])
+                    lval = min(max(0.5 * (l0 + float(lum[iv, y - y0, x - x0])), 0.0), 1.0)
+                    lam_shot = shot_rate_hz * 2.0 * (1.0 - lval) * dt_s
+                    lam = lam_leak + lam_shot
+                    st, kk = poisson_small(st, lam)
+                    for _ in range(kk):
+                        st, u = uniform_open(st)
+                        st, u2 = uniform_open(st)
+                        if u2 * lam < lam_leak:
+                            sgn = 1
+                        else:
+                            st, u3 = uniform_open(st)
+                            sgn = 1 if u3 < shot_on_fraction else -1
+                        if n < cap:
+                            ev_t[base + n] = u * dt_us
+                            ev_x[base + n] = x
+                            ev_y[base + n] = y
+                            ev_p[base + n] = sgn
+                        n += 1
+            fn[iv] = n - n_iv0
     return 0
 
 
 @njit(cache=True, parallel=True)
-def gather_batch(ts_us_i, H, cap, fn, ev_t, ev_x, ev_p, out_t, out_x, out_y, out_p):
-    """Collect the batch's events into ``out_*``, sorted by integer time.
+def commit_tiles(tiles, H, W, tile, src_a, dst_a, src_b, dst_b, src_c, dst_c):
+    """dst[...] = src[...] on the pixels of ``tiles`` (three state arrays)."""
+    tiles_x = (W + tile - 1) // tile
+    for s in prange(tiles.shape[0]):
+        y0, y1, x0, x1 = tile_box(tiles[s], tiles_x, tile, H, W)
+        for y in range(y0, y1):
+            for x in range(x0, x1):
+                dst_a[y, x] = src_a[y, x]
+                dst_b[y, x] = src_b[y, x]
+                dst_c[y, x] = src_c[y, x]
 
-    Per interval b (in parallel; each has its own output range): counting sort
-    over its microseconds (ties keep buffer-row order, then per-pixel order,
-    so the output is deterministic). Buffer row r holds image row r % H
-    (signal rows, then noise rows). Event times (float us relative to the
-    interval start) are rounded to the nearest microsecond, clamped to the
-    interval and added to its integer start time. Returns the count.
-    """
-    B = fn.shape[0]
-    R = fn.shape[1]
-    start = np.zeros((B + 1, R), np.int64)  # first event of interval b in row r
-    out0 = np.zeros(B + 1, np.int64)        # first output index of interval b
-    for bi in range(B):
-        tot = 0
-        for r in range(R):
-            start[bi + 1, r] = start[bi, r] + fn[bi, r]
-            tot += fn[bi, r]
-        out0[bi + 1] = out0[bi] + tot
-    for bi in prange(B):
-        t0 = ts_us_i[bi]
-        dt = ts_us_i[bi + 1] - t0
-        counts = np.zeros(dt + 2, np.int64)
-        for r in range(R):
-            b0 = r * cap + start[bi, r]
-            for i in range(fn[bi, r]):
-                off = np.int64(math.floor(ev_t[b0 + i] + 0.5))
-                off = min(max(off, 0), dt)
-                counts[off + 1] += 1
-        for j in range(dt + 1):
-            counts[j + 1] += counts[j]
-        n_out = out0[bi]
-        for r in range(R):
-            b0 = r * cap + start[bi, r]
-            y = r % H
-            for i in range(fn[bi, r]):
-                off = np.int64(math.floor(ev_t[b0 + i] + 0.5))
-                off = min(max(off, 0), dt)
-                j = n_out + counts[off]
-                counts[off] += 1
-                out_t[j] = t0 + off
-                out_x[j] = ev_x[b0 + i]
-                out_y[j] = y
-                out_p[j] = 1 if ev_p[b0 + i] > 0 else 0
-    return out0[B]
+
+@njit(cache=True)
+def gather_tiles(boff, t0_us, t1_us, cap, fn, fn_noise, ev_t, ev_x, ev_y, ev_p,
+                 out_t, out_x, out_y, out_p):
+    """Collect a batch's events from their slots, interval by interval (its
+    signal events, then its noise events, each in emission order), as int64
+    absolute times: the float offset from the interval start rounded to the
+    nearest microsecond and clamped to the interval. Noise of slot s sits in
+    buffer slot m + s. p becomes 1 (ON) / 0 (OFF). Returns the count."""
+    m = boff.shape[0] - 1
+    j = 0
+    for sl in range(m):
+        b_sig = sl * cap
+        b_noise = (m + sl) * cap
+        for iv in range(boff[sl], boff[sl + 1]):
+            t0 = t0_us[iv]
+            dt = t1_us[iv] - t0
+            for src in range(2):
+                cnt = fn[iv] if src == 0 else fn_noise[iv]
+                b0 = b_sig if src == 0 else b_noise
+                for i in range(cnt):
+                    off = np.int64(math.floor(ev_t[b0 + i] + 0.5))
+                    off = min(max(off, 0), dt)
+                    out_t[j] = t0 + off
+                    out_x[j] = ev_x[b0 + i]
+                    out_y[j] = ev_y[b0 + i]
+                    out_p[j] = 1 if ev_p[b0 + i] > 0 else 0
+                    j += 1
+                if src == 0:
+                    b_sig += cnt
+                else:
+                    b_noise += cnt
+    return j
+
+
+@njit(cache=True)
+def radix_argsort(keys):
+    """Stable argsort of non-negative int64 keys (LSD radix, 8-bit digits,
+    only the bytes the largest key needs): O(n) per digit."""
+    n = keys.shape[0]
+    idx = np.arange(n)
+    if n < 2:
+        return idx
+    kmax = keys.max()
+    tmp = np.empty(n, np.int64)
+    shift = 0
+    while (kmax >> shift) > 0:
+        counts = np.zeros(257, np.int64)
+        for i in range(n):
+            counts[((keys[idx[i]] >> shift) & 255) + 1] += 1
+        for b in range(256):
+            counts[b + 1] += counts[b]
+        for i in range(n):
+            d = (keys[idx[i]] >> shift) & 255
+            tmp[counts[d]] = idx[i]
+            counts[d] += 1
+        idx, tmp = tmp, idx
+        shift += 8
+    return idx
 
 
 @njit(cache=True, parallel=True)

@@ -19,8 +19,12 @@ def register(subparsers) -> None:
                    "(omit with --model/--trajectory)")
     p.add_argument("--model", help="gs2e train output: render the frames on demand (workflow mode)")
     p.add_argument("--trajectory", help="trajectory .npz to render along (with --model)")
-    p.add_argument("--render-config-json", metavar="JSON",
-                   help="the render config section (sampling of the rendered signal)")
+    p.add_argument("--background", type=_rgb, default=(0.0, 0.0, 0.0), metavar="R,G,B",
+                   help="with --model: colour behind the Gaussians, 0-1 (default 0,0,0)")
+    p.add_argument("--scale", type=float, default=1.0,
+                   help="with --model: resolution relative to the trajectory's camera (default 1)")
+    p.add_argument("--backend", default="cpu", choices=["cpu", "gsplat", "auto"],
+                   help="with --model: rasterizer (default cpu)")
     p.add_argument("--threads", type=int, default=None, help="CPU threads for rendering")
     p.add_argument("-o", "--out", required=True, help="output folder (replaced atomically)")
     p.add_argument("--timestamps", help="text file, one frame time per line (see --time-unit)")
@@ -56,6 +60,13 @@ def register(subparsers) -> None:
     r.set_defaults(func=run_presets)
 
 
+def _rgb(text: str) -> tuple[float, float, float]:
+    vals = tuple(float(v) for v in text.split(","))
+    if len(vals) != 3 or not all(0.0 <= v <= 1.0 for v in vals):
+        raise argparse.ArgumentTypeError(f"expected R,G,B in [0, 1], got {text!r}")
+    return vals
+
+
 def _section(args) -> dict:
     import json
 
@@ -87,14 +98,15 @@ def run(args) -> int:
     if args.model or args.trajectory:
         if not (args.model and args.trajectory) or args.input:
             raise ConfigError("workflow mode needs both --model and --trajectory and no INPUT")
-        from gs2e.config import load_section
-        from gs2e.render.source import source_for_events
+        from gs2e.events.rendered import RenderedSource
         from gs2e.splat.train import set_threads
 
         set_threads(args.threads)
-        rcfg = load_section("render", text=args.render_config_json)
-        src = source_for_events(args.model, args.trajectory, rcfg, cfg)
-        extra = {"model_dir": str(args.model), "trajectory": str(args.trajectory), "render": rcfg}
+        src = RenderedSource(args.model, args.trajectory, cfg, background=args.background,
+                             scale=args.scale, backend=args.backend, batch_frames=cfg["batch_frames"])
+        extra = {"model_dir": str(args.model), "trajectory": str(args.trajectory),
+                 "render": {"background": list(args.background), "scale": args.scale,
+                            "backend": args.backend}}
     else:
         if not args.input:
             raise ConfigError("give INPUT (frames) or --model and --trajectory")
@@ -102,9 +114,11 @@ def run(args) -> int:
         extra = None
     with timed(f"events {cfg['model']} on {src.name}", log):
         simulate_to_folder(src, cfg, args.out, args.seed, extra_meta=extra)
-    if hasattr(src, "stats"):
-        log.info("frame source: %d frames rendered, %d used (%s sampling)", src.stats.rendered,
-                 src.stats.accepted, src.mode)
+    if getattr(src, "stats", None) is not None:
+        st = src.stats
+        log.info("sampling (%s): %d renders, %d tile renders, %.1f M pixel values rendered, "
+                 "%d samples used, %d rejected, %d forced", src.sc["mode"], st.renders,
+                 st.tiles_rendered, st.pixel_samples * 1e-6, st.accepted, st.rejected, st.forced)
     return 0
 
 

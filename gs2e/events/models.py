@@ -162,11 +162,68 @@ def theta_summary(th: np.ndarray) -> dict:
 
 
 # ---------------------------------------------------------------- models
+TILE = 16  # pixels per tile side: the rasterizer's tiles, the unit of sampling
+
+
+@dataclass
+class TileBatch:
+    """Sample intervals of some tiles (what the models consume).
+
+    ``tiles`` (m,) int64 tile numbers (row-major, TILE x TILE px); slot s holds
+    the intervals ``offsets[s]`` .. ``offsets[s + 1] - 1`` of tile tiles[s],
+    consecutive in time. Per interval: ``t0_us``, ``t1_us`` (int64, absolute
+    microseconds, t0 = the tile's previous sample time), ``key_idx`` (int64:
+    index of the end sample in the tile's sequence, the first sample being 0;
+    it keys the random streams) and ``lum`` (TILE, TILE) linear luminance in
+    [0, 1] at t1, float32 or float64 (rows/columns beyond the image are ignored).
+    """
+
+    tiles: np.ndarray
+    offsets: np.ndarray
+    t0_us: np.ndarray
+    t1_us: np.ndarray
+    key_idx: np.ndarray
+    lum: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.t0_us.shape[0])
+
+    @property
+    def pixel_samples(self) -> int:
+        """Rendered pixel values the batch consumed (TILE^2 per interval)."""
+        return len(self) * TILE * TILE
+
+    @staticmethod
+    def from_frames(ts_us: np.ndarray, frames: np.ndarray, key0: int) -> "TileBatch":
+        """Every tile of B frames ((B + 1,) int64 times incl. the previous
+        frame's, (B, H, W) luminance); interval b of every tile is keyed
+        ``key0 + b``."""
+        B, H, W = frames.shape
+        ty, tx = -(-H // TILE), -(-W // TILE)
+        pad = np.zeros((B, ty * TILE, tx * TILE), frames.dtype)
+        pad[:, :H, :W] = frames
+        lum = pad.reshape(B, ty, TILE, tx, TILE).transpose(1, 3, 0, 2, 4).reshape(-1, TILE, TILE)
+        n_t = ty * tx
+        ts = np.asarray(ts_us, np.int64)
+        return TileBatch(np.arange(n_t, dtype=np.int64), np.arange(n_t + 1, dtype=np.int64) * B,
+                         np.tile(ts[:-1], n_t), np.tile(ts[1:], n_t),
+                         np.tile(np.arange(key0, key0 + B, dtype=np.int64), n_t),
+                         np.ascontiguousarray(lum))
+
+
 class _StreamingModel:
-    """Common frame validation, batching, buffers, noise and sorting."""
+    """Common validation, tile batches, buffers, noise and time ordering.
+
+    Frames and tile batches may be mixed: a frame is an interval of every
+    tile. Events come out sorted by time, ties by pixel (row, then column),
+    then in the order they were emitted; a call returns the events before
+    the horizon (the earliest time a later interval can start: the least
+    recent tile sample) and keeps the rest for the next call or
+    :meth:`flush`. Results do not depend on how samples are batched.
+    """
 
     name = "base"
-    _frame_dtype = np.float32  # the protocol's frames; the kernel's signature
+    _frame_dtype = np.float32  # what frames are converted to; one kernel signature each
 
     def __init__(self, shape: tuple[int, int], theta_on: float | np.ndarray = 1.0,
                  theta_off: float | np.ndarray = 1.0, refractory_us: float = 0.0,
@@ -177,6 +234,8 @@ class _StreamingModel:
         if H < 1 or W < 1 or W > 65535 or H > 65535:
             raise ConfigError(f"events: invalid frame shape {shape}")
         self.shape = (H, W)
+        self.tiles_x, self.tiles_y = -(-W // TILE), -(-H // TILE)
+        self.n_tiles = self.tiles_x * self.tiles_y
         self.th_on = self._theta(theta_on, "theta_on")
         self.th_off = self._theta(theta_off, "theta_off")
         if refractory_us < 0 or leak_rate_hz < 0 or shot_noise_rate_hz < 0:
@@ -192,11 +251,16 @@ class _StreamingModel:
         self.seed = int(seed) & 0xFFFFFFFFFFFFFFFF
         self.max_events_per_pixel = int(max_events_per_pixel)
         self.source = source
-        self.n_frames = 0          # frames consumed so far
-        self.t_prev: int | None = None
-        self.prev: np.ndarray | None = None  # last frame, linear luminance
+        self.n_frames = 0          # frames consumed (frame API)
+        self.t_prev: int | None = None  # last frame time (frame API)
+        self.t_tile: np.ndarray | None = None   # per tile: time of its last sample
+        self.n_tile = np.zeros(self.n_tiles, np.int64)  # per tile: samples so far
+        self.prev = np.zeros(self.shape)  # per pixel: luminance of its last sample
+        self._prev2 = np.zeros(self.shape)
         self.cap = 0
         self.n_capped = 0
+        self.intervals = 0         # tile intervals simulated
+        self._carry = Events.empty()  # events at or after the horizon
 
     def _theta(self, th, key) -> np.ndarray:
         a = np.asarray(th, dtype=np.float64)
@@ -208,21 +272,27 @@ class _StreamingModel:
             raise ConfigError(f"events.{key}: thresholds must be finite and > 0")
         return np.ascontiguousarray(a)
 
-    def _ensure(self, cap: int) -> None:
-        if cap > self.cap:
-            self.cap = cap
-            n = 2 * self.shape[0] * cap  # signal rows then noise rows
+    def _ensure(self, cap: int, m: int) -> None:
+        if cap > self.cap or 2 * m * max(cap, self.cap) > self._ev_t.shape[0]:
+            self.cap = max(cap, self.cap)
+            n = 2 * m * self.cap  # signal slots then noise slots
             self._ev_t = np.empty(n, np.float64)
             self._ev_x = np.empty(n, np.int32)
+            self._ev_y = np.empty(n, np.int32)
             self._ev_p = np.empty(n, np.int8)
 
     @property
     def noise_on(self) -> bool:
         return self.leak_rate_hz > 0 or self.shot_noise_rate_hz > 0
 
-    def _check(self, ts_us, frames) -> tuple[np.ndarray, np.ndarray]:
-        """Validate a batch: integer, strictly increasing times; (B, H, W)
-        finite frames in [0, 1]. Returns (int64 times, float64 frames)."""
+    @property
+    def horizon_us(self) -> int | None:
+        """No later interval starts before this time (the least recent tile sample)."""
+        return None if self.t_tile is None else int(self.t_tile.min())
+
+    def _check_frames(self, ts_us, frames) -> tuple[np.ndarray, np.ndarray]:
+        """Validate frames: integer, strictly increasing times; (B, H, W)
+        finite values in [0, 1]. Returns (int64 times, frames of ``_frame_dtype``)."""
         first = self.n_frames + 1  # 1-based number of the batch's first frame
         ts = np.asarray(ts_us)
         if ts.ndim != 1:
@@ -240,7 +310,6 @@ class _StreamingModel:
                              f"{self.shape} (H, W), one per timestamp")
         if not np.issubdtype(f.dtype, np.number) or np.issubdtype(f.dtype, np.complexfloating):
             raise InputError(f"{self.source}: frames are not real numbers ({f.dtype})")
-        # one dtype per model, so each kernel is compiled for one signature
         f = np.ascontiguousarray(f, dtype=self._frame_dtype)
         lo, hi = K.frame_ranges(f)
         finite = np.isfinite(lo) & np.isfinite(hi)
@@ -263,50 +332,118 @@ class _StreamingModel:
             f = np.minimum(f, f.dtype.type(1.0))
         return ts, f
 
+    def start(self, t_us: int, frame: np.ndarray) -> None:
+        """The first sample of every tile: (H, W) linear luminance at ``t_us``."""
+        ts, f = self._check_frames([t_us], np.asarray(frame)[None])
+        self._start(int(ts[0]), f[0])
+
+    def _start(self, t_us: int, f: np.ndarray) -> None:
+        if self.t_tile is not None:
+            raise InputError(f"{self.source}: the model was already started")
+        self._init_state(f)
+        self.prev[:] = f
+        self.t_tile = np.full(self.n_tiles, t_us, np.int64)
+        self.t_prev, self.n_frames = t_us, 1
+
     def process(self, t_us: int, frame: np.ndarray) -> Events:
-        """Feed one frame; returns the events of the interval ending at ``t_us``
-        (none for the first frame, which only sets the state)."""
+        """Feed one frame; returns the events before the horizon (see the class
+        docstring; none for the first frame, which only sets the state)."""
         return self.process_batch([t_us], np.asarray(frame)[None])
 
     def process_batch(self, ts_us, frames) -> Events:
-        """Feed B frames at once ((B,) int us, (B, H, W) linear luminance);
-        returns the time-sorted events of the B intervals they close. Same
-        events as B calls of :meth:`process` (batching only saves overhead)."""
-        ts, f = self._check(ts_us, frames)
-        if self.prev is None:
-            self._init_state(f[0])
-            self.prev, self.t_prev = f[0].copy(), int(ts[0])
-            self.n_frames = 1
+        """Feed B frames at once ((B,) int us, (B, H, W) linear luminance): each
+        is one interval of every tile. Returns the events before the horizon."""
+        ts, f = self._check_frames(ts_us, frames)
+        if self.t_tile is None:
+            self._start(int(ts[0]), f[0])
             ts, f = ts[1:], f[1:]
             if len(ts) == 0:
                 return Events.empty()
-        B, (H, W) = len(ts), self.shape
-        tsb = np.concatenate([[self.t_prev], ts]).astype(np.int64)
-        fn = np.zeros((B, 2 * H), np.int64)
-        self._ensure(max(64, B * W // 2))
+        if not np.all(self.t_tile == self.t_prev):
+            raise InputError(f"{self.source}: frames cannot follow tile samples")
+        batch = TileBatch.from_frames(np.concatenate([[self.t_prev], ts]), f, self.n_frames)
+        self.t_prev = int(ts[-1])
+        self.n_frames += len(ts)
+        return self.process_tiles(batch)
+
+    def process_tiles(self, b: TileBatch) -> Events:
+        """Feed a :class:`TileBatch`; returns the events before the horizon."""
+        if self.t_tile is None:
+            raise InputError(f"{self.source}: start() the model with a first frame")
+        m, n = len(b.tiles), len(b)
+        if m == 0:
+            return Events.empty()
+        tiles = np.ascontiguousarray(b.tiles, np.int64)
+        off = np.ascontiguousarray(b.offsets, np.int64)
+        t0 = np.ascontiguousarray(b.t0_us, np.int64)
+        t1 = np.ascontiguousarray(b.t1_us, np.int64)
+        key = np.ascontiguousarray(b.key_idx, np.int64)
+        lum = np.ascontiguousarray(b.lum)
+        if lum.dtype not in (np.float32, np.float64):
+            lum = lum.astype(self._frame_dtype)
+        first = off[:-1]
+        if (tiles.min() < 0 or tiles.max() >= self.n_tiles or len(np.unique(tiles)) != m
+                or off[0] != 0 or off[-1] != n or np.any(np.diff(off) < 1)
+                or lum.shape != (n, TILE, TILE)):
+            raise InputError(f"{self.source}: malformed tile batch")
+        inner = np.ones(n, bool)
+        inner[first] = False
+        if not (np.all(t1 > t0) and np.all(t0[first] == self.t_tile[tiles])
+                and np.all(t0[1:][inner[1:]] == t1[:-1][inner[1:]])):
+            raise InputError(f"{self.source}: the intervals of a tile must follow its last "
+                             "sample and each other in time")
+        H, W = self.shape
+        fn = np.zeros(n, np.int64)
+        fn_noise = np.zeros(n, np.int64)
+        per_slot = int(np.diff(off).max())
+        self._ensure(max(64, per_slot * TILE * TILE // 4), m)
         while True:
-            n_cap = self._run_signal(self.prev, f, tsb, fn)
+            n_cap = self._run_signal(tiles, off, t0, t1, key, lum, fn)
             if self.noise_on:
-                K.noise_batch(self.prev, f, tsb, self.n_frames, self.seed,
+                K.noise_tiles(tiles, off, t0, t1, key, lum, H, W, TILE, self.prev, self.seed,
                               self.leak_rate_hz, self.shot_noise_rate_hz,
-                              self.shot_noise_on_fraction, self.cap, H, self._ev_t,
-                              self._ev_x, self._ev_p, fn)
-            else:
-                fn[:, H:] = 0
-            need = int(fn.sum(axis=0).max())
+                              self.shot_noise_on_fraction, self.cap, m, self._ev_t, self._ev_x,
+                              self._ev_y, self._ev_p, fn_noise)
+            need_sig = np.add.reduceat(fn, first).max()
+            need = max(need_sig, np.add.reduceat(fn_noise, first).max())
             if need <= self.cap:
                 break
-            self._ensure(int(need * 1.25) + 16)
+            self._ensure(int(need * 1.25) + 16, m)
         self.n_capped += int(n_cap)
-        self._commit()
-        n = int(fn.sum())
-        ev = Events(np.empty(n, np.int64), np.empty(n, np.uint16), np.empty(n, np.uint16),
-                    np.empty(n, np.uint8))
-        K.gather_batch(tsb, H, self.cap, fn, self._ev_t, self._ev_x, self._ev_p,
-                       ev.t, ev.x, ev.y, ev.p)
-        self.prev, self.t_prev = f[-1].copy(), int(ts[-1])
-        self.n_frames += B
-        return ev
+        K.commit_tiles(tiles, H, W, TILE, *self._state_pairs())
+        total = int(fn.sum() + fn_noise.sum())
+        ev = Events(np.empty(total, np.int64), np.empty(total, np.uint16),
+                    np.empty(total, np.uint16), np.empty(total, np.uint8))
+        K.gather_tiles(off, t0, t1, self.cap, fn, fn_noise, self._ev_t, self._ev_x, self._ev_y,
+                       self._ev_p, ev.t, ev.x, ev.y, ev.p)
+        last = off[1:] - 1
+        self.t_tile[tiles] = t1[last]
+        self.n_tile[tiles] += np.diff(off)
+        self.intervals += n
+        return self._release(Events.concat([self._carry, ev]), self.horizon_us)
+
+    def _release(self, ev: Events, horizon: int | None) -> Events:
+        """Sort by (time, row, column), stable; keep events at/after ``horizon``."""
+        if len(ev) == 0:
+            self._carry = ev
+            return ev
+        H, W = self.shape
+        t_min = int(ev.t.min())
+        keys = (ev.t - t_min) * (H * W) + ev.y.astype(np.int64) * W + ev.x.astype(np.int64)
+        o = K.radix_argsort(keys)
+        ev = Events(ev.t[o], ev.x[o], ev.y[o], ev.p[o])
+        cut = len(ev) if horizon is None else int(np.searchsorted(ev.t, horizon, side="left"))
+        self._carry = Events(ev.t[cut:], ev.x[cut:], ev.y[cut:], ev.p[cut:])
+        return Events(ev.t[:cut], ev.x[:cut], ev.y[:cut], ev.p[:cut])
+
+    def simulate(self, ts_us, frames) -> Events:
+        """All events of an in-memory frame sequence (:meth:`process_batch`
+        then :meth:`flush`)."""
+        return Events.concat([self.process_batch(ts_us, frames), self.flush()])
+
+    def flush(self) -> Events:
+        """The events kept back at the horizon (call once, after the last sample)."""
+        return self._release(self._carry, None)
 
     def run(self, source: Iterable[tuple[int, np.ndarray]], batch: int = 32) -> Iterator[Events]:
         """Events of a frame source, one time-sorted batch per ``batch`` frames
@@ -320,6 +457,7 @@ class _StreamingModel:
                 ts, fr = [], []
         if ts:
             yield self.process_batch(ts, np.stack(fr))
+        yield self.flush()
 
     def metadata(self) -> dict:
         return {"model": self.name, "seed": self.seed, "refractory_us": self.refractory_us,
@@ -328,12 +466,13 @@ class _StreamingModel:
                 "theta_on_map": theta_summary(self.th_on),
                 "theta_off_map": theta_summary(self.th_off),
                 "max_events_per_pixel": self.max_events_per_pixel,
-                "pixel_intervals_capped": self.n_capped, "n_frames": self.n_frames}
+                "pixel_intervals_capped": self.n_capped, "n_frames": self.n_frames,
+                "tile_intervals": self.intervals}
 
     # subclass hooks
     def _init_state(self, f: np.ndarray) -> None: ...
-    def _run_signal(self, prev, frames, ts, fn) -> int: ...
-    def _commit(self) -> None: ...
+    def _run_signal(self, tiles, off, t0, t1, key, lum, fn) -> int: ...
+    def _state_pairs(self) -> tuple: ...
 
 
 class VoltmeterModel(_StreamingModel):
@@ -363,17 +502,18 @@ class VoltmeterModel(_StreamingModel):
         self._res2 = np.zeros(self.shape)
         self._ready2 = np.full(self.shape, -np.inf)
 
-    def _run_signal(self, prev, frames, ts, fn):
-        return K.voltmeter_batch(prev, frames, self.preset.intensity_scale, ts, self.n_frames, self.seed, self.k,
+    def _run_signal(self, tiles, off, t0, t1, key, lum, fn):
+        H, W = self.shape
+        return K.voltmeter_tiles(tiles, off, t0, t1, key, lum, H, W, TILE,
+                                 self.preset.intensity_scale, self.seed, self.k,
                                  self.preset.time_unit_us, self.th_on, self.th_off,
-                                 self.res, self.ready, self._res2, self._ready2,
-                                 self.refractory_us, self.max_events_per_pixel, self.cap,
-                                 self._ev_t, self._ev_x, self._ev_p, fn,
+                                 self.prev, self.res, self.ready, self._prev2, self._res2,
+                                 self._ready2, self.refractory_us, self.max_events_per_pixel,
+                                 self.cap, self._ev_t, self._ev_x, self._ev_y, self._ev_p, fn,
                                  self.exit_law == "two_barrier")
 
-    def _commit(self):
-        self.res, self._res2 = self._res2, self.res
-        self.ready, self._ready2 = self._ready2, self.ready
+    def _state_pairs(self):
+        return self._prev2, self.prev, self._res2, self.res, self._ready2, self.ready
 
     def metadata(self) -> dict:
         d = super().metadata()
@@ -413,15 +553,15 @@ class IdealModel(_StreamingModel):
     def _init_state(self, f):
         self.ref = f.astype(np.float64) + self.log_eps
 
-    def _run_signal(self, prev, frames, ts, fn):
-        return K.ideal_batch(prev, frames, self.log_eps, ts, self.th_on, self.th_off, self.ref,
-                             self.last, self._ref2, self._last2, self.refractory_us,
-                             self.max_events_per_pixel, self.cap, self._ev_t, self._ev_x,
-                             self._ev_p, fn)
+    def _run_signal(self, tiles, off, t0, t1, key, lum, fn):
+        H, W = self.shape
+        return K.ideal_tiles(tiles, off, t0, t1, lum, H, W, TILE, self.log_eps, self.th_on,
+                             self.th_off, self.prev, self.ref, self.last, self._prev2, self._ref2,
+                             self._last2, self.refractory_us, self.max_events_per_pixel, self.cap,
+                             self._ev_t, self._ev_x, self._ev_y, self._ev_p, fn)
 
-    def _commit(self):
-        self.ref, self._ref2 = self._ref2, self.ref
-        self.last, self._last2 = self._last2, self.last
+    def _state_pairs(self):
+        return self._prev2, self.prev, self._ref2, self.ref, self._last2, self.last
 
     def metadata(self) -> dict:
         d = super().metadata()

@@ -116,6 +116,12 @@ class PreviewWriter:
             self.acc[:] = 0
             self.written += 1
 
+    def __enter__(self) -> "PreviewWriter":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.close(ok=exc_type is None)
+
     def close(self, ok: bool = True) -> None:
         self.vw.release()
         if ok and self.written > 0:

@@ -1,15 +1,19 @@
-"""Run a model over a frame source and write the outputs (streaming, atomic).
+"""Run a model over a sample source and write the outputs (streaming, atomic).
 
 Output folder (written as a whole, atomically)::
 
     events.h5      DSEC-layout events + metadata (see gs2e.events.io)
-    stats.json     event statistics (gs2e.events.stats) + timings + metadata
+    stats.json     event statistics (gs2e.events.stats) + sampling cost + timings + metadata
     stats.parquet  the same statistics as one row (for the scene's metrics table)
-    preview.mp4    events over the frames (optional)
+    preview.mp4    events over the luminance, one video frame per
+                   ``preview_window_ms`` of simulated time (optional)
     events.txt     't x y p' text (optional)
     events.npz     arrays (optional)
 
-Memory is bounded by one batch of frames and its events, independent of the
+Sources: a frame source (``(t_us, frame)`` pairs, :mod:`gs2e.events.frames`)
+or a rendered source (:class:`gs2e.events.rendered.RenderedSource`: whole
+frames or tile batches, by ``events.sampling.mode``). Memory is bounded by one
+batch and the events the model holds back at its horizon, independent of the
 sequence length (the npz export, when asked for, reads the events back).
 """
 
@@ -18,17 +22,18 @@ from __future__ import annotations
 import json
 import logging
 import time
+from contextlib import ExitStack
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
 from gs2e import __version__
 from gs2e.common.atomic import atomic_dir, write_json_atomic
 from gs2e.common.errors import InputError
-from gs2e.common.log import timed
 from gs2e.common.progress import progress
 from gs2e.events.io import H5EventWriter, TextEventWriter, read_h5, write_npz
-from gs2e.events.models import Events, make_model
+from gs2e.events.models import Events, TileBatch, make_model
 from gs2e.events.presets import effective_threshold
 from gs2e.events.represent import PreviewWriter
 from gs2e.events.stats import StatsAccumulator
@@ -46,31 +51,86 @@ def set_threads(n: int) -> int:
     return numba.get_num_threads()
 
 
-def _peek(source):
-    """First item and an iterator that still yields it."""
-    it = iter(source)
-    try:
-        first = next(it)
-    except StopIteration:
-        raise InputError(f"{getattr(source, 'name', 'frames')}: no frames") from None
+class FrameBatches:
+    """A frame source as the simulator's input: ``start()`` gives the first
+    frame, ``batches()`` groups of ``batch`` frames ((B,) int64 times, (B, H, W));
+    ``luminance`` is the latest frame (previews)."""
 
-    def chain():
-        yield first
-        yield from it
-    return first, chain()
+    def __init__(self, frames, batch: int = 32):
+        self.src, self.batch = frames, int(batch)
+        self.name = getattr(frames, "name", "frames")
+        self.n_frames = getattr(frames, "n_frames", None)
+        self.stats = None
+        self._it = iter(frames)
+
+    def start(self) -> tuple[int, np.ndarray]:
+        try:
+            t, f = next(self._it)
+        except StopIteration:
+            raise InputError(f"{self.name}: no frames") from None
+        f = np.asarray(f)
+        if f.ndim != 2:
+            raise InputError(f"{self.name}: frames must be (H, W), got {f.shape}")
+        self.shape = f.shape
+        self.luminance = f
+        return t, f
+
+    def batches(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        ts, fs = [], []
+        for t, f in self._it:
+            if np.shape(f) != self.shape:
+                raise InputError(f"{self.name}: frame at t={t} us has shape {np.shape(f)}, "
+                                 f"expected {self.shape} (H, W) like the first frame")
+            ts.append(t)
+            fs.append(f)
+            if len(ts) == self.batch:
+                self.luminance = fs[-1]
+                yield ts, np.stack(fs)
+                ts, fs = [], []
+        if ts:
+            self.luminance = fs[-1]
+            yield ts, np.stack(fs)
+
+
+class _PreviewWindows:
+    """Feeds a PreviewWriter one video frame per ``window_us`` of event time."""
+
+    def __init__(self, pw: PreviewWriter, t0_us: int, window_us: int):
+        self.pw, self.w = pw, max(1, int(window_us))
+        self.end = t0_us + self.w
+        self.parts: list[Events] = []
+
+    def add(self, ev: Events, horizon: int | None, luminance) -> None:
+        """``ev``: the next events (sorted, all before ``horizon``; None = the end)."""
+        while True:
+            cut = int(np.searchsorted(ev.t, self.end, side="left"))
+            self.parts.append(Events(ev.t[:cut], ev.x[:cut], ev.y[:cut], ev.p[:cut]))
+            ev = Events(ev.t[cut:], ev.x[cut:], ev.y[cut:], ev.p[cut:])
+            if not (len(ev) or (horizon is not None and horizon >= self.end)):
+                break
+            self.pw.add(luminance, Events.concat(self.parts))
+            self.parts = []
+            self.end += self.w
+
+    def finish(self, luminance) -> None:
+        self.pw.add(luminance, Events.concat(self.parts))
 
 
 def simulate_to_folder(source, cfg: dict, out_dir: str | Path, seed: int,
                        extra_meta: dict | None = None) -> dict:
-    """Simulate events for ``source`` (frame-source protocol) with the
-    validated ``events`` config ``cfg``; write the output folder. Returns the
-    stats dict (also written to stats.json)."""
+    """Simulate events for ``source`` (a frame source, or an object with
+    ``start()``/``batches()`` like :class:`gs2e.events.rendered.RenderedSource`)
+    with the validated ``events`` config ``cfg``; write the output folder.
+    Returns the stats dict (also written to stats.json)."""
+    if not hasattr(source, "batches"):
+        source = FrameBatches(source, cfg["batch_frames"])
     timings: dict[str, float] = {}
-    name = getattr(source, "name", "frames")
-    (t_first, f_first), frames = _peek(source)
-    shape = tuple(np.asarray(f_first).shape)
-    if len(shape) != 2:
-        raise InputError(f"{name}: frames must be (H, W), got {shape}")
+    name = source.name
+    t_start = time.perf_counter()
+    t_first, f_first = source.start()
+    f_first = np.asarray(f_first)
+    shape = tuple(f_first.shape)
+    H, W = shape
     threads = set_threads(cfg.get("num_threads", -1))
     model_seed = int(seed) + int(cfg["seed_offset"])
     model, info = make_model(cfg, shape, model_seed, source=name)
@@ -82,91 +142,96 @@ def simulate_to_folder(source, cfg: dict, out_dir: str | Path, seed: int,
             f"rel_dL_over_L_at_{lum:g}": effective_threshold(p, info["theta_on_nominal"], lum)
             for lum in (0.1, 0.5, 1.0)}
         meta["effective_threshold"]["bright_limit"] = info["theta_on_nominal"] / p.k[0]
-    H, W = shape
     acc = StatsAccumulator(shape, name=name)
-    batch = int(cfg["batch_frames"])
-    t0 = time.perf_counter()
-    n_frames = 0
-    t_last = None
+    t_last = int(t_first)
+    span_us = getattr(source, "duration_us", None)
     with atomic_dir(out_dir) as tmp:
-        pw = (PreviewWriter(tmp / "preview.mp4", shape, cfg["preview_fps"], cfg["preview_every"])
-              if cfg["preview"] else None)
-        tw = TextEventWriter(tmp / "events.txt", cfg["text_polarity"]) if cfg["write_text"] else None
-        ok = False
-        try:
-            if tw:
-                tw.__enter__()
-            with H5EventWriter(tmp / "events.h5", W, H, int(t_first), cfg["compression"]) as hw:
-                buf_t, buf_f = [], []
+        with ExitStack() as stack:
+            hw = stack.enter_context(H5EventWriter(tmp / "events.h5", W, H, int(t_first),
+                                                   cfg["compression"]))
+            tw = (stack.enter_context(TextEventWriter(tmp / "events.txt", cfg["text_polarity"]))
+                  if cfg["write_text"] else None)
+            pv = None
+            if cfg["preview"]:
+                pw = stack.enter_context(PreviewWriter(tmp / "preview.mp4", shape,
+                                                       cfg["preview_fps"]))
+                pv = _PreviewWindows(pw, int(t_first), int(round(cfg["preview_window_ms"] * 1000)))
+            bar = stack.enter_context(progress(None, desc=f"events {name}", unit="ms",
+                                               total=round(span_us / 1000) if span_us else None))
+            model.start(int(t_first), f_first)
 
-                def flush():
-                    nonlocal n_frames
-                    ev = model.process_batch(buf_t, np.stack(buf_f))
-                    hw.append(ev)
-                    acc.update(ev)
-                    if tw:
-                        tw.append(ev)
-                    if pw:
-                        m = len(buf_t)
-                        for i in range(m):
-                            lo = buf_t[i - 1] if i > 0 else prev_t[0]
-                            if lo is None:
-                                continue  # the first frame closes no interval
-                            a = int(np.searchsorted(ev.t, lo, side="left")) if i > 0 else 0
-                            b = (int(np.searchsorted(ev.t, buf_t[i], side="left"))
-                                 if i < m - 1 else len(ev))
-                            pw.add(buf_f[i], Events(ev.t[a:b], ev.x[a:b], ev.y[a:b], ev.p[a:b]))
-                    prev_t[0] = buf_t[-1]
-                    n_frames += len(buf_t)
-                    buf_t.clear()
-                    buf_f.clear()
+            clock = dict.fromkeys(("source_s", "model_s", "stats_s", "write_s"), 0.0)
 
-                prev_t = [None]
-                for t, f in progress(frames, desc="events", total=getattr(source, "n_frames", None)):
-                    if np.shape(f) != shape:
-                        raise InputError(f"{name}: frame at t={t} us has shape {np.shape(f)}, "
-                                         f"expected {shape} (H, W) like the first frame")
-                    buf_t.append(t)
-                    buf_f.append(f)
-                    t_last = t
-                    if len(buf_t) == batch:
-                        flush()
-                if buf_t:
-                    flush()
-                timings["simulate_s"] = time.perf_counter() - t0
-                md = model.metadata()
-                meta["model_metadata"] = md
-                hw.attrs.update({"model": cfg["model"], "seed": model_seed,
-                                 "metadata": meta, "theta/on": model.th_on.astype(np.float32),
-                                 "theta/off": model.th_off.astype(np.float32)})
-                hw.attrs["theta_on_summary"] = md["theta_on_map"]
-                hw.attrs["theta_off_summary"] = md["theta_off_map"]
-                if cfg["model"] == "voltmeter":
-                    hw.attrs["preset"] = model.preset.to_dict()
-            ok = True
-        finally:
-            if tw:
-                tw.__exit__(None, None, None) if ok else tw.__exit__(RuntimeError, None, None)
-            if pw:
-                pw.close(ok=ok)
-        if n_frames < 2:
-            raise InputError(f"{name}: need at least 2 frames, got {n_frames}")
+            def emit(ev: Events, horizon: int | None) -> None:
+                a = time.perf_counter()
+                acc.update(ev)
+                b = time.perf_counter()
+                hw.append(ev)
+                if tw:
+                    tw.append(ev)
+                if pv:
+                    pv.add(ev, horizon, source.luminance)
+                clock["stats_s"] += b - a
+                clock["write_s"] += time.perf_counter() - b
+
+            done_ms = 0
+            batches = iter(source.batches())
+            while True:
+                a = time.perf_counter()
+                item = next(batches, None)
+                b = time.perf_counter()
+                clock["source_s"] += b - a
+                if item is None:
+                    break
+                if isinstance(item, TileBatch):
+                    ev = model.process_tiles(item)
+                    t_last = max(t_last, int(item.t1_us.max()))
+                else:
+                    ev = model.process_batch(*item)
+                    t_last = int(item[0][-1])
+                clock["model_s"] += time.perf_counter() - b
+                emit(ev, model.horizon_us)
+                now_ms = (model.horizon_us - int(t_first)) // 1000
+                bar.update(now_ms - done_ms)
+                done_ms = now_ms
+            emit(model.flush(), None)
+            if pv:
+                pv.finish(source.luminance)
+            timings["simulate_s"] = time.perf_counter() - t_start
+            timings.update(clock)
+            md = model.metadata()
+            meta["model_metadata"] = md
+            hw.attrs.update({"model": cfg["model"], "seed": model_seed,
+                             "metadata": meta, "theta/on": model.th_on.astype(np.float32),
+                             "theta/off": model.th_off.astype(np.float32)})
+            hw.attrs["theta_on_summary"] = md["theta_on_map"]
+            hw.attrs["theta_off_summary"] = md["theta_off_map"]
+            if cfg["model"] == "voltmeter":
+                hw.attrs["preset"] = model.preset.to_dict()
+        timings["close_s"] = time.perf_counter() - t_start - timings["simulate_s"]
         if cfg["write_npz"]:
             ev_all, _ = read_h5(tmp / "events.h5")
             write_npz(tmp / "events.npz", ev_all, W, H)
         dur_us = float(t_last - t_first)
         stats = acc.result(duration_us=dur_us)
-        stats.update(n_frames=n_frames, threads=threads, model=cfg["model"],
-                     preset=cfg["preset"] if cfg["model"] == "voltmeter" else None,
+        sst = getattr(source, "stats", None)
+        sampling = dict(sst.__dict__) if sst is not None else {}
+        pixel_samples = sampling.pop("pixel_samples", md["n_frames"] * H * W)
+        dur_s = dur_us * 1e-6
+        stats.update(n_frames=md["n_frames"], tile_intervals=model.intervals, threads=threads,
+                     model=cfg["model"], preset=cfg["preset"] if cfg["model"] == "voltmeter" else None,
                      theta_on=info["theta_on_nominal"], theta_off=info["theta_off_nominal"],
-                     pixel_frames_per_s=(n_frames - 1) * H * W / max(timings["simulate_s"], 1e-9),
-                     **timings)
+                     sampling_mode=getattr(source, "sc", {}).get("mode", "frames"),
+                     pixel_samples=int(pixel_samples),
+                     pixel_samples_per_s=pixel_samples / dur_s if dur_s > 0 else None,
+                     simulate_s_per_s=timings["simulate_s"] / dur_s if dur_s > 0 else None,
+                     **{f"sampling_{k}": v for k, v in sampling.items()}, **timings)
         import pandas as pd
         row = {k: v for k, v in stats.items() if not isinstance(v, (dict, list))}
         pd.DataFrame([row]).to_parquet(tmp / "stats.parquet", index=False)
         write_json_atomic(tmp / "stats.json", {"stats": stats, "metadata": json.loads(
             json.dumps(meta, default=lambda o: o.item() if isinstance(o, np.generic) else str(o)))})
-    log.info("events: %d frames (%dx%d) -> %d events (%.3f Mev/s, ON %.2f) in %.2f s",
-             n_frames, W, H, stats["n_events"], stats["rate_meps"],
+    log.info("events: %s, %.3f s simulated (%dx%d) -> %d events (%.3f Mev/s, ON %.2f) in %.2f s",
+             stats["sampling_mode"], dur_us * 1e-6, W, H, stats["n_events"], stats["rate_meps"],
              stats["on_fraction"] if stats["n_events"] else float("nan"), timings["simulate_s"])
     return stats

@@ -19,7 +19,7 @@ from gs2e.io.scene import Camera, Frame, Scene
 from gs2e.render.blur import average_srgb, subframe_times_us, subframes_needed
 from gs2e.render.motion import pixel_motion_px
 from gs2e.render.renderer import TrajectoryRenderer
-from gs2e.render.source import fixed_times_us
+from gs2e.trajectory import fixed_times_us
 
 log = get_logger("gs2e.render")
 

@@ -75,78 +75,132 @@ def _cov_cam(quat, logscale, V, Rq, M, S3, Sc):
 
 
 @njit(parallel=True, cache=True, fastmath=False)
-def project_forward_kernel(means, quats, logscales, viewmat, fx, fy, cx, cy,
-                           width, height, near, far,
+def cov3d_kernel(quats, logscales, cov6):
+    """World-space 3D covariances Rq diag(s)^2 Rq^T, upper triangle per
+    Gaussian: cov6 (N,6) = xx, xy, xz, yy, yz, zz (same arithmetic as
+    :func:`_cov_cam`, so projecting from them is bit-identical)."""
+    for g in prange(quats.shape[0]):
+        n = math.sqrt(quats[g, 0] * quats[g, 0] + quats[g, 1] * quats[g, 1]
+                      + quats[g, 2] * quats[g, 2] + quats[g, 3] * quats[g, 3])
+        w, x, y, z = quats[g, 0] / n, quats[g, 1] / n, quats[g, 2] / n, quats[g, 3] / n
+        s0 = math.exp(logscales[g, 0])
+        s1 = math.exp(logscales[g, 1])
+        s2 = math.exp(logscales[g, 2])
+        m00 = (1.0 - 2.0 * (y * y + z * z)) * s0
+        m01 = (2.0 * (x * y - w * z)) * s1
+        m02 = (2.0 * (x * z + w * y)) * s2
+        m10 = (2.0 * (x * y + w * z)) * s0
+        m11 = (1.0 - 2.0 * (x * x + z * z)) * s1
+        m12 = (2.0 * (y * z - w * x)) * s2
+        m20 = (2.0 * (x * z - w * y)) * s0
+        m21 = (2.0 * (y * z + w * x)) * s1
+        m22 = (1.0 - 2.0 * (x * x + y * y)) * s2
+        cov6[g, 0] = m00 * m00 + m01 * m01 + m02 * m02
+        cov6[g, 1] = m00 * m10 + m01 * m11 + m02 * m12
+        cov6[g, 2] = m00 * m20 + m01 * m21 + m02 * m22
+        cov6[g, 3] = m10 * m10 + m11 * m11 + m12 * m12
+        cov6[g, 4] = m10 * m20 + m11 * m21 + m12 * m22
+        cov6[g, 5] = m20 * m20 + m21 * m21 + m22 * m22
+
+
+@njit(inline="always", cache=True, fastmath=False)
+def _sym(cov6, g, i, j):
+    """Entry (i, j) of the symmetric 3x3 matrix stored as cov6[g]."""
+    if i > j:
+        i, j = j, i
+    return cov6[g, i * 3 - (i * (i - 1)) // 2 + (j - i)]
+
+
+@njit(inline="always", cache=True, fastmath=False)
+def project_one(g, means, cov6, V, t0, t1, t2, fx, fy, cx, cy, width, height, near, far,
+                lim_xp, lim_xn, lim_yp, lim_yn, means2d, conics, depths, radii):
+    """Project Gaussian g (see module docstring); writes row g of the outputs."""
+    radii[g] = 0
+    means2d[g, 0] = 0.0
+    means2d[g, 1] = 0.0
+    conics[g, 0] = 0.0
+    conics[g, 1] = 0.0
+    conics[g, 2] = 0.0
+    mx, my, mz = float(means[g, 0]), float(means[g, 1]), float(means[g, 2])
+    x = V[0, 0] * mx + V[0, 1] * my + V[0, 2] * mz + t0
+    y = V[1, 0] * mx + V[1, 1] * my + V[1, 2] * mz + t1
+    z = V[2, 0] * mx + V[2, 1] * my + V[2, 2] * mz + t2
+    depths[g] = z
+    if not (z >= near and z <= far):
+        return
+    # Sc = V S3 V^T, in the order of _cov_cam (tmp = V S3, then tmp V^T)
+    tm00 = V[0, 0] * _sym(cov6, g, 0, 0) + V[0, 1] * _sym(cov6, g, 1, 0) + V[0, 2] * _sym(cov6, g, 2, 0)
+    tm01 = V[0, 0] * _sym(cov6, g, 0, 1) + V[0, 1] * _sym(cov6, g, 1, 1) + V[0, 2] * _sym(cov6, g, 2, 1)
+    tm02 = V[0, 0] * _sym(cov6, g, 0, 2) + V[0, 1] * _sym(cov6, g, 1, 2) + V[0, 2] * _sym(cov6, g, 2, 2)
+    tm10 = V[1, 0] * _sym(cov6, g, 0, 0) + V[1, 1] * _sym(cov6, g, 1, 0) + V[1, 2] * _sym(cov6, g, 2, 0)
+    tm11 = V[1, 0] * _sym(cov6, g, 0, 1) + V[1, 1] * _sym(cov6, g, 1, 1) + V[1, 2] * _sym(cov6, g, 2, 1)
+    tm12 = V[1, 0] * _sym(cov6, g, 0, 2) + V[1, 1] * _sym(cov6, g, 1, 2) + V[1, 2] * _sym(cov6, g, 2, 2)
+    tm20 = V[2, 0] * _sym(cov6, g, 0, 0) + V[2, 1] * _sym(cov6, g, 1, 0) + V[2, 2] * _sym(cov6, g, 2, 0)
+    tm21 = V[2, 0] * _sym(cov6, g, 0, 1) + V[2, 1] * _sym(cov6, g, 1, 1) + V[2, 2] * _sym(cov6, g, 2, 1)
+    tm22 = V[2, 0] * _sym(cov6, g, 0, 2) + V[2, 1] * _sym(cov6, g, 1, 2) + V[2, 2] * _sym(cov6, g, 2, 2)
+    s00 = tm00 * V[0, 0] + tm01 * V[0, 1] + tm02 * V[0, 2]
+    s01 = tm00 * V[1, 0] + tm01 * V[1, 1] + tm02 * V[1, 2]
+    s02 = tm00 * V[2, 0] + tm01 * V[2, 1] + tm02 * V[2, 2]
+    s11 = tm10 * V[1, 0] + tm11 * V[1, 1] + tm12 * V[1, 2]
+    s12 = tm10 * V[2, 0] + tm11 * V[2, 1] + tm12 * V[2, 2]
+    s21 = tm20 * V[1, 0] + tm21 * V[1, 1] + tm22 * V[1, 2]
+    s22 = tm20 * V[2, 0] + tm21 * V[2, 1] + tm22 * V[2, 2]
+    rz = 1.0 / z
+    tx = z * min(lim_xp, max(-lim_xn, x * rz))
+    ty = z * min(lim_yp, max(-lim_yn, y * rz))
+    j00 = fx * rz
+    j02 = -fx * tx * rz * rz
+    j11 = fy * rz
+    j12 = -fy * ty * rz * rz
+    # cov2d = J Sc J^T with J = [[j00, 0, j02], [0, j11, j12]]
+    a = (j00 * j00 * s00 + 2.0 * j00 * j02 * s02 + j02 * j02 * s22 + LOWPASS_PX2)
+    b = (j00 * j11 * s01 + j00 * j12 * s02 + j02 * j11 * s21 + j02 * j12 * s22)
+    c = (j11 * j11 * s11 + 2.0 * j11 * j12 * s12 + j12 * j12 * s22 + LOWPASS_PX2)
+    det = a * c - b * b
+    if not (det > 0.0):
+        return
+    u = fx * x * rz + cx
+    v = fy * y * rz + cy
+    mid = 0.5 * (a + c)
+    lam = mid + math.sqrt(max(0.1, mid * mid - det))
+    rf = 3.0 * math.sqrt(lam)
+    if not (rf < MAX_RADIUS_PX):
+        rf = MAX_RADIUS_PX
+    r = np.ceil(rf)
+    # box of pixel centres the 3-sigma ellipse can reach
+    if u + r < 0.5 or u - r > width - 0.5 or v + r < 0.5 or v - r > height - 0.5:
+        return
+    means2d[g, 0] = u
+    means2d[g, 1] = v
+    conics[g, 0] = c / det
+    conics[g, 1] = -b / det
+    conics[g, 2] = a / det
+    radii[g] = int(r)
+
+
+@njit(cache=True, fastmath=False)
+def view_limits(fx, fy, cx, cy, width, height):
+    """x/z, y/z clamps of the EWA Jacobian: 1.3x the field of view."""
+    return ((width - cx) / fx + 0.3 * width / fx, cx / fx + 0.3 * width / fx,
+            (height - cy) / fy + 0.3 * height / fy, cy / fy + 0.3 * height / fy)
+
+
+@njit(parallel=True, cache=True, fastmath=False)
+def project_forward_kernel(means, cov6, viewmat, fx, fy, cx, cy, width, height, near, far, idx,
                            means2d, conics, depths, radii):
-    n = means.shape[0]
-    V = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            V[i, j] = viewmat[i, j]
+    """Project the Gaussians ``idx`` (all if idx is empty); rows of the others
+    are left untouched."""
+    V = viewmat[:3, :3].copy()
     t0, t1, t2 = viewmat[0, 3], viewmat[1, 3], viewmat[2, 3]
-    lim_xp = (width - cx) / fx + 0.3 * width / fx
-    lim_xn = cx / fx + 0.3 * width / fx
-    lim_yp = (height - cy) / fy + 0.3 * height / fy
-    lim_yn = cy / fy + 0.3 * height / fy
-    for g in prange(n):
-        radii[g] = 0
-        means2d[g, 0] = 0.0
-        means2d[g, 1] = 0.0
-        conics[g, 0] = 0.0
-        conics[g, 1] = 0.0
-        conics[g, 2] = 0.0
-        mx, my, mz = float(means[g, 0]), float(means[g, 1]), float(means[g, 2])
-        x = V[0, 0] * mx + V[0, 1] * my + V[0, 2] * mz + t0
-        y = V[1, 0] * mx + V[1, 1] * my + V[1, 2] * mz + t1
-        z = V[2, 0] * mx + V[2, 1] * my + V[2, 2] * mz + t2
-        depths[g] = z
-        if not (z >= near and z <= far):
-            continue
-        Rq = np.empty((3, 3))
-        M = np.empty((3, 3))
-        S3 = np.empty((3, 3))
-        Sc = np.empty((3, 3))
-        q = np.empty(4)
-        ls = np.empty(3)
-        for k in range(4):
-            q[k] = quats[g, k]
-        for k in range(3):
-            ls[k] = logscales[g, k]
-        _cov_cam(q, ls, V, Rq, M, S3, Sc)
-        rz = 1.0 / z
-        tx = z * min(lim_xp, max(-lim_xn, x * rz))
-        ty = z * min(lim_yp, max(-lim_yn, y * rz))
-        j00 = fx * rz
-        j02 = -fx * tx * rz * rz
-        j11 = fy * rz
-        j12 = -fy * ty * rz * rz
-        # cov2d = J Sc J^T with J = [[j00, 0, j02], [0, j11, j12]]
-        a = (j00 * j00 * Sc[0, 0] + 2.0 * j00 * j02 * Sc[0, 2] + j02 * j02 * Sc[2, 2]
-             + LOWPASS_PX2)
-        b = (j00 * j11 * Sc[0, 1] + j00 * j12 * Sc[0, 2] + j02 * j11 * Sc[2, 1]
-             + j02 * j12 * Sc[2, 2])
-        c = (j11 * j11 * Sc[1, 1] + 2.0 * j11 * j12 * Sc[1, 2] + j12 * j12 * Sc[2, 2]
-             + LOWPASS_PX2)
-        det = a * c - b * b
-        if not (det > 0.0):
-            continue
-        u = fx * x * rz + cx
-        v = fy * y * rz + cy
-        mid = 0.5 * (a + c)
-        lam = mid + math.sqrt(max(0.1, mid * mid - det))
-        rf = 3.0 * math.sqrt(lam)
-        if not (rf < MAX_RADIUS_PX):
-            rf = MAX_RADIUS_PX
-        r = np.ceil(rf)
-        # box of pixel centres the 3-sigma ellipse can reach
-        if u + r < 0.5 or u - r > width - 0.5 or v + r < 0.5 or v - r > height - 0.5:
-            continue
-        means2d[g, 0] = u
-        means2d[g, 1] = v
-        conics[g, 0] = c / det
-        conics[g, 1] = -b / det
-        conics[g, 2] = a / det
-        radii[g] = int(r)
+    lim_xp, lim_xn, lim_yp, lim_yn = view_limits(fx, fy, cx, cy, width, height)
+    if idx.shape[0] == 0:
+        for g in prange(means.shape[0]):
+            project_one(g, means, cov6, V, t0, t1, t2, fx, fy, cx, cy, width, height, near, far,
+                        lim_xp, lim_xn, lim_yp, lim_yn, means2d, conics, depths, radii)
+    else:
+        for k in prange(idx.shape[0]):
+            project_one(idx[k], means, cov6, V, t0, t1, t2, fx, fy, cx, cy, width, height, near,
+                        far, lim_xp, lim_xn, lim_yp, lim_yn, means2d, conics, depths, radii)
 
 
 @njit(parallel=True, cache=True, fastmath=False)
@@ -345,16 +399,27 @@ def project(means, quats, logscales, viewmat, fx, fy, cx, cy, width, height,
     depths (N,) camera z, radii (N,) int32 px (0 = culled).
     """
     n = means.shape[0]
-    means2d = np.empty((n, 2))
-    conics = np.empty((n, 3))
-    depths = np.empty(n)
-    radii = np.empty(n, dtype=np.int32)
-    project_forward_kernel(np.ascontiguousarray(means, dtype=np.float64),
-                           np.ascontiguousarray(quats, dtype=np.float64),
-                           np.ascontiguousarray(logscales, dtype=np.float64),
+    cov6 = np.empty((n, 6))
+    cov3d_kernel(np.ascontiguousarray(quats, dtype=np.float64),
+                 np.ascontiguousarray(logscales, dtype=np.float64), cov6)
+    return project_cov(means, cov6, viewmat, fx, fy, cx, cy, width, height, near, far)
+
+
+def project_cov(means, cov6, viewmat, fx, fy, cx, cy, width, height, near=0.01, far=1.0e10,
+                idx=None, out=None):
+    """:func:`project` from precomputed world covariances ``cov6`` (N,6)
+    (:func:`cov3d_kernel`; constant for a trained model). With ``idx`` (M,)
+    int64 only those Gaussians are projected into ``out`` (the four arrays of
+    a previous call), the other rows are left as they are."""
+    n = means.shape[0]
+    if out is None:
+        out = (np.zeros((n, 2)), np.zeros((n, 3)), np.zeros(n), np.zeros(n, dtype=np.int32))
+    means2d, conics, depths, radii = out
+    project_forward_kernel(np.ascontiguousarray(means, dtype=np.float64), cov6,
                            np.ascontiguousarray(viewmat, dtype=np.float64),
                            float(fx), float(fy), float(cx), float(cy),
                            float(width), float(height), float(near), float(far),
+                           np.empty(0, np.int64) if idx is None else idx,
                            means2d, conics, depths, radii)
     return means2d, conics, depths, radii
 

@@ -139,18 +139,20 @@ def _seg_list(lu, lrx, rl, mr, x0, x1, sl):
 
 
 @njit(parallel=True, cache=True, fastmath=False)
-def raster_forward_kernel(offsets, gids, means2d, conics, opac, feats, bg,
+def raster_forward_kernel(tile_ids, offsets, gids, means2d, conics, opac, feats, bg,
                           width, height, tile, out, out_T, n_contrib):
-    """Composite. out (H,W,C), out_T (H,W) final transmittance, n_contrib (H,W)
-    = number of list entries processed (the backward walks [0, n_contrib))."""
+    """Composite the tiles ``tile_ids`` (row-major tile numbers); the list of
+    tile_ids[s] is gids[offsets[s]:offsets[s + 1]]. out (H,W,C), out_T (H,W)
+    final transmittance, n_contrib (H,W) = number of list entries processed
+    (the backward walks [0, n_contrib)); pixels of other tiles are untouched."""
     tiles_x = (width + tile - 1) // tile
-    tiles_y = (height + tile - 1) // tile
     C = feats.shape[1]
-    for t in prange(tiles_x * tiles_y):
+    for s in prange(tile_ids.shape[0]):
+        t = tile_ids[s]
         ty = t // tiles_x
         tx = t - ty * tiles_x
-        start = offsets[t]
-        m = offsets[t + 1] - start
+        start = offsets[s]
+        m = offsets[s + 1] - start
         # gather this tile's Gaussians contiguously (cache friendly)
         lu = np.empty(m)
         lv = np.empty(m)
@@ -353,8 +355,9 @@ def rasterize_forward(means2d, conics, opac, feats, bg, width, height, offsets, 
     out = np.empty((height, width, C), dtype=dt)
     out_T = np.empty((height, width), dtype=dt)
     n_contrib = np.empty((height, width), dtype=np.int32)
-    raster_forward_kernel(offsets, gids, means2d, conics, opac, feats, bg,
-                          int(width), int(height), int(tile), out, out_T, n_contrib)
+    n_tiles = ((int(width) + tile - 1) // tile) * ((int(height) + tile - 1) // tile)
+    raster_forward_kernel(np.arange(n_tiles, dtype=np.int64), offsets, gids, means2d, conics,
+                          opac, feats, bg, int(width), int(height), int(tile), out, out_T, n_contrib)
     return out, out_T, n_contrib
 
 

@@ -12,10 +12,11 @@ Pure functions live in ``curve`` (smoothing, metric, curves, arc length),
 stage on a scene; ``io`` writes and reads the files; ``cli`` is ``gs2e trajectory``.
 """
 
-__all__ = ["Trajectory", "load_trajectory", "read_index", "generate"]
+__all__ = ["Trajectory", "load_trajectory", "read_index", "generate", "fixed_times_us"]
 
 _LAZY = {"Trajectory": "gs2e.trajectory.trajectory", "load_trajectory": "gs2e.trajectory.io",
-         "read_index": "gs2e.trajectory.io", "generate": "gs2e.trajectory.stage"}
+         "read_index": "gs2e.trajectory.io", "generate": "gs2e.trajectory.stage",
+         "fixed_times_us": "gs2e.trajectory.trajectory"}
 
 
 def __getattr__(name: str):

@@ -32,6 +32,15 @@ MIN_QUAT_NORM = 0.05  # below this the normalised quaternion curve is ill-define
 DUP_TOL = 1e-9        # relative to the path length: shorter steps are duplicate poses
 
 
+def fixed_times_us(t0_us: int, t1_us: int, fps: float) -> np.ndarray:
+    """Times at ``fps`` from t0 to t1 (t1 included), rounded to integer us."""
+    n = int(math.floor((t1_us - t0_us) * fps / 1e6 + 1e-9)) + 1
+    t = np.round(t0_us + np.arange(n) * 1e6 / fps).astype(np.int64)
+    if t[-1] < t1_us:
+        t = np.append(t, np.int64(t1_us))
+    return t
+
+
 def eval_at_s(curve: PoseCurve, arc: ArcTable, s: np.ndarray) -> np.ndarray:
     """Poses (Q, 4, 4) at arc lengths s (Q,) (compiled kernel)."""
     s = np.ascontiguousarray(s, dtype=np.float64)

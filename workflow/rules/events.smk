@@ -9,7 +9,10 @@ rule events:
                labels={"scene": "{scene}", "trajectory": "{traj}"}),
     params:
         cfg=stage_cfg("events"),
-        render_cfg=stage_cfg("render"),
+        # what changes pixels, from the render section (not its frame rate or outputs)
+        background=lambda wc: ",".join(map(repr, SCENE_CFG[wc.scene]["render"]["background"])),
+        scale=lambda wc: SCENE_CFG[wc.scene]["render"]["scale"],
+        backend=lambda wc: SCENE_CFG[wc.scene]["render"]["backend"],
         seed=lambda wc: derive_seed(SCENE_CFG[wc.scene]["seed"], f"{wc.scene}/{wc.traj}", "events"),
         code=code_version("events"),
         trajectory=lambda wc, input: str(Path(input.trajectories, f"{wc.traj}.npz")),
@@ -28,4 +31,5 @@ rule events:
     shell:
         "python -m gs2e events --model {input.model:q} --trajectory {params.trajectory:q}"
         " -o {output:q} --seed {params.seed} --threads {threads}"
-        " --config-json {params.cfg:q} --render-config-json {params.render_cfg:q} 2> {log:q}"
+        " --background {params.background} --scale {params.scale} --backend {params.backend}"
+        " --config-json {params.cfg:q} 2> {log:q}"

@@ -1,0 +1,227 @@
+"""Samples for the event models rendered on demand from a model along a trajectory.
+
+The I/O edge of the workflow's event stage: loads the Gaussian model (gs2e
+train output) and the trajectory, renders linear luminance with the
+forward-only renderer (:mod:`gs2e.splat.forward`) at the times the sampling
+mode asks for (:mod:`gs2e.events.sampling`), and hands the event models
+either whole frames (``fixed``, ``adaptive``) or tile batches (``tile``).
+Nothing is stored: memory does not grow with the trajectory's length.
+
+What changes pixels comes from the render stage (``background``, ``scale``,
+``backend``); when and how densely to sample is the event stage's own
+``events.sampling`` section.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+import torch
+
+from gs2e.common.errors import ConfigError, InputError
+from gs2e.events.models import TileBatch
+from gs2e.events.presets import get_preset
+from gs2e.events.sampling import (MODES, SamplerStats, TileSampler, adaptive_samples,
+                                  image_luminance)
+from gs2e.splat.backend import resolve_backend
+from gs2e.splat.forward import ForwardRenderer
+from gs2e.splat.model import load_model, render
+from gs2e.splat.rasterize import SplatCamera
+from gs2e.trajectory import fixed_times_us, load_trajectory
+
+
+def bound_log(events_cfg: dict) -> float:
+    """The sampling bound on the per-pixel change of log(L + log_eps):
+    ``sampling.bound_fraction`` x the smallest contrast threshold the config
+    can draw (theta_on / theta_off, or the low end of theta_range), as a
+    log-intensity step (voltmeter: log(1 + theta / k1), the bright-pixel
+    limit of the voltage threshold)."""
+    theta = min(events_cfg["theta_on"], events_cfg["theta_off"])
+    if events_cfg.get("theta_sampling", "fixed") != "fixed":
+        theta = min(theta, min(events_cfg["theta_range"]))
+    if events_cfg["model"] == "voltmeter":
+        k = {i + 1: events_cfg.get(f"k{i + 1}") for i in range(6)}
+        theta = float(np.log1p(theta / get_preset(events_cfg["preset"], k).k[0]))
+    return float(events_cfg["sampling"]["bound_fraction"]) * theta
+
+
+class _GsplatRenderer:
+    """Whole-image renders through gsplat (CUDA) behind the forward renderer's
+    interface: tile renders render the whole image; candidates come from the
+    CPU renderer (projections only)."""
+
+    def __init__(self, params, info, cpu: ForwardRenderer, background):
+        self.p, self.sh_degree, self.cpu = params, int(info["sh_degree"]), cpu
+        self.bg = torch.tensor(background, dtype=params["means"].dtype)
+        for k in ("width", "height", "n_tiles", "tiles_x", "tiles_y"):
+            setattr(self, k, getattr(cpu, k))
+        self.image = np.zeros((cpu.height, cpu.width, 3), np.float32)
+
+    def render(self, c2w):
+        c = self.cpu.cam
+        cam = SplatCamera.from_c2w(c2w, c.fx, c.fy, c.cx, c.cy, c.width, c.height)
+        with torch.no_grad():
+            self.image[:] = render(self.p, cam, self.bg, self.sh_degree, "gsplat")[0].numpy()
+        return self.image
+
+    def render_tiles(self, c2w, tiles, cand):
+        return self.render(c2w)
+
+    def candidates(self, c2ws, margin_px=1.0):
+        return self.cpu.candidates(c2ws, margin_px)
+
+
+class RenderedSource:
+    """Event-model input rendered from ``model_dir`` along ``trajectory_path``
+    (or the part ``span_us`` of it, absolute microseconds).
+
+    ``start()`` renders the first frame: (t0_us, (H, W) float32 luminance);
+    ``batches()`` then yields, per sampling mode, ``(times, frames)`` pairs
+    (fixed / adaptive: whole frames) or :class:`TileBatch` (tile).
+    ``luminance`` is the latest luminance image (per tile in tile mode), for
+    previews; ``stats`` counts renders and rendered pixel values.
+    """
+
+    def __init__(self, model_dir: str | Path, trajectory_path: str | Path, events_cfg: dict,
+                 background=(0.0, 0.0, 0.0), scale: float = 1.0, backend: str = "cpu",
+                 batch_frames: int = 32, span_us: tuple[int, int] | None = None):
+        sc = events_cfg["sampling"]
+        if sc["mode"] not in MODES:
+            raise ConfigError(f"events.sampling.mode must be one of {MODES}, got {sc['mode']!r}")
+        self.cfg, self.sc = events_cfg, sc
+        self.params, self.info = load_model(model_dir)
+        self.traj = load_trajectory(trajectory_path)
+        self.name = Path(trajectory_path).stem
+        K = np.asarray(self.traj.K, np.float64)
+        W = max(1, int(round(self.traj.width * scale)))
+        H = max(1, int(round(self.traj.height * scale)))
+        sx, sy = W / self.traj.width, H / self.traj.height
+        self.K = np.array([[K[0, 0] * sx, 0, K[0, 2] * sx], [0, K[1, 1] * sy, K[1, 2] * sy], [0, 0, 1.0]])
+        self.shape = (H, W)
+        self.backend = resolve_backend(backend, "render.backend")
+        cpu = ForwardRenderer(self.params, int(self.info["sh_degree"]), self.K[0, 0], self.K[1, 1],
+                              self.K[0, 2], self.K[1, 2], W, H, background=background)
+        self.renderer = (cpu if self.backend == "cpu"
+                         else _GsplatRenderer(self.params, self.info, cpu, background))
+        self.t0_us, self.t1_us = int(self.traj.t_us[0]), int(self.traj.t_us[-1])
+        if span_us is not None:  # a part of the trajectory only
+            if not self.t0_us <= span_us[0] < span_us[1] <= self.t1_us:
+                raise InputError(f"trajectory {self.name}: span {span_us} us outside "
+                                 f"[{self.t0_us}, {self.t1_us}]")
+            self.t0_us, self.t1_us = int(span_us[0]), int(span_us[1])
+        clip = events_cfg.get("max_duration_s")
+        if clip:
+            self.t1_us = min(self.t1_us, self.t0_us + int(round(clip * 1e6)))
+        if self.t1_us <= self.t0_us:
+            raise InputError(f"trajectory {self.name}: zero duration, nothing to simulate")
+        self.bound = bound_log(events_cfg)
+        self.log_eps = float(events_cfg["log_eps"])
+        self.batch_frames = int(batch_frames)
+        self.stats = SamplerStats()
+        self.luminance = np.zeros(self.shape, np.float32)
+        self.n_frames = (len(fixed_times_us(self.t0_us, self.t1_us, sc["fixed_fps"]))
+                         if sc["mode"] == "fixed" else None)
+        self._sampler: TileSampler | None = None
+
+    @property
+    def duration_us(self) -> int:
+        return self.t1_us - self.t0_us
+
+    def pose_at(self, t_us: int) -> np.ndarray:
+        if not self.t0_us <= t_us <= self.t1_us:
+            raise InputError(f"trajectory {self.name}: time {t_us} us outside "
+                             f"[{self.t0_us}, {self.t1_us}]")
+        return self.traj.pose_at(np.array([float(t_us)]))[0]
+
+    def frame(self, t_us: int) -> np.ndarray:
+        """(H, W) float32 linear luminance of the whole image at ``t_us``."""
+        img = self.renderer.render(self.pose_at(t_us))
+        out = np.empty(self.shape, np.float32)
+        image_luminance(img, out)
+        self.stats.renders += 1
+        self.stats.tiles_rendered += self.renderer.n_tiles
+        self.stats.pixel_samples += self.shape[0] * self.shape[1]
+        return out
+
+    def start(self) -> tuple[int, np.ndarray]:
+        if self.sc["mode"] == "tile":
+            self._sampler = TileSampler(
+                self.renderer, self.pose_at, self.t0_us, self.t1_us, self.bound, self.log_eps,
+                dt_min_us=int(self.sc["dt_min_us"]), dt_max_us=int(self.sc["dt_max_us"]),
+                dt_init_us=int(1e6 / self.sc["fixed_fps"]),
+                max_motion_px=self.sc["max_motion_px"],
+                window_motion_px=float(self.sc["window_motion_px"]), stats=self.stats)
+            self._tiles = iter(self._sampler)
+            first = next(self._tiles)  # renders the first frame, yields the first batch
+            self._first_batch = first
+            self.luminance[:] = self._sampler.lum0
+            return self.t0_us, self._sampler.lum0.copy()
+        f0 = self.frame(self.t0_us)
+        self.stats.accepted += 1
+        self.luminance[:] = f0
+        return self.t0_us, f0
+
+    def batches(self) -> Iterator:
+        mode = self.sc["mode"]
+        if mode == "tile":
+            yield from self._tile_batches()
+            return
+        if mode == "fixed":
+            frames = ((int(t), self.frame(int(t)))
+                      for t in fixed_times_us(self.t0_us, self.t1_us, self.sc["fixed_fps"])[1:])
+        else:
+            frames = self._adaptive_frames()
+        ts, fs = [], []
+        for t, f in frames:
+            if mode == "fixed":
+                self.stats.accepted += 1
+            ts.append(t)
+            fs.append(f)
+            if len(ts) == self.batch_frames:
+                self.luminance[:] = fs[-1]
+                yield np.array(ts, np.int64), np.stack(fs)
+                ts, fs = [], []
+        if ts:
+            self.luminance[:] = fs[-1]
+            yield np.array(ts, np.int64), np.stack(fs)
+
+    def _adaptive_frames(self):
+        cache: dict[int, np.ndarray] = {}
+
+        def render_log(t: int) -> np.ndarray:
+            lum = self.frame(t)
+            cache[t] = lum
+            return np.log(lum.astype(np.float64) + self.log_eps)
+
+        sc = self.sc
+        dt0 = int(min(sc["dt_max_us"], max(sc["dt_min_us"], 1e6 / sc["fixed_fps"])))
+        first = np.log(self.luminance.astype(np.float64) + self.log_eps)  # start() rendered t0
+        gen = adaptive_samples(render_log, self.t0_us, self.t1_us, self.bound, int(sc["dt_min_us"]),
+                               int(sc["dt_max_us"]), dt0, self.stats, float(sc["outlier_fraction"]),
+                               first_log=first)
+        next(gen)
+        self.stats.accepted -= 1  # start() counted t0
+        for t, _ in gen:
+            lum = cache.pop(t)
+            for k in [k for k in cache if k < t]:
+                del cache[k]
+            yield t, lum
+
+    def _tile_batches(self) -> Iterator[TileBatch]:
+        b = self._first_batch
+        while b is not None:
+            self._update_luminance(b)
+            yield b
+            b = next(self._tiles, None)
+
+    def _update_luminance(self, b: TileBatch) -> None:
+        H, W = self.shape
+        tx = -(-W // 16)
+        last = b.offsets[1:] - 1
+        for tile, i in zip(b.tiles, last):
+            ty, tx_ = divmod(int(tile), tx)
+            y0, x0 = ty * 16, tx_ * 16
+            y1, x1 = min(H, y0 + 16), min(W, x0 + 16)
+            self.luminance[y0:y1, x0:x1] = b.lum[i, :y1 - y0, :x1 - x0]

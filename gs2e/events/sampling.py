@@ -1,0 +1,456 @@
+"""Temporal sampling of a rendered event signal: fixed, adaptive, per tile.
+
+The event models consume the linear luminance L of each pixel at a sequence
+of sample times (:class:`gs2e.events.models.TileBatch`); between two samples
+the ideal model takes log(L + eps) as linear in time and DVS-Voltmeter takes
+L's drift as constant. How densely to sample is the event stage's choice
+(config section ``events.sampling``):
+
+``fixed``
+    every pixel at ``fixed_fps`` (the paper: 2400 fps).
+``adaptive``
+    one clock for the whole image: steps such that the largest per-pixel
+    change of G = log(L + log_eps) between consecutive samples stays below the
+    bound, over all pixels but the ``outlier_fraction`` that change most.
+``tile``
+    one clock per 16 x 16 tile (the rasterizer's tiles). Guarantee, per pixel,
+    between consecutive samples of its tile:
+    ``|G(t_{i+1}) - G(t_i)| <= bound``, unless the step is already
+    ``dt_min_us`` (then it is taken and counted as forced); and, with
+    ``max_motion_px`` set, no Gaussian that can reach the tile moves its
+    projected centre by more than that many pixels. A tile is rendered only
+    when its own change is predicted to reach the bound, so flat, dark or
+    still regions cost almost nothing while edges are sampled as finely as
+    they need; a tile that no Gaussian can reach, or whose Gaussians do not
+    move, keeps its value exactly and is sampled once per window (below).
+
+Per-tile clocks are dyadic: steps are ``dt_min_us * 2^k`` and a tile's last
+sample time (relative to the start) is a multiple of its step, so tiles
+rendered at the same time share one projection of the Gaussians that can
+reach them (:class:`gs2e.splat.forward.ForwardRenderer`). A step that
+overshoots the bound is rejected and halved (or shortened to the predicted
+step); the rejected render is kept and used when the tile reaches that
+time, so no time of a tile is rendered twice. After an accepted step the next
+one is predicted from its rate of change (aiming at 0.9 x bound, growth at most
+2x per step).
+
+Which Gaussians can reach a tile is computed per time window (a few poses of
+the trajectory; :meth:`ForwardRenderer.candidates`), with windows short enough
+that projected centres move at most ``window_motion_px`` between the poses.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Iterator
+
+import numpy as np
+from numba import njit, prange
+
+from gs2e.common.errors import ConfigError
+from gs2e.events.models import TILE, TileBatch
+
+MODES = ("fixed", "adaptive", "tile")
+
+
+@dataclass
+class SamplerStats:
+    """What sampling cost: renders and rendered pixel values."""
+
+    renders: int = 0          # render calls (whole images or sets of tiles)
+    tiles_rendered: int = 0   # tile renders (rejected trials included)
+    pixel_samples: int = 0    # rendered pixel values (tile renders x TILE^2, or H x W per frame)
+    accepted: int = 0         # samples used (per tile in tile mode, frames otherwise)
+    rejected: int = 0         # trial samples over the bound (kept for later use)
+    reused: int = 0           # rejected trials used later without rendering
+    forced: int = 0           # steps taken at dt_min although over the bound
+    max_change: float = 0.0   # largest accepted change of G (unforced)
+    min_step_us: int = 0
+    max_step_us: int = 0
+    windows: int = 0          # candidate windows built (tile mode)
+
+    def step(self, step_us: int) -> None:
+        self.min_step_us = step_us if self.min_step_us == 0 else min(self.min_step_us, step_us)
+        self.max_step_us = max(self.max_step_us, step_us)
+
+
+# ---------------------------------------------------------------- kernels
+@njit(cache=True)
+def _srgb_lum(r, g, b):
+    """Rec. 709 luminance of sRGB-encoded values (clamped to [0, 1]) in linear light."""
+    acc = 0.0
+    for c, w in ((r, 0.2126), (g, 0.7152), (b, 0.0722)):
+        x = min(max(float(c), 0.0), 1.0)
+        lin = x / 12.92 if x <= 0.04045 else ((x + 0.055) / 1.055) ** 2.4
+        acc += w * lin
+    return acc
+
+
+@njit(cache=True, parallel=True)
+def image_luminance(image, out):
+    """(H, W) linear luminance of an (H, W, 3) sRGB image."""
+    for y in prange(image.shape[0]):
+        for x in range(image.shape[1]):
+            out[y, x] = _srgb_lum(image[y, x, 0], image[y, x, 1], image[y, x, 2])
+
+
+@njit(cache=True, parallel=True)
+def tile_samples(image, tiles, H, W, log_eps, g_last, lum, g_new, change):
+    """For tiles ``tiles`` of an sRGB image: linear luminance lum (n, T, T),
+    G = log(lum + log_eps) g_new (n, T, T) and the largest |G - g_last| over
+    the tile's pixels (change (n,)); pixels beyond the image get 0 / G of 0."""
+    T = lum.shape[1]
+    tiles_x = (W + T - 1) // T
+    for s in prange(tiles.shape[0]):
+        ty = tiles[s] // tiles_x
+        tx = tiles[s] - ty * tiles_x
+        mx = 0.0
+        for i in range(T):
+            y = ty * T + i
+            for j in range(T):
+                x = tx * T + j
+                if y < H and x < W:
+                    v = _srgb_lum(image[y, x, 0], image[y, x, 1], image[y, x, 2])
+                    gv = math.log(v + log_eps)
+                    mx = max(mx, abs(gv - g_last[y, x]))
+                else:
+                    v = 0.0
+                    gv = math.log(log_eps)
+                lum[s, i, j] = v
+                g_new[s, i, j] = gv
+        change[s] = mx
+
+
+@njit(cache=True)
+def _tile_change(g_tile, g_last, t, H, W):
+    """Largest |G - g_last| over the pixels of tile t."""
+    T = g_tile.shape[0]
+    tiles_x = (W + T - 1) // T
+    ty = t // tiles_x
+    tx = t - ty * tiles_x
+    mx = 0.0
+    for i in range(T):
+        y = ty * T + i
+        if y >= H:
+            break
+        for j in range(T):
+            x = tx * T + j
+            if x >= W:
+                break
+            mx = max(mx, abs(g_tile[i, j] - g_last[y, x]))
+    return mx
+
+
+def max_log_change(log_a: np.ndarray, log_b: np.ndarray, outlier_fraction: float = 0.0) -> float:
+    """Largest per-pixel |log_b - log_a|; with ``outlier_fraction`` f > 0 the
+    largest once the floor(f N) largest of the N pixels are set aside."""
+    if not log_a.size:
+        return 0.0
+    d = np.abs(log_b - log_a).ravel()
+    k = int(outlier_fraction * d.size)
+    if k <= 0:
+        return float(d.max())
+    k = min(k, d.size - 1)
+    return float(np.partition(d, d.size - 1 - k)[d.size - 1 - k])
+
+
+def adaptive_samples(render_log: Callable[[int], np.ndarray], t0_us: int, t1_us: int, bound: float,
+                     dt_min_us: int, dt_max_us: int, dt_init_us: int | None = None,
+                     stats: SamplerStats | None = None, outlier_fraction: float = 0.0,
+                     first_log: np.ndarray | None = None) -> Iterator[tuple[int, np.ndarray]]:
+    """Yield (t_us, log frame) from t0_us to t1_us (both included) such that
+    consecutive log frames differ by at most ``bound`` per pixel, unless the
+    step is already ``dt_min_us`` (then the step is taken and counted as forced);
+    with ``outlier_fraction`` f > 0, all pixels but the floor(f N) that change
+    most (see :func:`max_log_change`). One clock for the whole image.
+
+    ``render_log(t_us)`` returns the log-intensity frame at an integer time.
+    Steps are integers in [dt_min_us, dt_max_us] (the last one may be
+    shorter); growth is at most 2x per step. Rejected trial frames are kept
+    and, once a shorter step has been accepted, tried as the next sample
+    without rendering: no time is rendered twice. Memory: two frames plus
+    the rejected trials ahead of the current time (a few). ``first_log``: the
+    frame at t0 if the caller has it (not rendered again).
+    """
+    if not (t1_us >= t0_us and 1 <= dt_min_us <= dt_max_us and bound > 0 and 0 <= outlier_fraction < 1):
+        raise ValueError(f"bad sampler arguments t0={t0_us} t1={t1_us} dt=[{dt_min_us},{dt_max_us}] "
+                         f"bound={bound} outlier_fraction={outlier_fraction}")
+    st = stats if stats is not None else SamplerStats()
+    t = int(t0_us)
+    cur = render_log(t) if first_log is None else first_log
+    st.accepted += 1
+    yield t, cur
+    dt = int(dt_init_us or dt_min_us)
+    pending: dict[int, np.ndarray] = {}  # rejected trials ahead of t: later steps may end there
+    accepted = True
+    while t < t1_us:
+        nearest = min(pending) if pending else None
+        if accepted and nearest is not None and nearest - t >= dt_min_us:
+            t_new, nxt, reused = nearest, pending[nearest], True  # costs no render
+        else:
+            dt = int(min(max(dt, dt_min_us), dt_max_us, t1_us - t))
+            t_new = t + dt
+            reused = t_new in pending
+            nxt = pending[t_new] if reused else render_log(t_new)
+        accepted = False
+        step = t_new - t
+        change = max_log_change(cur, nxt, outlier_fraction)
+        if change > bound and step > dt_min_us:
+            if not reused:
+                st.rejected += 1
+                pending[t_new] = nxt
+            # shrink towards the step that would just meet the bound (locally linear signal)
+            dt = max(dt_min_us, int(step * max(0.2, 0.9 * bound / change)))
+            continue
+        if change > bound:
+            st.forced += 1
+        st.reused += int(reused)
+        t, cur, accepted = t_new, nxt, True
+        for k in [k for k in pending if k <= t]:
+            del pending[k]
+        st.accepted += 1
+        st.max_change = max(st.max_change, change) if change <= bound else st.max_change
+        st.step(step)
+        yield t, cur
+        # predict the next step from this one; shrinking ahead of the bound
+        # avoids the wasted render of a rejected trial
+        grow = 2.0 if change <= 0 else min(2.0, max(0.5, 0.9 * bound / change))
+        dt = max(dt_min_us, int(step * grow))
+
+
+# ---------------------------------------------------------------- per-tile clocks
+@dataclass
+class _Window:
+    t_start: int
+    t_end: int
+    cand: object             # TileCandidates
+    static: np.ndarray       # (n_tiles,) bool: no candidate, or none of them moves
+    speed_px_per_us: np.ndarray
+
+
+@dataclass
+class TileSampler:
+    """Per-tile adaptive sampling of a rendered trajectory (see module docstring).
+
+    renderer : a :class:`gs2e.splat.forward.ForwardRenderer` (``render``,
+        ``render_tiles``, ``candidates``, ``image``, ``n_tiles``).
+    pose_at : t_us (int) -> (4, 4) c2w.
+    t0_us, t1_us : the span simulated.
+    bound : bound on the per-pixel change of G = log(L + log_eps) between a
+        tile's consecutive samples.
+    dt_min_us : the smallest step (the dyadic quantum); dt_max_us : the
+        largest step of a tile whose Gaussians move.
+    dt_init_us : first step of every tile (rounded down to dt_min_us * 2^k).
+    max_motion_px : optional bound on the motion of a tile's Gaussians
+        between its samples (None = off).
+    window_motion_px : motion of projected centres between the poses a
+        candidate window is built from (smaller: shorter candidate lists, more
+        windows).
+    batch_intervals : accepted tile intervals handed over per batch.
+    """
+
+    renderer: object
+    pose_at: Callable[[int], np.ndarray]
+    t0_us: int
+    t1_us: int
+    bound: float
+    log_eps: float
+    dt_min_us: int = 20
+    dt_max_us: int = 20000
+    dt_init_us: int = 400
+    max_motion_px: float | None = None
+    window_motion_px: float = 8.0
+    window_poses: int = 5
+    batch_intervals: int = 2048
+    stats: SamplerStats = field(default_factory=SamplerStats)
+
+    def __post_init__(self):
+        r = self.renderer
+        if not (self.t1_us > self.t0_us and 1 <= self.dt_min_us <= self.dt_max_us and self.bound > 0):
+            raise ConfigError(f"events.sampling: need t1 > t0, 1 <= dt_min_us <= dt_max_us and a "
+                              f"positive bound (t0={self.t0_us}, t1={self.t1_us}, "
+                              f"dt=[{self.dt_min_us}, {self.dt_max_us}], bound={self.bound})")
+        self.H, self.W = r.height, r.width
+        self.n_tiles = r.n_tiles
+        self.q = int(self.dt_min_us)
+        self.max_lvl = max(0, int(math.floor(math.log2(max(1, self.dt_max_us // self.q)))))
+        lvl0 = int(math.floor(math.log2(max(1, int(self.dt_init_us) // self.q))))
+        self.lvl = np.full(self.n_tiles, min(lvl0, self.max_lvl), np.int64)
+        self.t_last = np.full(self.n_tiles, int(self.t0_us), np.int64)
+        self.n_samples = np.zeros(self.n_tiles, np.int64)
+        self.pending: dict[int, list] = {}
+        self.windows: list[_Window] = []
+        self._win_len_us = self.q << self.max_lvl  # dyadic, so window ends are aligned
+        self.g_last = np.zeros((self.H, self.W), np.float32)
+        self.lum0: np.ndarray | None = None
+
+    # -- windows of candidate Gaussians
+    def _window(self, t_us: int) -> _Window:
+        for w in self.windows:
+            if w.t_start <= t_us <= w.t_end:
+                return w
+        length = self._win_len_us
+        while True:
+            start = self.t0_us + ((t_us - self.t0_us) // length) * length
+            end = min(self.t1_us, start + length)
+            times = np.unique(np.linspace(start, end, self.window_poses).round().astype(np.int64))
+            poses = [self.pose_at(int(t)) for t in times]
+            cand = self.renderer.candidates(poses, margin_px=1.0,
+                                            border_px=4.0 * self.window_motion_px)
+            moved = cand.max_step_px
+            if moved > 2.0 * self.window_motion_px and length > self.q:
+                length = max(self.q, length // 2)
+                continue
+            break
+        grow = moved < 0.5 * self.window_motion_px and length < (self.q << 40)
+        self._win_len_us = length * 2 if grow else length
+        pose_dt = max(1.0, float(times[1] - times[0])) if len(times) > 1 else 1.0
+        empty = np.diff(cand.offsets) == 0
+        w = _Window(int(start), int(end), cand, empty | (cand.speed_px == 0.0),
+                    cand.speed_px / pose_dt)
+        self.windows.append(w)
+        self.stats.windows += 1
+        return w
+
+    def _drop_windows(self) -> None:
+        lo = int(self.t_last.min())
+        self.windows = [w for w in self.windows if w.t_end >= lo]
+
+    # -- the schedule
+    def _static_until(self, k: int, t: int) -> int:
+        """End of the run of consecutive windows, from the one holding t, in
+        which tile k is static: its image cannot change before then."""
+        w = self._window(t)
+        while w.static[k] and w.t_end < self.t1_us:
+            w = self._window(int(w.t_end) + 1)
+        return int(w.t_end) if w.static[k] else max(t + self.q, int(w.t_start))
+
+    def _next_time(self, k: int, change: float, step: int) -> int:
+        """Next sample time of tile k after an accepted step of ``step`` us
+        with change ``change`` (sets its level)."""
+        t = int(self.t_last[k])
+        if t >= self.t1_us:
+            return self.t1_us
+        rel = t - self.t0_us
+        pend = self.pending.get(k)
+        w = self._window(t)
+        if change == 0.0 and not pend and w.static[k]:
+            return self._static_until(k, t)
+        lvl = int(self.lvl[k])
+        h = self.q << lvl
+        cap = min(2.0 * max(h, step), float(self.dt_max_us))
+        if change > 0.0:
+            cap = min(cap, 0.9 * self.bound / change * step)
+        if self.max_motion_px is not None and w.speed_px_per_us[k] > 0.0:
+            cap = min(cap, self.max_motion_px / w.speed_px_per_us[k])
+        new = int(math.floor(math.log2(max(1.0, cap / self.q))))
+        new = max(0, min(new, self.max_lvl, lvl + 1))
+        while new > 0 and rel % (self.q << new):
+            new -= 1
+        if pend:
+            while new > 0 and t + (self.q << new) > pend[0][0]:
+                new -= 1
+        self.lvl[k] = new
+        return min(t + (self.q << new), self.t1_us)
+
+    def __iter__(self) -> Iterator[TileBatch]:
+        """Yield batches of accepted tile intervals (in time order per tile)."""
+        r, st = self.renderer, self.stats
+        eps = self.log_eps
+        first = r.render(self.pose_at(self.t0_us))
+        st.renders += 1
+        st.tiles_rendered += self.n_tiles
+        st.pixel_samples += self.n_tiles * TILE * TILE
+        self.lum0 = np.empty((self.H, self.W), np.float32)
+        image_luminance(first, self.lum0)
+        self.g_last[:] = np.log(self.lum0.astype(np.float64) + eps)
+        t_next = np.minimum(self.t0_us + (self.q << self.lvl), self.t1_us).astype(np.int64)
+        for k in np.flatnonzero(self._window(self.t0_us).static):
+            t_next[k] = self._static_until(int(k), self.t0_us)
+        out: dict[int, list] = {}
+        n_out = 0
+        lum = np.empty((self.n_tiles, TILE, TILE), np.float32)
+        g_new = np.empty((self.n_tiles, TILE, TILE), np.float32)
+        change = np.empty(self.n_tiles)
+        while True:
+            active = self.t_last < self.t1_us
+            if not active.any():
+                break
+            T = int(t_next[active].min())
+            due = np.flatnonzero(active & (t_next == T))
+            cached = [k for k in due if self.pending.get(k) and self.pending[k][0][0] == T]
+            render = np.setdiff1d(due, np.asarray(cached, np.int64), assume_unique=True)
+            results: dict[int, tuple] = {}
+            if len(render):
+                w = self._window(T)
+                img = r.render_tiles(self.pose_at(T), render, w.cand)
+                n = len(render)
+                tile_samples(img, render, self.H, self.W, eps, self.g_last, lum[:n], g_new[:n],
+                             change[:n])
+                st.renders += 1
+                st.tiles_rendered += n
+                st.pixel_samples += n * TILE * TILE
+                for i, k in enumerate(render):
+                    results[int(k)] = (lum[i].copy(), g_new[i].copy(), float(change[i]), False)
+            for k in cached:
+                _, lm, gm = self.pending[k].pop(0)
+                results[int(k)] = (lm, gm, float(_tile_change(gm, self.g_last, k, self.H, self.W)), True)
+            for k in due:
+                k = int(k)
+                lm, gm, ch, reused = results[k]
+                step = T - int(self.t_last[k])
+                if ch > self.bound and step > self.q:
+                    if not reused:
+                        st.rejected += 1
+                    self.pending.setdefault(k, []).insert(0, (T, lm, gm))
+                    # a shorter dyadic step: towards the one that would just meet the
+                    # bound (locally linear signal), at most 5x shorter
+                    shrink = max(0.2, 0.9 * self.bound / ch) * step
+                    lvl = min(int(math.floor(math.log2(max(1.0, shrink / self.q)))),
+                              int(math.floor(math.log2((step - 1) / self.q))))
+                    lvl = max(0, lvl)
+                    while lvl > 0 and (int(self.t_last[k]) - self.t0_us) % (self.q << lvl):
+                        lvl -= 1
+                    self.lvl[k] = lvl
+                    t_next[k] = int(self.t_last[k]) + (self.q << lvl)
+                    continue
+                if ch > self.bound:
+                    st.forced += 1
+                else:
+                    st.max_change = max(st.max_change, ch)
+                st.reused += int(reused)
+                st.accepted += 1
+                st.step(step)
+                self.n_samples[k] += 1
+                out.setdefault(k, []).append((int(self.t_last[k]), T, int(self.n_samples[k]), lm))
+                n_out += 1
+                ty, tx = divmod(k, r.tiles_x)
+                y0, x0 = ty * TILE, tx * TILE
+                y1, x1 = min(self.H, y0 + TILE), min(self.W, x0 + TILE)
+                self.g_last[y0:y1, x0:x1] = gm[:y1 - y0, :x1 - x0]
+                self.t_last[k] = T
+                pend = self.pending.get(k)
+                if pend is not None:
+                    while pend and pend[0][0] <= T:
+                        pend.pop(0)
+                    if not pend:
+                        del self.pending[k]
+                t_next[k] = self._next_time(k, ch, step)
+            if n_out >= self.batch_intervals:
+                yield self._batch(out)
+                out, n_out = {}, 0
+                self._drop_windows()
+        if out:
+            yield self._batch(out)
+
+    @staticmethod
+    def _batch(out: dict[int, list]) -> TileBatch:
+        tiles = np.array(sorted(out), np.int64)
+        ivs = [iv for k in tiles for iv in out[int(k)]]
+        offsets = np.zeros(len(tiles) + 1, np.int64)
+        offsets[1:] = np.cumsum([len(out[int(k)]) for k in tiles])
+        return TileBatch(tiles, offsets, np.array([iv[0] for iv in ivs], np.int64),
+                         np.array([iv[1] for iv in ivs], np.int64),
+                         np.array([iv[2] for iv in ivs], np.int64),
+                         np.stack([iv[3] for iv in ivs]))

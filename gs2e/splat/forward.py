@@ -1,0 +1,364 @@
+"""Forward-only rendering of a trained model, whole images or a set of tiles.
+
+The event stage samples a model's images thousands of times per simulated
+second, mostly a few tiles at a time (:mod:`gs2e.events.sampling`). This path
+keeps what such renders need and nothing else: no autograd, no depth, no
+state for a backward pass; world covariances (and colours, for SH degree 0)
+computed once per model; projection of only the Gaussians that can reach the
+tiles asked for.
+
+Exactness: for the tiles it renders, :meth:`ForwardRenderer.render_tiles`
+gives the same pixel values, bit for bit, as :meth:`ForwardRenderer.render`
+(and as :func:`gs2e.splat.rasterize.rasterize` at the same dtype): the same
+projection and compositing kernels run on the same per-tile Gaussian lists
+(same members, same depth order with ties by index). Only which Gaussians get
+projected differs, and that is decided from :class:`TileCandidates`, a
+superset of every tile's list over a span of poses.
+
+Units: pixels with centres at integer + 0.5; ``c2w`` camera-to-world 4x4,
+OpenCV axes; images (H, W, 3) sRGB-encoded in [0, 1], as 3DGS reproduces the
+training photos.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit, prange
+from scipy.special import expit
+
+from gs2e.splat import project as _proj
+from gs2e.splat import raster as _raster
+from gs2e.splat import sh as _sh
+from gs2e.splat.rasterize import TILE, SplatCamera
+
+
+@dataclass
+class TileCandidates:
+    """Per tile, the Gaussians that may reach it at any pose of a span.
+
+    ``offsets`` (n_tiles + 1,) int64 and ``gids`` (n,) int64: the candidates of
+    tile t are gids[offsets[t]:offsets[t + 1]], ascending. ``speed_px`` (n_tiles,)
+    float64: the largest displacement (px) of a candidate's centre between
+    consecutive poses of the span, 0 for a tile without candidates;
+    ``max_step_px`` the largest over all Gaussians.
+    """
+
+    offsets: np.ndarray
+    gids: np.ndarray
+    speed_px: np.ndarray
+    max_step_px: float = 0.0
+
+
+@njit(cache=True)
+def _cover_kernel(u, v, r, margin, everywhere, width, height, tile, counts_only, offsets, gids):
+    """Bin boxes [u - r - margin, u + r + margin] (per Gaussian, over the
+    union of the poses: u, v, r are (P, N); r <= 0 = not visible at that pose;
+    ``everywhere`` (N,) = every tile) to tiles; first pass counts, second
+    fills (ascending gid per tile)."""
+    P, N = u.shape
+    tiles_x = (width + tile - 1) // tile
+    tiles_y = (height + tile - 1) // tile
+    fill = offsets[:-1].copy()
+    for g in range(N):
+        lo_u = math.inf
+        hi_u = -math.inf
+        lo_v = math.inf
+        hi_v = -math.inf
+        if everywhere[g]:
+            lo_u, hi_u, lo_v, hi_v = -1e30, 1e30, -1e30, 1e30
+        for p in range(P):
+            if r[p, g] > 0.0:
+                lo_u = min(lo_u, u[p, g] - r[p, g])
+                hi_u = max(hi_u, u[p, g] + r[p, g])
+                lo_v = min(lo_v, v[p, g] - r[p, g])
+                hi_v = max(hi_v, v[p, g] + r[p, g])
+        if lo_u > hi_u:
+            continue
+        m = margin[g]
+        j0 = max(0, int(math.ceil(lo_u - m - 0.5)))
+        j1 = min(width - 1, int(math.floor(hi_u + m - 0.5)))
+        i0 = max(0, int(math.ceil(lo_v - m - 0.5)))
+        i1 = min(height - 1, int(math.floor(hi_v + m - 0.5)))
+        if j0 > j1 or i0 > i1:
+            continue
+        for ty in range(i0 // tile, i1 // tile + 1):
+            for tx in range(j0 // tile, j1 // tile + 1):
+                t = ty * tiles_x + tx
+                if counts_only:
+                    offsets[t + 1] += 1
+                else:
+                    gids[fill[t]] = g
+                    fill[t] += 1
+    return tiles_y * tiles_x
+
+
+@njit(cache=True, parallel=True)
+def _tile_speed(offsets, gids, disp):
+    out = np.zeros(offsets.shape[0] - 1)
+    for t in prange(offsets.shape[0] - 1):
+        m = 0.0
+        for k in range(offsets[t], offsets[t + 1]):
+            m = max(m, disp[gids[k]])
+        out[t] = m
+    return out
+
+
+@njit(cache=True)
+def _union(tiles, offsets, gids, stamp, mark):
+    """Distinct candidates of ``tiles`` (marked with ``mark`` in ``stamp``)."""
+    n = 0
+    for s in range(tiles.shape[0]):
+        t = tiles[s]
+        n += offsets[t + 1] - offsets[t]
+    out = np.empty(n, np.int64)
+    m = 0
+    for s in range(tiles.shape[0]):
+        t = tiles[s]
+        for k in range(offsets[t], offsets[t + 1]):
+            g = gids[k]
+            if stamp[g] != mark:
+                stamp[g] = mark
+                out[m] = g
+                m += 1
+    return out[:m]
+
+
+@njit(cache=True, parallel=True)
+def _tile_lists(tiles, c_off, c_gids, means2d, radius_px, depths, width, height, tile):
+    """Per tile of ``tiles``: its candidates whose box (``radius_px``, as
+    :func:`gs2e.splat.raster.bin_gaussians` computes it) reaches it, sorted by
+    depth with ties by index. Returns (offsets (n + 1,), gids)."""
+    n = tiles.shape[0]
+    tiles_x = (width + tile - 1) // tile
+    tiles_y = (height + tile - 1) // tile
+    counts = np.zeros(n + 1, np.int64)
+    for s in prange(n):
+        t = tiles[s]
+        ty = t // tiles_x
+        tx = t - ty * tiles_x
+        c = 0
+        for k in range(c_off[t], c_off[t + 1]):
+            g = c_gids[k]
+            r = radius_px[g]
+            if r <= 0.0:
+                continue
+            x0, x1, y0, y1 = _raster._tile_rect(means2d[g, 0], means2d[g, 1], r, width, height,
+                                                tile, tiles_x, tiles_y)
+            if x0 <= tx <= x1 and y0 <= ty <= y1:
+                c += 1
+        counts[s + 1] = c
+    for s in range(n):
+        counts[s + 1] += counts[s]
+    out = np.empty(counts[n], np.int64)
+    for s in prange(n):
+        t = tiles[s]
+        ty = t // tiles_x
+        tx = t - ty * tiles_x
+        m = counts[s + 1] - counts[s]
+        sel = np.empty(m, np.int64)
+        key = np.empty(m)
+        c = 0
+        for k in range(c_off[t], c_off[t + 1]):
+            g = c_gids[k]
+            r = radius_px[g]
+            if r <= 0.0:
+                continue
+            x0, x1, y0, y1 = _raster._tile_rect(means2d[g, 0], means2d[g, 1], r, width, height,
+                                                tile, tiles_x, tiles_y)
+            if x0 <= tx <= x1 and y0 <= ty <= y1:
+                sel[c] = g
+                key[c] = depths[g]
+                c += 1
+        order = np.argsort(key, kind="mergesort")  # stable: ties keep ascending index
+        for i in range(m):
+            out[counts[s] + i] = sel[order[i]]
+    return counts, out
+
+
+@njit(cache=True, parallel=True)
+def _finish_subset(idx, means2d, conics, radii, opac, radius_factor, m2_32, cn_32, radius_px):
+    """After projecting ``idx``: their opacity-shrunk bin radius and float32 copies."""
+    for k in prange(idx.shape[0]):
+        g = idx[k]
+        r = float(radii[g])
+        o = opac[g]
+        radius_px[g] = (r * radius_factor[g] * (1.0 + 1e-6) + 1e-3
+                        if (o >= _raster.ALPHA_MIN and r > 0.0) else 0.0)
+        m2_32[g, 0] = means2d[g, 0]
+        m2_32[g, 1] = means2d[g, 1]
+        cn_32[g, 0] = conics[g, 0]
+        cn_32[g, 1] = conics[g, 1]
+        cn_32[g, 2] = conics[g, 2]
+
+
+class ForwardRenderer:
+    """Forward-only renders of one model at one camera size.
+
+    Parameters
+    ----------
+    params : the model's parameter tensors (:func:`gs2e.splat.model.to_params`).
+    sh_degree : active SH degree.
+    fx, fy, cx, cy : intrinsics (px); width, height : image size (px).
+    background : (3,) colour behind the Gaussians.
+    dtype : storage dtype of the compositing inputs and the image (float32:
+        what the event stage uses; float64 as the training renders at float64).
+    """
+
+    def __init__(self, params, sh_degree: int, fx: float, fy: float, cx: float, cy: float,
+                 width: int, height: int, background=(0.0, 0.0, 0.0), dtype=np.float32,
+                 near: float = 0.01, far: float = 1.0e10):
+        def arr(k):
+            x = params[k]
+            return np.ascontiguousarray(x.detach().cpu().numpy() if hasattr(x, "detach") else x,
+                                        dtype=np.float64)
+
+        self.means = arr("means")
+        n = self.means.shape[0]
+        self.cov6 = np.empty((n, 6))
+        _proj.cov3d_kernel(arr("quats"), arr("log_scales"), self.cov6)
+        self.opac = expit(arr("opacity_logits"))
+        sh = np.concatenate([arr("sh_dc"), arr("sh_rest")], axis=1) if "sh_dc" in params else arr("sh")
+        self.sh_degree = int(sh_degree)
+        self.sh = np.ascontiguousarray(sh[:, :(self.sh_degree + 1) ** 2])
+        self.cam = SplatCamera(np.eye(4), float(fx), float(fy), float(cx), float(cy), int(width),
+                               int(height), float(near), float(far))
+        self.width, self.height = int(width), int(height)
+        self.tiles_x = (self.width + TILE - 1) // TILE
+        self.tiles_y = (self.height + TILE - 1) // TILE
+        self.n_tiles = self.tiles_x * self.tiles_y
+        self.dtype = np.dtype(dtype)
+        self.bg = np.asarray(background, dtype=self.dtype)
+        if self.bg.shape != (3,):
+            raise ValueError(f"background must have 3 values, got {background}")
+        # bin radius factor of bin_gaussians (same numpy arithmetic: same bits)
+        with np.errstate(divide="ignore"):
+            m2 = np.clip(2.0 * np.log(np.maximum(self.opac, 1e-300) / _raster.ALPHA_MIN), 0.0, 9.0)
+        self.radius_factor = np.sqrt(m2 / 9.0)
+        self.opac_dt = self.opac.astype(self.dtype)
+        # per-Gaussian buffers, valid for the rows last projected
+        self.means2d = np.zeros((n, 2))
+        self.conics = np.zeros((n, 3))
+        self.depths = np.zeros(n)
+        self.radii = np.zeros(n, np.int32)
+        self.radius_px = np.zeros(n)
+        self.m2_dt = np.zeros((n, 2), self.dtype)
+        self.cn_dt = np.zeros((n, 3), self.dtype)
+        self.colors = np.zeros((n, 3), self.dtype)
+        if self.sh_degree == 0:  # view-independent: once
+            self.colors[:] = _sh.sh_to_color(np.ones((n, 3)), self.sh, 0)[0]
+        self._stamp = np.zeros(n, np.int64)
+        self._mark = 0
+        self.image = np.zeros((self.height, self.width, 3), self.dtype)
+        self._T = np.empty((self.height, self.width), self.dtype)
+        self._nc = np.empty((self.height, self.width), np.int32)
+        self.renders = 0          # calls of render / render_tiles
+        self.tiles_rendered = 0   # tiles composited
+        self.gaussians_projected = 0
+
+    @property
+    def n_gaussians(self) -> int:
+        return self.means.shape[0]
+
+    def _viewmat(self, c2w) -> np.ndarray:
+        return SplatCamera.from_c2w(c2w, self.cam.fx, self.cam.fy, self.cam.cx, self.cam.cy,
+                                    self.width, self.height).validate()
+
+    def _project(self, vm: np.ndarray, idx: np.ndarray | None) -> None:
+        c = self.cam
+        _proj.project_cov(self.means, self.cov6, vm, c.fx, c.fy, c.cx, c.cy, c.width, c.height,
+                          c.near, c.far, idx=idx,
+                          out=(self.means2d, self.conics, self.depths, self.radii))
+        sel = np.arange(self.n_gaussians) if idx is None else idx
+        _finish_subset(sel, self.means2d, self.conics, self.radii, self.opac, self.radius_factor,
+                       self.m2_dt, self.cn_dt, self.radius_px)
+        if self.sh_degree > 0 and len(sel):
+            campos = -vm[:3, :3].T @ vm[:3, 3]
+            dirs = self.means[sel] - campos[None, :]
+            self.colors[sel] = _sh.sh_to_color(dirs, self.sh[sel], self.sh_degree)[0]
+        self.gaussians_projected += len(sel)
+
+    def render(self, c2w) -> np.ndarray:
+        """The whole image at pose ``c2w``: (H, W, 3) of ``dtype`` (a view of an
+        internal buffer, overwritten by the next call)."""
+        vm = self._viewmat(c2w)
+        self._project(vm, None)
+        offsets, gids = _raster.bin_gaussians(self.means2d, self.depths, self.radii, self.width,
+                                              self.height, TILE, self.opac)
+        tiles = np.arange(self.n_tiles, dtype=np.int64)
+        _raster.raster_forward_kernel(tiles, offsets, gids, self.m2_dt, self.cn_dt, self.opac_dt,
+                                      self.colors, self.bg, self.width, self.height, TILE,
+                                      self.image, self._T, self._nc)
+        self.renders += 1
+        self.tiles_rendered += self.n_tiles
+        return self.image
+
+    def candidates(self, c2ws, margin_px: float = 1.0, border_px: float = 16.0) -> TileCandidates:
+        """Per tile, the Gaussians that can reach it at the poses ``c2ws`` or
+        between consecutive ones.
+
+        Each pose is projected onto the image extended by ``border_px`` on
+        every side, so Gaussians just outside the view are seen too; a
+        Gaussian's box is the union of its (bin) boxes over the poses, widened
+        by ``margin_px`` + the largest displacement of its centre between
+        consecutive poses; one that crosses the near plane next to a pose
+        where it is visible goes to every tile. This holds while no centre
+        moves more than ``border_px`` between consecutive poses:
+        ``TileCandidates.speed_px`` gives the largest displacement per tile and
+        ``max_step_px`` the largest over all, for the caller to check.
+        """
+        P = len(c2ws)
+        n = self.n_gaussians
+        B = float(border_px)
+        c = self.cam
+        u = np.zeros((P, n))
+        v = np.zeros((P, n))
+        r = np.zeros((P, n))
+        z = np.zeros((P, n))
+        m2, cn, dp, rad = np.zeros((n, 2)), np.zeros((n, 3)), np.zeros(n), np.zeros(n, np.int32)
+        for p, c2w in enumerate(c2ws):
+            _proj.project_cov(self.means, self.cov6, self._viewmat(c2w), c.fx, c.fy, c.cx + B,
+                              c.cy + B, c.width + 2 * B, c.height + 2 * B, c.near, c.far,
+                              out=(m2, cn, dp, rad))
+            vis = (rad > 0) & (self.opac >= _raster.ALPHA_MIN)
+            r[p] = np.where(vis, rad * self.radius_factor * (1.0 + 1e-6) + 1e-3, 0.0)
+            u[p], v[p], z[p] = m2[:, 0] - B, m2[:, 1] - B, dp
+        self.gaussians_projected += P * n
+        vis = r > 0
+        disp = np.zeros(n)
+        everywhere = np.zeros(n, bool)
+        if P > 1:
+            both = vis[1:] & vis[:-1]
+            step = np.hypot(np.diff(u, axis=0), np.diff(v, axis=0))
+            disp = np.where(both, step, 0.0).max(axis=0)
+            behind = z < c.near
+            everywhere = ((vis[:-1] & behind[1:]) | (vis[1:] & behind[:-1])).any(axis=0)
+        margin = float(margin_px) + disp
+        offsets = np.zeros(self.n_tiles + 1, np.int64)
+        _cover_kernel(u, v, r, margin, everywhere, self.width, self.height, TILE, True, offsets,
+                      np.empty(0, np.int64))
+        np.cumsum(offsets, out=offsets)
+        gids = np.empty(int(offsets[-1]), np.int64)
+        _cover_kernel(u, v, r, margin, everywhere, self.width, self.height, TILE, False, offsets,
+                      gids)
+        return TileCandidates(offsets, gids, _tile_speed(offsets, gids, disp),
+                              float(disp.max()) if n else 0.0)
+
+    def render_tiles(self, c2w, tiles: np.ndarray, cand: TileCandidates) -> np.ndarray:
+        """Render the tiles ``tiles`` (int64 tile numbers, row-major) at pose
+        ``c2w`` into :attr:`image` (other tiles keep their pixels) and return it.
+        ``cand`` must cover this pose (see :meth:`candidates`)."""
+        tiles = np.ascontiguousarray(tiles, dtype=np.int64)
+        self._mark += 1
+        idx = _union(tiles, cand.offsets, cand.gids, self._stamp, self._mark)
+        self._project(self._viewmat(c2w), idx)
+        offsets, gids = _tile_lists(tiles, cand.offsets, cand.gids, self.means2d, self.radius_px,
+                                    self.depths, self.width, self.height, TILE)
+        _raster.raster_forward_kernel(tiles, offsets, gids, self.m2_dt, self.cn_dt, self.opac_dt,
+                                      self.colors, self.bg, self.width, self.height, TILE,
+                                      self.image, self._T, self._nc)
+        self.renders += 1
+        self.tiles_rendered += len(tiles)
+        return self.image
