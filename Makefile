@@ -47,6 +47,7 @@ test-all: $(STAMP)
 	$(BIN)/python -m pytest tests
 
 bench: $(STAMP)
+	$(BIN)/pip install -q -e ".[test,bench]"
 	set -e; for b in benchmarks/bench_*.py; do echo "== $$b"; $(BIN)/python $$b --quick; done
 
 dryrun: $(STAMP)

@@ -19,7 +19,8 @@ def scene(tmp_path_factory):
     return _plane_model(tmp), _straight_trajectory(tmp, dx=0.3)
 
 
-@pytest.mark.parametrize("mode", ["tile", "adaptive", "fixed"])
+@pytest.mark.parametrize("mode", ["tile", pytest.param("adaptive", marks=pytest.mark.slow),
+                                  pytest.param("fixed", marks=pytest.mark.slow)])
 def test_events_from_rendered_trajectory(scene, tmp_path, mode):
     from gs2e.events.io import read_h5
 

@@ -43,7 +43,9 @@ class TileCandidates:
     tile t are gids[offsets[t]:offsets[t + 1]], ascending. ``speed_px`` (n_tiles,)
     float64: the largest displacement (px) of a candidate's centre between
     consecutive poses of the span, 0 for a tile without candidates;
-    ``max_step_px`` the largest over all Gaussians.
+    ``max_step_px`` the 99th percentile of that displacement over the Gaussians
+    seen at consecutive poses (a robust size of the span's motion: a few
+    Gaussians next to the near plane move by hundreds of pixels).
     """
 
     offsets: np.ndarray
@@ -305,9 +307,10 @@ class ForwardRenderer:
         by ``margin_px`` + the largest displacement of its centre between
         consecutive poses; one that crosses the near plane next to a pose
         where it is visible goes to every tile. This holds while no centre
-        moves more than ``border_px`` between consecutive poses:
-        ``TileCandidates.speed_px`` gives the largest displacement per tile and
-        ``max_step_px`` the largest over all, for the caller to check.
+        moves more than ``border_px`` between consecutive poses outside the
+        view. ``TileCandidates.speed_px`` gives the largest displacement per tile and
+        ``max_step_px`` a robust size of the motion, for the caller to choose
+        the span.
         """
         P = len(c2ws)
         n = self.n_gaussians
@@ -335,6 +338,7 @@ class ForwardRenderer:
             disp = np.where(both, step, 0.0).max(axis=0)
             behind = z < c.near
             everywhere = ((vis[:-1] & behind[1:]) | (vis[1:] & behind[:-1])).any(axis=0)
+            seen = both.any(axis=0)
         margin = float(margin_px) + disp
         offsets = np.zeros(self.n_tiles + 1, np.int64)
         _cover_kernel(u, v, r, margin, everywhere, self.width, self.height, TILE, True, offsets,
@@ -343,8 +347,8 @@ class ForwardRenderer:
         gids = np.empty(int(offsets[-1]), np.int64)
         _cover_kernel(u, v, r, margin, everywhere, self.width, self.height, TILE, False, offsets,
                       gids)
-        return TileCandidates(offsets, gids, _tile_speed(offsets, gids, disp),
-                              float(disp.max()) if n else 0.0)
+        step_q99 = float(np.quantile(disp[seen], 0.99)) if P > 1 and seen.any() else 0.0
+        return TileCandidates(offsets, gids, _tile_speed(offsets, gids, disp), step_q99)
 
     def render_tiles(self, c2w, tiles: np.ndarray, cand: TileCandidates) -> np.ndarray:
         """Render the tiles ``tiles`` (int64 tile numbers, row-major) at pose
