@@ -214,6 +214,13 @@ def _main(argv: list[str] | None) -> int:
     t0 = time.perf_counter()
     log.info("gs2e %s %s", __version__, " ".join(sys.argv[1:] if argv is None else argv))
     _install_signal_handlers()
+    if not debug and argv is None:  # the program only: in-process callers keep their hooks
+        # after a failed write h5py reports the same error again from its
+        # destructors (a traceback + "Exception ignored in ... __dealloc__"):
+        # the one-line message below already says it
+        # (Cython prints them through sys.excepthook, then sys.unraisablehook)
+        sys.unraisablehook = lambda u: log.debug("ignored in %r: %s", u.object, u.exc_value)
+        sys.excepthook = lambda typ, exc, tb: log.debug("ignored: %s: %s", typ.__name__, exc)
 
     def fail(kind: str, msg: str, rc: int) -> int:
         if debug:
