@@ -213,7 +213,8 @@ def _main(argv: list[str] | None) -> int:
     log = logging.getLogger("gs2e")
     t0 = time.perf_counter()
     log.info("gs2e %s %s", __version__, " ".join(sys.argv[1:] if argv is None else argv))
-    _install_signal_handlers()
+    if argv is None:  # the program only: an in-process caller keeps its own handlers
+        _install_signal_handlers()
     if not debug and argv is None:  # the program only: in-process callers keep their hooks
         # after a failed write h5py reports the same error again from its
         # destructors (a traceback + "Exception ignored in ... __dealloc__"):
