@@ -16,6 +16,10 @@ report: "workflow/report/workflow.rst"
 include: "workflow/rules/common.smk"
 
 
+onstart:
+    sweep_stale_temporaries()
+
+
 rule all:
     input:
         all_targets(),

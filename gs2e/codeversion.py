@@ -29,7 +29,7 @@ STAGE_DEPS: dict[str, tuple[str, ...]] = {
     "render": ("render", "splat", "trajectory", "io", "common", *METRICS_WRITER),
     "events": ("events", "splat", "trajectory", "io", "common", *METRICS_WRITER),
     "metrics": ("metrics", "io", "common", "config.py"),
-    "report": ("report", "events", "io", "common", "config.py"),
+    "report": ("report", "events", "io", "common", "config.py", *METRICS_WRITER),
 }
 
 

@@ -13,6 +13,7 @@ import copy
 import csv
 import functools
 import json
+import math
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -80,11 +81,30 @@ def _format_error(err, what: str) -> str:
     return f"{what} key '{key or '<root>'}': {err.message}"
 
 
+def _non_finite(value, path: tuple = ()):
+    """(key path, value) of the first NaN or +-inf number in a nested config, or None."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return path, value
+    items = value.items() if isinstance(value, dict) else \
+        enumerate(value) if isinstance(value, list) else ()
+    for k, v in items:
+        found = _non_finite(v, path + (k,))
+        if found:
+            return found
+    return None
+
+
 def validate(instance: dict, schema: dict | Path, what: str = "config") -> dict:
     """Validate ``instance`` in place, filling defaults; raise ConfigError naming the key.
-    ``schema`` is a schema dict or the path of a schema file (validator cached)."""
+    ``schema`` is a schema dict or the path of a schema file (validator cached).
+    Every number must be finite: NaN and inf pass JSON-schema bounds (every
+    comparison with NaN is false), so they are rejected here."""
     if not isinstance(instance, dict):
         raise ConfigError(f"{what}: expected a mapping, got {type(instance).__name__}")
+    bad = _non_finite(instance)
+    if bad:
+        key = ".".join(map(str, bad[0]))
+        raise ConfigError(f"{what} key '{key}': {bad[1]} is not a finite number")
     v = _validator(Path(schema)) if isinstance(schema, (str, Path)) else _DefaultingValidator(schema)
     # Fill defaults first (a full pass), then report the first error by path order.
     errors = sorted(v.iter_errors(instance), key=lambda e: (list(map(str, e.absolute_path)), e.message))
@@ -111,7 +131,7 @@ def load_config(cfg: Mapping | str | Path | None = None) -> dict:
             raise ConfigError(f"config file {cfg} is not valid YAML: {exc}") from exc
     else:
         data = copy.deepcopy(dict(cfg))
-    return validate(data, CONFIG_SCHEMA, "config")
+    return check_config(validate(data, CONFIG_SCHEMA, "config"), "config")
 
 
 def parse_overrides(text: str, where: str = "overrides") -> dict:
@@ -185,7 +205,8 @@ def scene_config(config: dict, scene: dict) -> dict:
     """Validated config for one scene: global config + the row's overrides."""
     over = parse_overrides(scene.get("overrides", ""), f"scene '{scene['scene_id']}' overrides")
     merged = deep_merge(config, over)
-    return validate(merged, CONFIG_SCHEMA, f"scene '{scene['scene_id']}' config")
+    what = f"scene '{scene['scene_id']}' config"
+    return check_config(validate(merged, CONFIG_SCHEMA, what), what, workflow=True)
 
 
 def section_json(config: dict, section: str) -> str:
@@ -202,10 +223,115 @@ def load_section(section: str, text: str | None = None, path: str | None = None)
             sec = json.loads(text)
         except json.JSONDecodeError as exc:
             raise ConfigError(f"--config-json for '{section}' is not valid JSON: {exc}") from exc
-        return load_config({section: sec})[section]
-    if path:
-        return load_config(path)[section]
-    return load_config({})[section]
+        cfg = validate({section: sec}, CONFIG_SCHEMA, "config")
+    elif path:
+        cfg = load_config(path)
+    else:
+        cfg = validate({}, CONFIG_SCHEMA, "config")
+    # the checks of this section only: the others hold defaults here
+    return check_config(cfg, "config", sections=(section,))[section]
+
+
+# ---------------------------------------------------------------- cross-key checks
+# Constraints the schema cannot express (they involve several keys, or parse a
+# value). Each check names the sections it reads; all run in scene_config (what
+# `gs2e config --validate` and the Snakefile run for every scene, before the
+# first job, `snakemake -n` included), those of single sections in load_config
+# too, and load_section (a stage's CLI) runs those of its own section. Checks
+# that tie stages together (render.trajectories against what the trajectory
+# stage writes) concern the workflow only: a stage used on its own, or a test,
+# may set one section without the other.
+
+def _check_render(cfg: dict) -> None:
+    r = cfg["render"]
+    interval_us = 1e6 / r["fps"]
+    if r["write_blur"] and r["exposure_us"] > interval_us:
+        raise ConfigError(f"render.exposure_us={r['exposure_us']:g} is longer than the frame "
+                          f"interval {interval_us:.0f} us at render.fps={r['fps']:g} (lower it, "
+                          "lower render.fps, or set render.write_blur=false)")
+
+
+def _check_trajectory(cfg: dict) -> None:
+    import numpy as np
+
+    from gs2e.trajectory.velocity import make_profile, sample_profile
+
+    t = cfg["trajectory"]
+    if not t["alpha"] + t["beta"] > 0:
+        raise ConfigError("trajectory.alpha / trajectory.beta: at least one must be positive")
+    if t["speed_list"]:
+        sample_profile(make_profile(t), np.linspace(0.0, 1.0, 2), "trajectory.speed_list")
+    # parsed and checked even when speed_list replaces it: a bad value is a bad value
+    sample_profile(make_profile({**t, "speed_list": None}), np.linspace(0.0, 1.0, 2),
+                   "trajectory.velocity")
+
+
+def _check_splat(cfg: dict) -> None:
+    s = cfg["splat"]
+    if s["budget_min"] > s["budget_max"]:
+        raise ConfigError(f"splat.budget_min={s['budget_min']} is larger than "
+                          f"splat.budget_max={s['budget_max']}")
+    if s["model_source"] == "ply":
+        if not s["ply_path"]:
+            raise ConfigError("splat.ply_path: must be set when splat.model_source is 'ply'")
+        if not Path(s["ply_path"]).exists():
+            raise ConfigError(f"splat.ply_path: {s['ply_path']} does not exist (relative paths "
+                              f"start at the working directory {Path.cwd()})")
+
+
+def _check_events(cfg: dict) -> None:
+    e = cfg["events"]
+    lo, hi = e["theta_range"]
+    if lo > hi:
+        raise ConfigError(f"events.theta_range: low {lo:g} is larger than high {hi:g}")
+
+
+def _check_metrics(cfg: dict) -> None:
+    real = cfg["metrics"]["real_events"]
+    if real and not Path(real).is_file():
+        raise ConfigError(f"metrics.real_events: {real} does not exist (relative paths start "
+                          f"at the working directory {Path.cwd()})")
+
+
+def trajectory_names(traj_cfg: dict) -> list[str]:
+    """Names of the trajectory files the trajectory stage writes for this section."""
+    names = [f"base_{p}" for p in traj_cfg["speed_presets"]]
+    return names + [f"mini{g:02d}_{traj_cfg['mini_preset']}" for g in range(traj_cfg["mini_groups"])]
+
+
+def _check_render_trajectories(cfg: dict) -> None:
+    made = trajectory_names(cfg["trajectory"])
+    for name in cfg["render"]["trajectories"]:
+        if name not in made:
+            raise ConfigError(f"render.trajectories: '{name}' is not a trajectory the trajectory "
+                              f"stage writes with this config ({', '.join(made) or 'none'}; see "
+                              "trajectory.speed_presets, mini_groups, mini_preset)")
+
+
+CROSS_CHECKS = (
+    (("render",), _check_render),
+    (("trajectory",), _check_trajectory),
+    (("splat",), _check_splat),
+    (("events",), _check_events),
+    (("metrics",), _check_metrics),
+)
+WORKFLOW_CHECKS = (
+    (("render", "trajectory"), _check_render_trajectories),
+)
+
+
+def check_config(cfg: dict, what: str = "config", sections: tuple[str, ...] | None = None,
+                 workflow: bool = False) -> dict:
+    """Run the cross-key checks (all, or those reading only ``sections``; with
+    ``workflow`` also those tying stages together) on a validated config;
+    ConfigError prefixed with ``what`` names the key(s)."""
+    for needs, check in CROSS_CHECKS + (WORKFLOW_CHECKS if workflow else ()):
+        if sections is None or set(needs) <= set(sections):
+            try:
+                check(cfg)
+            except ConfigError as exc:
+                raise ConfigError(f"{what}: {exc}" if what != "config" else str(exc)) from None
+    return cfg
 
 
 def scene_params_json(config: dict) -> str:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -38,9 +40,92 @@ def test_atomic_file_and_json(tmp_path):
     assert list(tmp_path.iterdir()) == []
     write_json_atomic(tmp_path / "a.json", {"x": np.arange(3), "y": np.float32(1.5)})
     assert (tmp_path / "a.json").read_text().count("\n") > 1
-    with pytest.raises(ValueError):  # NaN is not valid JSON: refuse rather than write it
-        write_json_atomic(tmp_path / "b.json", {"x": float("nan")})
-    assert not (tmp_path / "b.json").exists()
+    # NaN/inf are not valid JSON: they mean "could not be computed" and become null
+    write_json_atomic(tmp_path / "b.json", {"x": float("nan"), "y": [np.float32("inf"), 1.0],
+                                            "z": {"w": -np.inf}})
+    assert json.loads((tmp_path / "b.json").read_text()) == {"x": None, "y": [None, 1.0],
+                                                             "z": {"w": None}}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json", "b.json"]
+
+
+def _killed_writer(tmp_path, code: str) -> None:
+    """Run ``code`` (with gs2e.common.atomic imported as A) in a child that is
+    SIGKILLed inside the writer; returns when it is gone."""
+    import signal
+    import subprocess
+    import sys
+
+    child = subprocess.Popen([sys.executable, "-c", "import os, signal\n"
+                              "from gs2e.common import atomic as A\n" + code], cwd=tmp_path)
+    assert child.wait(60) == -signal.SIGKILL
+
+
+def test_temporaries_of_killed_writers_are_swept_by_the_next_write(tmp_path):
+    from gs2e.common.atomic import atomic_dir, atomic_path, parse_temporary, sweep_output
+
+    _killed_writer(tmp_path, "with A.atomic_dir('out') as d:\n"
+                             "    (d / 'x').write_text('partial')\n"
+                             "    os.kill(os.getpid(), signal.SIGKILL)")
+    _killed_writer(tmp_path, "with A.atomic_path('t.h5') as p:\n"
+                             "    p.write_text('partial')\n"
+                             "    os.kill(os.getpid(), signal.SIGKILL)")
+    left = sorted(tmp_path.iterdir())
+    assert [p.name.split("-")[0] for p in left] == [".out.tmp", ".t.h5.tmp"]
+    t = parse_temporary(left[1])
+    assert t.final_name == "t.h5" and t.alive is False and left[1].suffix == ".h5"
+    # a live writer's temporary (this process) is never swept
+    with atomic_dir(tmp_path / "out") as d:
+        assert sweep_output(tmp_path / "out") == [] and d.exists()
+        assert len([p for p in tmp_path.iterdir() if p.name.startswith(".out.tmp")]) == 1
+        (d / "y").write_text("complete")
+    with atomic_path(tmp_path / "t.h5") as p:
+        p.write_text("complete")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "t.h5"]
+    assert (tmp_path / "out" / "y").read_text() == "complete"
+
+
+def test_owner_of_a_temporary(tmp_path):
+    import os
+
+    from gs2e.common.atomic import owner_tag, parse_temporary
+
+    me = parse_temporary(tmp_path / f".a.b.tmp-{owner_tag()}-abcd_123.npz")
+    assert me.final_name == "a.b" and me.alive is True
+    pid, rest = owner_tag().split("-", 1)
+    start, host = rest.split("@")
+    # same pid, other start time: the pid was reused, the owner is gone
+    reused = parse_temporary(tmp_path / f".x.tmp-{pid}-{int(start) + 1}@{host}-abcdefgh")
+    assert reused.alive is False
+    other = parse_temporary(tmp_path / f".x.tmp-{pid}-{start}@node-07.cluster-abcdefgh")
+    assert other.alive is None and other.owner.endswith("@node-07.cluster")
+    assert parse_temporary(tmp_path / ".x.tmp-abcdefgh").owner is None  # untagged (older gs2e)
+    for name in ("x.tmp-abcdefgh", ".x.tmp", ".x.txt", "frames"):
+        assert parse_temporary(tmp_path / name) is None
+    assert os.getpid() == int(pid)
+
+
+def test_clean_removes_only_stale_temporaries(tmp_path):
+    from gs2e.cli import main
+    from gs2e.common.atomic import owner_tag
+
+    res = tmp_path / "results"
+    (res / "s" / "frames").mkdir(parents=True)
+    (res / "s" / "frames" / "t1").mkdir()  # an output: kept
+    pid, rest = owner_tag().split("-", 1)
+    start, host = rest.split("@")
+    dead = res / "s" / "frames" / f".t1.tmp-999999999-1@{host}-abcdefgh"
+    (dead / "rgb").mkdir(parents=True)
+    (dead / "rgb" / "0.png").write_bytes(b"x" * 1000)
+    live = res / "s" / f".splat.tmp-{owner_tag()}-abcdefgh"
+    live.mkdir()
+    foreign = res / "s" / f".sfm.tmp-12-34@elsewhere-abcdefgh"
+    foreign.mkdir()
+    assert main(["clean", str(res), "--dry-run"]) == 0 and dead.exists()
+    assert main(["clean", str(res)]) == 0
+    assert not dead.exists() and live.exists() and foreign.exists()
+    assert (res / "s" / "frames" / "t1").is_dir()
+    assert main(["clean", str(res), "--all-hosts"]) == 0
+    assert not foreign.exists() and live.exists()
 
 
 def _random_rotations(n, rng):

@@ -14,3 +14,16 @@ class InputError(GS2EError):
 
 class ConfigError(GS2EError):
     """Invalid configuration or scenes table; the message names the key."""
+
+
+class Terminated(BaseException):
+    """Raised in the main thread when the process receives SIGTERM (Slurm's time
+    limit, ``kill``, Snakemake stopping a job), so that outputs in progress are
+    cleaned up exactly as after an exception. A BaseException: ``except
+    Exception`` in library code must not swallow it."""
+
+    def __init__(self, signum: int):
+        import signal
+
+        self.signum = signum
+        super().__init__(f"terminated by {signal.Signals(signum).name}")

@@ -125,7 +125,7 @@ def run(args) -> int:
 def run_stats(args) -> int:
     import json
 
-    from gs2e.common.atomic import write_json_atomic
+    from gs2e.common.atomic import json_safe, write_json_atomic
     from gs2e.common.errors import InputError
     from gs2e.events.io import read_events
     from gs2e.events.stats import calibrate_noise, event_stats
@@ -142,7 +142,7 @@ def run_stats(args) -> int:
     if args.out:
         write_json_atomic(args.out, out)
     else:
-        print(json.dumps(out, indent=2, default=float))
+        print(json.dumps(json_safe(out), indent=2))  # NaN -> null: valid JSON
     return 0
 
 

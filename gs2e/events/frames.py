@@ -5,7 +5,8 @@ increasing; ``frame`` float32 (H, W) LINEAR luminance in [0, 1]. A source
 object also has ``shape`` (H, W), ``n_frames`` (int or None) and ``name``.
 
 Adapters:
-- a folder of images (png/jpg/tif/exr...) in name order + a timestamps file
+- a folder of images (png/jpg/tif/exr...) in natural name order (frame2
+  before frame10; hidden files skipped) + a timestamps file
   (one time per line; microseconds as integers, or seconds with decimals when
   ``time_unit="s"``) or a frame rate;
 - a video file (timestamps from its frame rate or ``fps``);
@@ -27,6 +28,7 @@ import numpy as np
 
 from gs2e.common.errors import InputError
 from gs2e.common.color import REC709 as _REC709, srgb_to_linear
+from gs2e.io.images import list_images
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".exr", ".pgm", ".ppm")
 VIDEO_EXTS = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v")
@@ -111,7 +113,7 @@ class ImageFolderSource:
     def __init__(self, folder: Path, timestamps: str | Path | None, fps: float | None,
                  encoding: str = "srgb", time_unit: str = "us"):
         self.folder = Path(folder)
-        self.files = sorted(p for p in self.folder.iterdir() if p.suffix.lower() in IMAGE_EXTS)
+        self.files = list_images(self.folder, IMAGE_EXTS)
         if not self.files:
             raise InputError(f"{folder}: no images ({', '.join(IMAGE_EXTS)})")
         if timestamps is not None:

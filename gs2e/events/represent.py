@@ -86,11 +86,12 @@ class PreviewWriter:
 
         import cv2
 
-        from gs2e.common.atomic import default_file_mode
+        from gs2e.common.atomic import default_file_mode, owner_tag
 
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.stem}.tmp-", suffix=".mp4",
+        # named like gs2e.common.atomic's temporaries, so a killed job's is swept
+        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.tmp-{owner_tag()}-", suffix=".mp4",
                                    dir=self.path.parent)
         os.close(fd)
         os.chmod(tmp, default_file_mode())

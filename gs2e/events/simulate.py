@@ -226,9 +226,9 @@ def simulate_to_folder(source, cfg: dict, out_dir: str | Path, seed: int,
                      pixel_samples_per_s=pixel_samples / dur_s if dur_s > 0 else None,
                      simulate_s_per_s=timings["simulate_s"] / dur_s if dur_s > 0 else None,
                      **{f"sampling_{k}": v for k, v in sampling.items()}, **timings)
-        import pandas as pd
+        from gs2e.metrics.table import write_metrics
         row = {k: v for k, v in stats.items() if not isinstance(v, (dict, list))}
-        pd.DataFrame([row]).to_parquet(tmp / "stats.parquet", index=False)
+        write_metrics(tmp / "stats.parquet", row)  # NaN (not computable) -> null
         write_json_atomic(tmp / "stats.json", {"stats": stats, "metadata": json.loads(
             json.dumps(meta, default=lambda o: o.item() if isinstance(o, np.generic) else str(o)))})
     log.info("events: %s, %.3f s simulated (%dx%d) -> %d events (%.3f Mev/s, ON %.2f) in %.2f s",

@@ -17,7 +17,9 @@ def event_stats(ev: Events, shape: tuple[int, int], duration_us: float | None = 
     density_median_active_hz / density_p99_hz (over pixels with >= 1 event),
     active_pixel_fraction, iei_median_ms / iei_mean_ms / iei_p10_ms / iei_p90_ms
     (per-pixel inter-event intervals, all pixels pooled), n_iei.
-    ``duration_us`` defaults to the span of the events.
+    ``duration_us`` defaults to the span of the events. Values that cannot be
+    computed (no events, no intervals, zero duration) are NaN; writers store
+    them as null.
     """
     H, W = shape
     n = len(ev)
@@ -114,13 +116,17 @@ def calibrate_noise(ev: Events, shape: tuple[int, int], window_us: int = 10000) 
                           "shot_noise_on_fraction": ba_on if n_iso else 0.5}}
 
 
+# "no event yet" in StatsAccumulator.last: times may be negative (any t_offset)
+NO_EVENT = np.iinfo(np.int64).min
+
+
 @njit(cache=True)
 def _acc_update(t, x, y, W, counts, last, hist, log_lo, inv_bw, nb, sums):
     for i in range(t.shape[0]):
         pix = np.int64(y[i]) * W + np.int64(x[i])
         counts[pix] += 1
         lt = last[pix]
-        if lt >= 0:
+        if lt != NO_EVENT:
             d = t[i] - lt
             sums[0] += d
             sums[1] += 1
@@ -140,7 +146,7 @@ class StatsAccumulator:
         H, W = shape
         self.shape, self.name = shape, name
         self.counts = np.zeros(H * W, np.int64)
-        self.last = np.full(H * W, -1, np.int64)
+        self.last = np.full(H * W, NO_EVENT, np.int64)
         self.log_lo, self.log_hi = 0.0, np.log(1e10)
         self.nb = int(np.ceil((self.log_hi - self.log_lo) / 0.005))
         self.hist = np.zeros(self.nb, np.int64)

@@ -23,10 +23,21 @@ IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp", ".ppm",
 PNG_COMPRESSION = 3
 
 
-def is_image_file(path: str | os.PathLike) -> bool:
-    """True for a regular file whose extension is a supported image type."""
+def is_image_file(path: str | os.PathLike, exts: tuple[str, ...] = IMAGE_EXTS) -> bool:
+    """True for a regular, not hidden file whose extension is in ``exts``
+    (hidden files, e.g. macOS '._0001.png' or a killed job's temporaries, are
+    not frames)."""
     p = Path(path)
-    return p.suffix.lower() in IMAGE_EXTS and p.is_file()
+    return p.suffix.lower() in exts and not p.name.startswith(".") and p.is_file()
+
+
+def list_images(folder: str | os.PathLike, exts: tuple[str, ...] = IMAGE_EXTS) -> list[Path]:
+    """The image files of ``folder`` in natural name order (frame2 before
+    frame10, as people number frames), the one order every gs2e stage uses."""
+    from gs2e.io.views import natural_key
+
+    return sorted((p for p in Path(folder).iterdir() if is_image_file(p, exts)),
+                  key=lambda p: natural_key(p.name))
 
 
 def decode_image(data: bytes, name: str = "image") -> np.ndarray:

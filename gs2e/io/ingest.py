@@ -57,8 +57,9 @@ from gs2e.common.log import timed
 from gs2e.common.progress import progress
 from gs2e.io import colmap as colmap_io
 from gs2e.io import nerf as nerf_io
-from gs2e.io.images import (IMAGE_EXTS, is_image_file, read_image_bytes, decode_image,
-                            resize_with_camera, scaled_size, write_png, resize_image)
+from gs2e.io.images import (IMAGE_EXTS, decode_image, is_image_file, list_images,
+                            read_image_bytes, resize_image, resize_with_camera, scaled_size,
+                            write_png)
 from gs2e.io.scene import (IMAGES_DIR, SCENE_JSON, Camera, Frame, Scene, read_scene,
                            write_scene_json)
 from gs2e.io.views import LAYOUTS, SourceView, natural_key, sort_views
@@ -117,10 +118,6 @@ def unique_png_names(names: list[str]) -> list[str]:
     return out
 
 
-def _list_images(folder: Path) -> list[Path]:
-    return sorted((p for p in folder.iterdir() if is_image_file(p)), key=lambda p: natural_key(p.name))
-
-
 # ---------------------------------------------------------------- layout readers
 
 class _Source:
@@ -158,9 +155,9 @@ def _read_folder(src: Path, cfg: dict) -> _Source:
     if not src.is_dir():
         raise InputError(f"image folder {src} is not a directory")
     folder = src
-    if not _list_images(src) and (src / IMAGES_DIR).is_dir():
+    if not list_images(src) and (src / IMAGES_DIR).is_dir():
         folder = src / IMAGES_DIR
-    files = _list_images(folder)
+    files = list_images(folder)
     if not files:
         raise InputError(f"no image files ({', '.join(IMAGE_EXTS)}) in {src}")
     views = [SourceView(p.name, p) for p in files]
@@ -172,7 +169,8 @@ def _read_colmap(src: Path, cfg: dict, sequential: bool = False) -> _Source:
     model_dir = colmap_io.find_model_dir(src)
     if model_dir is None:
         if (src / "sparse").is_dir():
-            subs = sorted(p for p in (src / "sparse").iterdir() if colmap_io.is_model_dir(p))
+            subs = sorted((p for p in (src / "sparse").iterdir() if colmap_io.is_model_dir(p)),
+                          key=lambda p: natural_key(p.name))
             if subs:
                 model_dir = subs[0]
         if model_dir is None:
@@ -190,7 +188,7 @@ def _read_colmap(src: Path, cfg: dict, sequential: bool = False) -> _Source:
         if not v.path.is_file():
             raise InputError(f"image {v.path} referenced by COLMAP model {model_dir} does not exist")
     in_model = {v.path.resolve() for v in views}
-    unregistered = [p.name for p in _list_images(image_dir) if p.resolve() not in in_model]
+    unregistered = [p.name for p in list_images(image_dir) if p.resolve() not in in_model]
     if unregistered:
         log.warning("%d image(s) in %s are not in the COLMAP model and are skipped",
                     len(unregistered), image_dir)
@@ -267,7 +265,7 @@ def _read_dl3dv(src: Path, cfg: dict) -> _Source:
 
 
 def _first_size(folder: Path) -> tuple[int, int] | None:
-    files = _list_images(folder)
+    files = list_images(folder)
     if not files:
         return None
     img = decode_image(read_image_bytes(files[0]), str(files[0]))

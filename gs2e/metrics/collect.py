@@ -21,6 +21,7 @@ from gs2e import __version__
 from gs2e.codeversion import STAGE_DEPS, code_version
 from gs2e.common.errors import InputError
 from gs2e.config import scene_params_json
+from gs2e.metrics.table import read_metrics, read_table
 
 STAGE_FILES = {"sfm": "sfm/metrics.parquet", "train": "splat/metrics.parquet"}
 
@@ -41,7 +42,7 @@ def _events_seed(scene_dir: Path, name: str) -> int | None:
 
 
 def _row(path: Path, prefix: str) -> dict:
-    df = pd.read_parquet(path)
+    df = read_table(path)
     if len(df) != 1:
         raise InputError(f"{path}: expected one row, got {len(df)}")
     return {f"{prefix}_{k}": v for k, v in df.iloc[0].items() if k not in ("scene_id", "stage")}
@@ -87,5 +88,4 @@ def scene_table(scene_dir: str | Path, scene_id: str, trajectories: list[str], c
 
 def summary(tables: list[str | Path]) -> pd.DataFrame:
     """Concatenate scene tables (one row per scene x trajectory)."""
-    frames = [pd.read_parquet(p) for p in tables]
-    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+    return read_metrics(tables)

@@ -9,6 +9,7 @@ from typing import Any, Iterable, Mapping
 import pandas as pd
 
 from gs2e.common.atomic import atomic_path
+from gs2e.common.errors import InputError
 
 
 def _clean(v: Any) -> Any:
@@ -31,9 +32,19 @@ def write_metrics(path: str | Path, rows: Mapping[str, Any] | Iterable[Mapping[s
     return df
 
 
+def read_table(path: str | Path) -> pd.DataFrame:
+    """One parquet table; InputError naming the file if it is missing or corrupt."""
+    try:
+        return pd.read_parquet(path)
+    except FileNotFoundError as exc:
+        raise InputError(f"table {path} does not exist") from exc
+    except Exception as exc:  # pyarrow raises several types on corrupt files
+        raise InputError(f"{path}: not a readable parquet table ({exc})") from exc
+
+
 def read_metrics(paths: str | Path | Iterable[str | Path]) -> pd.DataFrame:
     """Read and concatenate metric tables."""
     if isinstance(paths, (str, Path)):
         paths = [paths]
-    frames = [pd.read_parquet(p) for p in paths]
+    frames = [read_table(p) for p in paths]
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()

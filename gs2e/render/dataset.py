@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from gs2e.common.atomic import atomic_dir, write_json_atomic
-from gs2e.common.errors import ConfigError, InputError
+from gs2e.common.errors import InputError
 from gs2e.common.log import get_logger
 from gs2e.common.progress import progress
 from gs2e.io.images import write_png
@@ -29,10 +29,11 @@ def _u8(img01: np.ndarray) -> np.ndarray:
 
 
 def check_render_config(cfg: dict) -> None:
-    interval_us = 1e6 / cfg["fps"]
-    if cfg["write_blur"] and cfg["exposure_us"] > interval_us:
-        raise ConfigError(f"render.exposure_us={cfg['exposure_us']} is longer than the frame interval "
-                          f"{interval_us:.0f} us at render.fps={cfg['fps']}")
+    """The cross-key checks of the render section (gs2e.config), e.g. exposure
+    against the frame interval."""
+    from gs2e.config import check_config
+
+    check_config({"render": cfg}, sections=("render",))
 
 
 def render_dataset(model_dir: str | Path, trajectory_path: str | Path, out_dir: str | Path,
@@ -58,7 +59,7 @@ def render_dataset(model_dir: str | Path, trajectory_path: str | Path, out_dir: 
     check_render_config(cfg)
     t_start = time.perf_counter()
     r = TrajectoryRenderer(model_dir, trajectory_path, cfg["background"], cfg["scale"],
-                           cfg.get("backend", "cpu"))
+                           cfg["backend"])
     if np.any(np.diff(r.traj.t_us) <= 0):
         raise InputError(f"{trajectory_path}: timestamps are not strictly increasing")
     times = fixed_times_us(r.t0_us, r.t1_us, cfg["fps"])

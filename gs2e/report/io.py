@@ -13,15 +13,12 @@ import pandas as pd
 
 from gs2e.common.errors import InputError
 from gs2e.events.models import Events
+from gs2e.io.views import natural_key
+from gs2e.metrics.table import read_table
 
 
 def _read_parquet(path: Path) -> pd.DataFrame | None:
-    if not path.exists():
-        return None
-    try:
-        return pd.read_parquet(path)
-    except Exception as exc:  # pyarrow raises several types on corrupt files
-        raise InputError(f"{path}: not a readable parquet table ({exc})") from exc
+    return read_table(path) if path.exists() else None
 
 
 def read_summary(results_dir: Path) -> pd.DataFrame | None:
@@ -34,8 +31,8 @@ def list_scenes(results_dir: Path, summary: pd.DataFrame | None) -> list[str]:
     if summary is not None and "scene_id" in summary:
         return list(dict.fromkeys(summary["scene_id"].astype(str)))
     root = Path(results_dir)
-    return sorted(p.name for p in root.iterdir()
-                  if p.is_dir() and ((p / "metrics.parquet").exists() or (p / "splat").exists()))
+    return sorted((p.name for p in root.iterdir() if p.is_dir() and not p.name.startswith(".")
+                   and ((p / "metrics.parquet").exists() or (p / "splat").exists())), key=natural_key)
 
 
 def scene_trajectories(scene_dir: Path, summary: pd.DataFrame | None, scene: str) -> list[str]:
@@ -47,7 +44,8 @@ def scene_trajectories(scene_dir: Path, summary: pd.DataFrame | None, scene: str
     for sub in ("frames", "events"):
         d = scene_dir / sub
         if d.is_dir():
-            names += sorted(p.name for p in d.iterdir() if p.is_dir() and not p.name.startswith("."))
+            names += sorted((p.name for p in d.iterdir() if p.is_dir() and not p.name.startswith(".")),
+                            key=natural_key)
     return list(dict.fromkeys(names))
 
 

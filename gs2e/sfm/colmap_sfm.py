@@ -11,14 +11,13 @@ internal-layout scene (undistorted ``images/``, ``scene.json``,
 from __future__ import annotations
 
 import shutil
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from gs2e.common.atomic import atomic_dir, write_json_atomic
+from gs2e.common.atomic import atomic_dir, scratch_dir, write_json_atomic
 from gs2e.common.errors import InputError
 from gs2e.common.log import get_logger, timed
 from gs2e.metrics.table import write_metrics
@@ -167,10 +166,7 @@ def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0
              matcher, "triangulate (reuse poses)" if reuse else "incremental mapping", threads,
              colmap_threads)
 
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_dir(out_dir) as out, tempfile.TemporaryDirectory(
-            prefix=".sfm-work-", dir=out_dir.parent) as work_s:
-        work = Path(work_s)
+    with atomic_dir(out_dir) as out, scratch_dir(out_dir) as work:
         db = work / "database.db"
         if reuse:
             same_k = len({(f.camera.model, f.camera.fx, f.camera.fy, f.camera.cx, f.camera.cy,

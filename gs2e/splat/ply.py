@@ -86,6 +86,8 @@ def read_ply(path: str | Path) -> dict[str, np.ndarray]:
         v = ply["vertex"].data
     except Exception as exc:  # plyfile raises several types for corrupt input
         raise InputError(f"cannot read Gaussian model {path}: {exc}") from exc
+    if len(v) == 0:
+        raise InputError(f"{path}: the model has no Gaussians (0 vertices)")
     names = set(v.dtype.names or ())
     missing = [nm for nm in ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", *_TAIL] if nm not in names]
     if missing:

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from gs2e.common.atomic import atomic_dir, atomic_path, write_json_atomic
+from gs2e.common.atomic import atomic_dir, atomic_path, sweep_output, write_json_atomic
 from gs2e.common.errors import InputError
 from gs2e.common.log import get_logger, timed
 from gs2e.common.progress import progress
@@ -92,9 +92,12 @@ def load_views(scene_dir: Path, scene: Scene, downscales: list[int]) -> list[Vie
 
 
 def split_views(views: list[View], test_every: int) -> tuple[list[View], list[View]]:
-    """Every ``test_every``-th view (by name order, starting with the first) is
-    held out, as the official code's LLFF hold-out; 0 disables the split."""
-    order = sorted(range(len(views)), key=lambda i: views[i].name)
+    """Every ``test_every``-th view (in natural name order, as everywhere in
+    gs2e, starting with the first) is held out, as the official code's LLFF
+    hold-out; 0 disables the split."""
+    from gs2e.io.views import natural_key
+
+    order = sorted(range(len(views)), key=lambda i: natural_key(views[i].name))
     if test_every <= 0 or len(views) < 3:
         return views, []
     test = {order[i] for i in range(0, len(order), test_every)}
@@ -228,8 +231,8 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     ckpt_dir = Path(checkpoint_dir) if checkpoint_dir else out_dir.with_name(out_dir.name + ".ckpt")
     ckpt = ckpt_dir / "checkpoint.pt"
     chash = config_hash(cfg, scene_dir) + f"-{seed}"
-    if resume and ckpt.exists():
-        st = torch.load(ckpt, weights_only=False)
+    st = _load_checkpoint(ckpt) if resume else None
+    if st is not None:
         if st.get("hash") == chash:
             p, it0, curve, best, bad_evals, train_time = (st["params"], st["iteration"], st["curve"],
                                                           st["best"], st["bad_evals"], st["train_time"])
@@ -331,6 +334,8 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     _write_model(out_dir, scene, from_params(p), n_iters, sh_final, stats, curve, scene_id, scene_dir)
     if ckpt.exists():
         ckpt.unlink()
+    if ckpt_dir.is_dir():
+        sweep_output(ckpt)  # a checkpoint write killed earlier
         try:
             ckpt_dir.rmdir()
         except OSError:
@@ -339,6 +344,22 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     log.info("trained %d iterations (%s): %d Gaussians, held-out PSNR %.2f dB SSIM %.4f, %.1f s",
              n_iters, stop_reason, stats["n_gaussians"], final["psnr"], final["ssim"], train_s)
     return stats
+
+
+def _load_checkpoint(path: Path) -> dict | None:
+    """The checkpoint at ``path``, or None if there is none or it cannot be read
+    (it is only a shortcut: training then starts from the beginning)."""
+    if not path.exists():
+        return None
+    try:
+        st = torch.load(path, weights_only=False)
+        if not isinstance(st, dict):
+            raise ValueError(f"a {type(st).__name__}, not a checkpoint")
+        return st
+    except Exception as exc:  # truncated or foreign file: torch raises several types
+        log.warning("ignoring unreadable checkpoint %s (%s); training from the start", path,
+                    " ".join(str(exc).split())[:200])
+        return None
 
 
 def _write_model(out_dir: Path, scene: Scene, g: dict[str, np.ndarray], iterations: int,

@@ -37,11 +37,17 @@ def save_trajectory(path: str | os.PathLike, traj: Trajectory) -> None:
 
 def load_trajectory(path: str | os.PathLike) -> Trajectory:
     """Read a trajectory file back into an evaluable :class:`Trajectory`."""
+    import zipfile
+
     try:
         with np.load(path, allow_pickle=False) as z:
             return Trajectory.from_arrays({k: z[k] for k in z.files})
-    except (OSError, KeyError, ValueError) as exc:
-        raise InputError(f"cannot read trajectory file {path}: {exc}") from exc
+    except FileNotFoundError as exc:
+        raise InputError(f"trajectory file {path} does not exist") from exc
+    except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        # truncated or foreign files raise any of these
+        raise InputError(f"cannot read trajectory file {path} (truncated or not a gs2e "
+                         f"trajectory: {' '.join(str(exc).split())})") from exc
 
 
 def read_index(folder: str | os.PathLike) -> dict:

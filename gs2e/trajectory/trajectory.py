@@ -229,7 +229,7 @@ def build_mini_paths(base: SampledPath, cfg: dict, rng: np.random.Generator, alp
         return []
     if M < K:
         raise InputError(f"mini-trajectories need at least mini_keyframes={K} base poses, got {M}")
-    window = float(cfg.get("mini_window", 1.0))
+    window = float(cfg["mini_window"])
     if window >= 1.0:  # the paper: keyframes from anywhere on the base path
         if M >= G * K:
             groups = rng.choice(M, size=G * K, replace=False).reshape(G, K)
@@ -324,10 +324,12 @@ def achieved_steps_fine(path: SampledPath, alpha: float, beta_n: float,
 
 
 def check_config(cfg: dict) -> None:
-    """Cross-key checks the schema cannot express: alpha + beta > 0, and every
-    preset named in speed_presets / mini_preset is defined."""
-    if not float(cfg["alpha"]) + float(cfg["beta"]) > 0:
-        raise ConfigError("trajectory.alpha / trajectory.beta: at least one must be positive")
+    """Cross-key checks the schema cannot express (gs2e.config's for this
+    section: alpha + beta > 0, the velocity profile), and every preset named in
+    speed_presets / mini_preset is defined."""
+    from gs2e.config import check_config as check_cross_keys
+
+    check_cross_keys({"trajectory": cfg}, sections=("trajectory",))
     presets = cfg["presets"]
     for name in list(cfg["speed_presets"]) + [cfg["mini_preset"]]:
         if name not in presets:

@@ -152,9 +152,9 @@ def speed_list_profile(speeds, tau_frac: float = 0.1, key: str = "trajectory.spe
 
 def make_profile(cfg: dict) -> Callable[[np.ndarray], np.ndarray]:
     """The velocity profile a trajectory config asks for (speed_list wins if set)."""
-    if cfg.get("speed_list"):
-        return speed_list_profile(cfg["speed_list"], cfg.get("speed_list_tau", 0.1))
-    return parse_velocity_expression(cfg.get("velocity", "0.25*sin(t)+1.1"))
+    if cfg["speed_list"]:
+        return speed_list_profile(cfg["speed_list"], cfg["speed_list_tau"])
+    return parse_velocity_expression(cfg["velocity"])
 
 
 def sample_profile(v: Callable[[np.ndarray], np.ndarray], t: np.ndarray,

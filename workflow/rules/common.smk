@@ -3,7 +3,8 @@ import json
 from pathlib import Path
 
 from gs2e.codeversion import code_version
-from gs2e.common.errors import ConfigError
+from gs2e.common.atomic import sweep_tree
+from snakemake.logging import logger
 from gs2e.config import (derive_seed, load_config, load_scenes, scene_config,
                          scene_params_json, section_json)
 
@@ -26,6 +27,16 @@ wildcard_constraints:
 
 def res(*parts):
     return str(Path(RESULTS, *parts))
+
+
+def sweep_stale_temporaries():
+    """Before the first job: remove the temporaries that jobs killed on this
+    machine left under the results (`gs2e clean`); a rerun job also sweeps
+    those of its own output, whichever host left them."""
+    if Path(RESULTS).is_dir():
+        removed, _, freed = sweep_tree(RESULTS)
+        for t in removed:
+            logger.info(f"removed stale temporary {t.path} (left by a killed job)")
 
 
 # Keys that say which jobs exist, not what a job computes: left out of params

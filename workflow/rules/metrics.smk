@@ -1,4 +1,5 @@
-# Real recording the report compares event statistics with (None: no comparison).
+# Real recording the report compares event statistics with (None: no comparison;
+# load_config has checked that it exists).
 REAL_EVENTS = config["metrics"]["real_events"]
 
 
@@ -7,9 +8,6 @@ def report_inputs(wildcards):
     out = {"summary": res("summary.parquet"),
            "products": [p for sid in SCENES for p in scene_products(sid)]}
     if REAL_EVENTS:
-        if not Path(REAL_EVENTS).is_file():
-            raise ConfigError(f"metrics.real_events: {REAL_EVENTS} does not exist "
-                              f"(relative paths start at the working directory {Path.cwd()})")
         out["real"] = REAL_EVENTS
     return out
 
