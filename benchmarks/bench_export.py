@@ -43,8 +43,8 @@ def tiny_tree() -> Path:
     wd = RESULTS / "export_tree"
     if not (wd / "results" / "summary.parquet").exists():
         shutil.rmtree(wd, ignore_errors=True)
-        run_tiny_pipeline(wd, TINY_OVERRIDES.replace("render.events_max_duration_s=0.03",
-                                                      "render.events_max_duration_s=null"))
+        run_tiny_pipeline(wd, TINY_OVERRIDES.replace("events.max_duration_s=0.03",
+                                                      "events.max_duration_s=null"))
     return wd / "results"
 
 

@@ -41,12 +41,11 @@ def export_scene(tiny_pipeline, tmp_path_factory):
     dst.mkdir()
     for d in ("sfm", "splat", "trajectories", "frames"):
         (dst / d).symlink_to(src / d, target_is_directory=True)
-    render = load_section("render", json.dumps({"fps": 10, "exposure_us": 20000, "min_coverage": 0.0}))
     events = load_section("events", json.dumps({"model": "ideal", "theta_on": 0.3, "theta_off": 0.3,
-                                                "preview": False}))
+                                                "preview": False, "max_duration_s": None}))
     run_cli("events", "--model", str(src / "splat"), "--trajectory", str(src / "trajectories" / f"{TRAJ}.npz"),
             "-o", str(dst / "events" / TRAJ), "--seed", "7", "--threads", "2",
-            "--config-json", json.dumps(events), "--render-config-json", json.dumps(render), check=True)
+            "--config-json", json.dumps(events), check=True)
     run_cli("windows", "--frames", str(dst / "frames" / TRAJ), "--events", str(dst / "events" / TRAJ),
             "--out", str(dst / "windows" / f"{TRAJ}.parquet"), check=True)
     return dst
