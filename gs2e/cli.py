@@ -38,6 +38,7 @@ STAGE_CLIS = (
     "gs2e.trajectory.cli",
     "gs2e.render.cli",
     "gs2e.events.cli",
+    "gs2e.export.cli",
     "gs2e.metrics.cli",
     "gs2e.report.cli",
 )

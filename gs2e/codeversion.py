@@ -30,6 +30,10 @@ STAGE_DEPS: dict[str, tuple[str, ...]] = {
     "events": ("events", "splat", "trajectory", "io", "common", *METRICS_WRITER),
     "metrics": ("metrics", "io", "common", "config.py"),
     "report": ("report", "events", "io", "common", "config.py", *METRICS_WRITER),
+    # the windows table reads frames.parquet and events.h5 only
+    "windows": ("export/__init__.py", "export/cli.py", "export/windows.py", "export/conventions.py",
+                "events/io.py", "events/models.py", "render/dataset.py", "common"),
+    "export": ("export", "events", "render", "trajectory", "io", "common", "config.py"),
 }
 
 

@@ -30,7 +30,7 @@ DEFAULT_CONFIG = REPO_ROOT / "config" / "config.yaml"
 # Where files are, not what a scene computes: left out of config hashes and params.
 LOCATION_KEYS = ("scenes", "results_dir")
 
-SECTIONS = ("demo", "ingest", "sfm", "splat", "trajectory", "render", "events", "metrics")
+SECTIONS = ("demo", "ingest", "sfm", "splat", "trajectory", "render", "events", "metrics", "export")
 
 
 def _with_defaults(cls):

@@ -23,6 +23,7 @@ shell.prefix(f'export PYTHONPATH="{workflow.basedir}${{{{PYTHONPATH:+:$PYTHONPAT
 wildcard_constraints:
     scene="[A-Za-z0-9][A-Za-z0-9_.-]*",
     traj="[A-Za-z0-9_.-]+",
+    fmt="[a-z0-9]+",
 
 
 def res(*parts):
@@ -41,7 +42,7 @@ def sweep_stale_temporaries():
 
 # Keys that say which jobs exist, not what a job computes: left out of params
 # so that listing one more trajectory does not rerun the others.
-NOT_PARAMS = {"render": ("trajectories",)}
+NOT_PARAMS = {"render": ("trajectories",), "export": ("formats",)}
 
 
 def stage_cfg(section):
@@ -52,8 +53,10 @@ def stage_cfg(section):
 
 
 def scene_params(sid):
-    """The scene's whole config (without file locations) as canonical JSON."""
-    return scene_params_json(SCENE_CFG[sid])
+    """The scene's whole config (without file locations) as canonical JSON.
+    The export section is left out: exports are copies of the dataset in other
+    layouts, so asking for one changes no metric and reruns no scene table."""
+    return scene_params_json({k: v for k, v in SCENE_CFG[sid].items() if k != "export"})
 
 
 def stage_seed(stage):
@@ -84,14 +87,21 @@ def scene_source(wc):
 
 
 def scene_products(sid):
-    """Every product of one scene: model, trajectories, frames and events."""
+    """Every product of one scene: model, trajectories, frames, events and the
+    aligned event windows."""
     out = [res(sid, "sfm"), res(sid, "splat"), res(sid, "trajectories")]
     for t in SCENE_CFG[sid]["render"]["trajectories"]:
-        out += [res(sid, "frames", t), res(sid, "events", t)]
+        out += [res(sid, "frames", t), res(sid, "events", t), res(sid, "windows", f"{t}.parquet")]
     return out
 
 
+def scene_exports(sid):
+    """The exports export.formats asks for, one per format and trajectory."""
+    return [res(sid, "export", f, t) for f in SCENE_CFG[sid]["export"]["formats"]
+            for t in SCENE_CFG[sid]["render"]["trajectories"]]
+
+
 def all_targets():
-    """The dataset summary (which needs every scene's metrics and products) and
-    the HTML report."""
-    return [res("summary.parquet"), res("report.html")]
+    """The dataset summary (which needs every scene's metrics and products),
+    the HTML report and the configured exports."""
+    return [res("summary.parquet"), res("report.html")] + [p for sid in SCENES for p in scene_exports(sid)]

@@ -1,0 +1,82 @@
+"""IncEventGS (WU-CVGL/IncEventGS, ``datasets/dataset.py``, dataset
+``replica_simu_event``) layout::
+
+    <scene>/images/frameNNNNNN.jpg                  one image per pose (sorted glob *.jpg)
+    <scene>/traj.txt                                one row per image: 16 floats, the 4x4
+                                                    camera-to-world, row-major, OpenCV axes
+    <scene>/poses_ts.txt                            one time per image (float seconds)
+    <scene>/event_threshold_0.1/gray_events_data.npy (M, 4) float64 [x, y, t, p]:
+                                                    t in seconds (same origin as poses_ts),
+                                                    p = -1 OFF / +1 ON (summed into event maps)
+    <scene>/gs2e_inceventgs.yaml                    the cam: and data: keys of its config
+
+The loader slices events[t in [poses_ts[i-1], poses_ts[i])) for image i and
+casts the array to float32: times are seconds from the first exported frame,
+so float32 keeps microseconds for sequences up to ~16 s (a warning names
+longer ones). Intrinsics come from the YAML config; note that its BaseDataset
+floors cam.fx/fy/cx/cy with ``//`` for some code paths (a warning names
+non-integer intrinsics).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from gs2e.export.common import ExportOut
+from gs2e.export.conventions import signed_polarity
+
+FLOAT32_EXACT_US = 1 << 24  # float32 seconds resolve 1 us up to 2^24 us
+
+
+def export_inceventgs(src, out: ExportOut, cfg: dict) -> None:
+    frames = src.covered_frames()
+    t_frames = src.frames["t_us"].to_numpy()[frames]
+    t0, t1 = int(t_frames[0]), int(t_frames[-1])
+    names = []
+    for i in frames:
+        name = f"frame{int(i):06d}.jpg"
+        ok, buf = cv2.imencode(".jpg", src.image("rgb", int(i))[:, :, ::-1],
+                               [cv2.IMWRITE_JPEG_QUALITY, int(cfg["inceventgs_jpeg_quality"])])
+        if not ok:
+            raise RuntimeError("JPEG encoding failed")
+        out.path(f"images/{name}").write_bytes(buf.tobytes())
+        names.append(name)
+    c2w = src.c2w(frames)
+    np.savetxt(out.path("traj.txt"), c2w.reshape(len(frames), 16), fmt="%.17g")
+    np.savetxt(out.path("poses_ts.txt"), (t_frames - t0) * 1e-6, fmt="%.6f")
+    ev = src.events(t0, t1)
+    arr = np.stack([ev.x.astype(np.float64), ev.y.astype(np.float64), (ev.t - t0) * 1e-6,
+                    signed_polarity(ev.p, str(src.events_file)).astype(np.float64)], 1)
+    np.save(out.path("event_threshold_0.1/gray_events_data.npy"), arr.reshape(-1, 4))
+    K = src.K(int(frames[0]))
+    if t1 - t0 > FLOAT32_EXACT_US:
+        out.warn(f"sequence is {(t1 - t0) / 1e6:.1f} s long: the loader's float32 cast rounds event "
+                 "times to more than 1 us")
+    if any(v != np.floor(v) for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2])):
+        out.warn("non-integer intrinsics: IncEventGS's BaseDataset floors cam.fx/fy/cx/cy (//) "
+                 "for some of its ray computations")
+    yaml_text = (
+        "# IncEventGS config for this export: inherit a Replica config for the method's settings\n"
+        "inherit_from: configs/SimuEvent/replica_room0.yaml\n"
+        "dataset: replica_simu_event\n"
+        "evaluate_img: False\n"
+        "data:\n"
+        f"  datadir: {out.final or '.'}\n"
+        "  training_start_index: 0\n"
+        f"  training_end_index: {len(frames)}\n"
+        "  interval_selection: 1\n"
+        "cam:\n"
+        f"  H: {src.height}\n  W: {src.width}\n"
+        f"  fx: {K[0, 0]!r}\n  fy: {K[1, 1]!r}\n  cx: {K[0, 2]!r}\n  cy: {K[1, 2]!r}\n"
+        "  crop_edge: 0\n")
+    out.text("gs2e_inceventgs.yaml", yaml_text)
+    out.manifest.update({
+        "target": "WU-CVGL/IncEventGS datasets/dataset.py ReplicaEventDataset",
+        "time": f"poses_ts.txt and events t: float seconds from the first exported frame "
+                f"(absolute t0_us = {t0})",
+        "polarity": "gray_events_data.npy p: +1 ON, -1 OFF",
+        "poses": "traj.txt: camera-to-world (row-major 16 floats), OpenCV axes, gs2e world frame",
+        "gs2e_frames": frames.tolist(), "t0_us": t0, "t1_us": t1, "n_events": len(ev),
+        "images": names,
+    })
