@@ -8,6 +8,7 @@ import os
 # throughput on a shared 2-core machine.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import shutil
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -27,12 +28,29 @@ def shared_data(*parts: str) -> Path:
     return p
 
 
+def run_group(cmd: list[str], cwd: Path, env: dict, timeout: float) -> subprocess.CompletedProcess:
+    """``subprocess.run`` with captured text output, in a process group of its own
+    that is killed whole on timeout or interrupt: Snakemake's job processes would
+    otherwise outlive a timed-out test and slow every later one."""
+    proc = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True)
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except BaseException:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        proc.communicate()
+        raise
+    return subprocess.CompletedProcess(cmd, proc.returncode, out, err)
+
+
 def run_cli(*args: str, cwd: Path | None = None, check: bool = False,
             env: dict | None = None, timeout: float = 900) -> subprocess.CompletedProcess:
     """Run ``python -m gs2e ARGS`` and capture output."""
     e = {**os.environ, "GS2E_PROGRESS": "0", **(env or {})}
-    proc = subprocess.run([sys.executable, "-m", "gs2e", *args], cwd=cwd or REPO,
-                          capture_output=True, text=True, env=e, timeout=timeout)
+    proc = run_group([sys.executable, "-m", "gs2e", *args], cwd=cwd or REPO, env=e, timeout=timeout)
     if check and proc.returncode != 0:
         raise AssertionError(f"gs2e {' '.join(args)} failed ({proc.returncode}):\n{proc.stderr[-4000:]}")
     return proc
@@ -43,8 +61,7 @@ def run_snakemake(*args: str, cwd: Path | None = None, timeout: float = 1500) ->
     e = {**os.environ, "GS2E_PROGRESS": "0",
          "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}"}
     cmd = [str(BIN / "snakemake"), "--snakefile", str(REPO / "Snakefile"), *args]
-    return subprocess.run(cmd, cwd=cwd or REPO, capture_output=True, text=True, env=e,
-                          timeout=timeout)
+    return run_group(cmd, cwd=cwd or REPO, env=e, timeout=timeout)
 
 
 @pytest.fixture

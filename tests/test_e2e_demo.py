@@ -16,6 +16,9 @@ from gs2e.io.scene import read_scene
 from gs2e.sfm import alignment_errors
 from tests.conftest import run_snakemake
 
+# COLMAP on all 36 demo views plus the rerun audit: minutes; the default tier covers the path with the tiny pipeline
+pytestmark = pytest.mark.slow
+
 
 TARGET = "results/demo/sfm"
 

@@ -40,8 +40,10 @@ FEEDS: dict[str, set[str]] = {
     "trajectory": {"render", "events"},
     # events renders its own samples from the model: of the render section it
     # takes only what changes pixels (background, scale, backend; events.smk)
-    "render": {"scene_metrics"},
-    "events": {"scene_metrics"},
+    "render": {"windows", "scene_metrics"},
+    "events": {"windows", "scene_metrics"},
+    # the aligned event windows of a trajectory read its frames and events
+    "windows": {"scene_metrics"},
     "scene_metrics": {"summary"},
     "summary": set(),
 }
@@ -64,7 +66,7 @@ def downstream(*rules: str) -> set[str]:
 
 def test_downstream_closure():
     assert downstream("summary") == {"summary"}
-    assert downstream("train") == {"train", "render", "events", "scene_metrics", "summary"}
+    assert downstream("train") == {"train", "render", "events", "windows", "scene_metrics", "summary"}
     assert downstream("demo_scene") == STAGE_RULES
 
 
@@ -273,23 +275,25 @@ def test_code_version_follows_the_stage_sources(tmp_path):
         before.update(now)
         return changed
 
-    # the report reads event files with gs2e.events
-    assert edit_and_diff("events/__init__.py") == {"events", "report"}
-    assert edit_and_diff("trajectory/__init__.py") == {"trajectory", "render", "events"}
+    # the report reads event files with gs2e.events; exports use events,
+    # render and trajectory code; the windows table only events/io.py, models.py
+    assert edit_and_diff("events/__init__.py") == {"events", "report", "export"}
+    assert edit_and_diff("events/io.py") == {"events", "report", "export", "windows"}
+    assert edit_and_diff("trajectory/__init__.py") == {"trajectory", "render", "events", "export"}
     assert edit_and_diff("splat/__init__.py") == {"train", "render", "events"}
     # the event stage renders with gs2e.splat, not the render stage's code
-    assert edit_and_diff("render/__init__.py") == {"render"}
+    assert edit_and_diff("render/__init__.py") == {"render", "export"}
     assert edit_and_diff("sfm/__init__.py") == {"sfm"}
     assert edit_and_diff("demo/__init__.py") == {"demo"}
     # stages write their tables with metrics/table.py; the scene tables are metrics' own
     assert edit_and_diff("metrics/collect.py") == {"metrics"}
-    assert edit_and_diff("metrics/table.py") == {"sfm", "train", "render", "events", "metrics"}
+    assert edit_and_diff("metrics/table.py") == {"sfm", "train", "render", "events", "metrics", "report"}
     assert edit_and_diff("common/__init__.py") == set(stages)
     # a new file counts too, a non-.py file does not
     (pkg / "events" / "extra.py").write_text("x = 1\n")
     (pkg / "events" / "notes.txt").write_text("x\n")
     cv.code_version.cache_clear()
-    assert {s for s in stages if cv.code_version(s) != before[s]} == {"events", "report"}
+    assert {s for s in stages if cv.code_version(s) != before[s]} == {"events", "report", "export"}
 
 
 def test_every_rule_carries_its_stage_code_version():

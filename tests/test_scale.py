@@ -297,6 +297,7 @@ def read_benchmarks(results: Path) -> dict[tuple[str, str], dict]:
     return {(r["scene"], r["job"]): r for r in read_results_benchmarks(results) if r["scene"]}
 
 
+@pytest.mark.slow
 def test_workflow_over_real_scenes(tmp_path):
     """temple_ring (47 views, Middlebury ring) and llff_fern (20 views), both as plain
     image folders (full SfM), tiny budgets: the summary has both scenes and no job

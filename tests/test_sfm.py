@@ -64,6 +64,7 @@ def test_alignment_errors_recover_known_similarity():
     assert np.isclose(e["scale"], 1 / 3)
 
 
+@pytest.mark.slow
 def test_temple_ring_registers_and_matches_ground_truth(tmp_path):
     src = shared_data("temple_ring")
     gt = read_middlebury_par(src / "templeR_par.txt")
@@ -92,6 +93,7 @@ def test_temple_ring_registers_and_matches_ground_truth(tmp_path):
     assert m.loc[0, "scene_id"] == "temple_ring" and m.loc[0, "n_registered"] == 47
 
 
+@pytest.mark.slow
 def test_llff_fern_registers_all_views(tmp_path):
     src = shared_data("llff_fern", "images")
     scene_dir = ingest_folder(src, tmp_path / "ingest")
@@ -195,6 +197,7 @@ def test_reuse_poses_keeps_given_points_without_colmap(tmp_path):
     assert json.loads((tmp_path / "sfm" / "sfm_stats.json").read_text())["mean_reproj_error_px"] is None
 
 
+@pytest.mark.slow
 def test_sfm_is_reproducible_under_load(tmp_path):
     """Same scene + seed -> same bytes, whatever the job's threads and the
     machine's load: multi-threaded COLMAP numbered images in the order its

@@ -185,6 +185,7 @@ def _submitted(out: str) -> dict[str, str]:
 
 
 @pytest.mark.slurm
+@pytest.mark.slow
 def test_demo_workflow_through_slurm(slurm_runs):
     wd, out, rc = slurm_runs["demo"]
     assert rc == 0, out[-5000:]
@@ -214,6 +215,7 @@ def test_demo_workflow_through_slurm(slurm_runs):
 
 
 @pytest.mark.slurm
+@pytest.mark.slow
 def test_job_killed_for_memory_is_retried_with_more(slurm_runs):
     wd, out, rc = slurm_runs["oom"]
     assert rc == 0, out[-5000:]

@@ -340,6 +340,187 @@ def tile_box(t, tiles_x, tile, H, W):
     return y0, min(H, y0 + tile), x0, min(W, x0 + tile)
 
 
+@njit(cache=True)
+def _voltmeter_slot(sl, btiles, boff, t0_us, t1_us, key_idx, lum, H, W, tile, scale, seed, k, tu_us,
+                    th_on, th_off, prev_in, res_in, ready_in, prev_out, res_out, ready_out,
+                    refractory_us, max_events_px, cap, ev_t, ev_x, ev_y, ev_p, fn, two_barrier):
+    """Slot ``sl`` of :func:`voltmeter_tiles`; returns its number of capped
+    pixel-intervals."""
+    tiles_x = (W + tile - 1) // tile
+    k1, k2, k3, k4, k5, k6 = k[0], k[1], k[2], k[3], k[4], k[5]
+    capped = 0
+    y0, y1, x0, x1 = tile_box(btiles[sl], tiles_x, tile, H, W)
+    n = 0
+    base = sl * cap
+    mu_r = np.empty((tile, tile))
+    sg_r = np.empty((tile, tile))
+    is_r = np.empty((tile, tile))
+    for y in range(y0, y1):
+        for x in range(x0, x1):
+            prev_out[y, x] = prev_in[y, x]
+            res_out[y, x] = res_in[y, x]
+            ready_out[y, x] = ready_in[y, x]
+    for iv in range(boff[sl], boff[sl + 1]):
+        # times within an interval are float64 us RELATIVE to its start
+        # (small numbers: exact and shift-invariant at any absolute time)
+        t0_rel = 0.0
+        t1_rel = float(t1_us[iv] - t0_us[iv])
+        inv_dt_m = tu_us / t1_rel
+        # drift and diffusion first (a branch-free loop the compiler
+        # vectorises), then the sampling loop
+        for y in range(y0, y1):
+            for x in range(x0, x1):
+                a0 = scale * prev_out[y, x]
+                a1 = scale * float(lum[iv, y - y0, x - x0])
+                lbar = 0.5 * (a0 + a1)
+                den = 1.0 / (lbar + k2)
+                mu_r[y - y0, x - x0] = k1 * (a1 - a0) * inv_dt_m * den + k4 + k5 * lbar
+                sgv = k3 * math.sqrt(max(lbar, 0.0)) * den + k6
+                sg_r[y - y0, x - x0] = sgv
+                is_r[y - y0, x - x0] = 1.0 / (sgv * sgv)  # inf when sigma = 0
+        s_full = 1.0 / inv_dt_m
+        sqrt_dt_m = math.sqrt(s_full)
+        inv_tu = 1.0 / tu_us
+        n_iv0 = n
+        key = frame_key(seed, key_idx[iv], SALT_SIGNAL)
+        for y in range(y0, y1):
+            for x in range(x0, x1):
+                prev_out[y, x] = float(lum[iv, y - y0, x - x0])
+                mu = mu_r[y - y0, x - x0]
+                sg = sg_r[y - y0, x - x0]
+                inv_sg2 = is_r[y - y0, x - x0]
+                ton = th_on[y, x]
+                toff = th_off[y, x]
+                v = res_out[y, x]
+                t = max(t0_rel, ready_out[y, x])
+                st = pixel_state(key, y * W + x)
+                cm = abs(mu)
+                if sg > 0.0:
+                    z2 = 2.0 * mu * inv_sg2
+                else:
+                    z2 = math.inf if mu > 0 else -math.inf
+                npx = 0
+                while t < t1_rel:
+                    if two_barrier:
+                        # exact two-barrier exit of the free drift-diffusion
+                        if t == t0_rel:
+                            s = s_full
+                            sq = sqrt_dt_m
+                        else:
+                            s = (t1_rel - t) * inv_tu
+                            sq = math.sqrt(s)
+                        st, zn = normal_zig(st)
+                        yend = v + mu * s + sg * sq * zn
+                        A = ton - v
+                        Bv = ton - yend
+                        C = v + toff
+                        D = yend + toff
+                        if Bv <= 0.0 or D <= 0.0:
+                            cross = True
+                        else:
+                            eu = 2.0 * A * Bv * inv_sg2
+                            ed = 2.0 * C * D * inv_sg2
+                            if eu > 40.0 * s and ed > 40.0 * s:
+                                cross = False  # 1 - P(stay) < 2^-54
+                            else:
+                                st, u = uniform_open(st)
+                                cross = u >= bridge_stay_probability(v, yend, -toff, ton,
+                                                                     sg * sg * s)
+                        if not cross:
+                            v = min(max(yend, -toff * (1.0 - 1e-9)), ton * (1.0 - 1e-9))
+                            break
+                        # exit side and time given the bridge: propose from the
+                        # single-barrier bridge laws (weights = their crossing
+                        # probabilities), accept with g_two / g_single
+                        p_up = 1.0 if Bv <= 0.0 else math.exp(-2.0 * A * Bv * inv_sg2 / s)
+                        p_dn = 1.0 if D <= 0.0 else math.exp(-2.0 * C * D * inv_sg2 / s)
+                        wdt = ton + toff
+                        for _ in range(1000):
+                            st, u = uniform_open(st)
+                            on = u * (p_up + p_dn) < p_up
+                            eps = A if on else C
+                            dd = Bv if on else D
+                            st, zu = normal_zig(st)
+                            st, u = uniform_open(st)
+                            tau = bridge_crossing_time(s, eps, dd, zu * zu, u, sg)
+                            var_tau = sg * sg * tau
+                            # the ratio is 1 - c e^-E with E = 2 w (w - eps) /
+                            # (sigma^2 tau), c <= 2 w / eps + 1: E > 80 makes it
+                            # 1 to double precision for eps > 1e-16 w
+                            if var_tau <= 0.0 or 2.0 * wdt * (wdt - eps) > 80.0 * var_tau:
+                                break
+                            st, u = uniform_open(st)
+                            if u < two_barrier_ratio(eps, wdt, var_tau):
+                                break
+                    else:
+                        a = ton - v
+                        b = toff + v
+                        # |z| min(a, b) > 38 decides the polarity exactly at the
+                        # 2^-54 resolution of our uniforms: no draw needed then
+                        if z2 * b > 38.0:
+                            on = True
+                        elif z2 * a < -38.0:
+                            on = False
+                        else:
+                            pon = p_on_two_barrier(mu, sg, a, b)
+                            st, u = uniform_open(st)
+                            on = u < pon
+                        eps = a if on else b
+                        if t == t0_rel:
+                            s = s_full
+                            sq = sqrt_dt_m
+                        else:
+                            s = (t1_rel - t) * inv_tu
+                            sq = math.sqrt(s)
+                        st, zn = normal_zig(st)
+                        yv = cm * s + sg * sq * zn
+                        d = eps - yv
+                        if d > 0.0:
+                            # bridge crossing probability exp(-e), e = 2 eps d / (sigma^2 s);
+                            # e > 38 is decided without a draw (and without dividing)
+                            e_s = 2.0 * eps * d * inv_sg2
+                            if e_s > 38.0 * s:
+                                cross = False
+                            else:
+                                st, u = uniform_open(st)
+                                cross = u < math.exp(-e_s / s)
+                        else:
+                            cross = True
+                        if not cross:
+                            v = v + yv if on else v - yv
+                            # the model fixes the polarity first, so the end point
+                            # may lie past the other barrier: keep it in the band
+                            lo = -toff * (1.0 - 1e-9)
+                            hi = ton * (1.0 - 1e-9)
+                            if v < lo:
+                                v = lo
+                            elif v > hi:
+                                v = hi
+                            break
+                        st, zu = normal_zig(st)
+                        st, u = uniform_open(st)
+                        tau = bridge_crossing_time(s, eps, d, zu * zu, u, sg)
+                    te = t + tau * tu_us
+                    if te > t1_rel:
+                        te = t1_rel
+                    if n < cap:
+                        ev_t[base + n] = te
+                        ev_x[base + n] = x
+                        ev_y[base + n] = y
+                        ev_p[base + n] = 1 if on else -1
+                    n += 1
+                    npx += 1
+                    v = 0.0
+                    t = te + refractory_us
+                    if npx >= max_events_px:
+                        capped += 1
+                        break
+                res_out[y, x] = v
+                ready_out[y, x] = t - t1_rel if t > t1_rel else -math.inf
+        fn[iv] = n - n_iv0
+    return capped
+
+
 @njit(cache=True, parallel=True)
 def voltmeter_tiles(btiles, boff, t0_us, t1_us, key_idx, lum, H, W, tile, scale, seed, k, tu_us,
                     th_on, th_off, prev_in, res_in, ready_in, prev_out, res_out, ready_out,
@@ -388,182 +569,17 @@ def voltmeter_tiles(btiles, boff, t0_us, t1_us, key_idx, lum, H, W, tile, scale,
     U ~ IG(eps s / |eps - y|, eps^2 / sigma^2). Without a crossing the
     residual is the end point itself.
     """
+    # the slot body is a function of its own: numba's parfor passes copy a
+    # loop body's IR many times, and the inlined body took minutes to compile
     m = btiles.shape[0]
-    tiles_x = (W + tile - 1) // tile
-    k1, k2, k3, k4, k5, k6 = k[0], k[1], k[2], k[3], k[4], k[5]
     capped = np.zeros(m, np.int64)
     order = slot_order(m)
     for si in prange(m):
         sl = order[si]
-        y0, y1, x0, x1 = tile_box(btiles[sl], tiles_x, tile, H, W)
-        n = 0
-        base = sl * cap
-        mu_r = np.empty((tile, tile))
-        sg_r = np.empty((tile, tile))
-        is_r = np.empty((tile, tile))
-        for y in range(y0, y1):
-            for x in range(x0, x1):
-                prev_out[y, x] = prev_in[y, x]
-                res_out[y, x] = res_in[y, x]
-                ready_out[y, x] = ready_in[y, x]
-        for iv in range(boff[sl], boff[sl + 1]):
-            # times within an interval are float64 us RELATIVE to its start
-            # (small numbers: exact and shift-invariant at any absolute time)
-            t0_rel = 0.0
-            t1_rel = float(t1_us[iv] - t0_us[iv])
-            inv_dt_m = tu_us / t1_rel
-            # drift and diffusion first (a branch-free loop the compiler
-            # vectorises), then the sampling loop
-            for y in range(y0, y1):
-                for x in range(x0, x1):
-                    a0 = scale * prev_out[y, x]
-                    a1 = scale * float(lum[iv, y - y0, x - x0])
-                    lbar = 0.5 * (a0 + a1)
-                    den = 1.0 / (lbar + k2)
-                    mu_r[y - y0, x - x0] = k1 * (a1 - a0) * inv_dt_m * den + k4 + k5 * lbar
-                    sgv = k3 * math.sqrt(max(lbar, 0.0)) * den + k6
-                    sg_r[y - y0, x - x0] = sgv
-                    is_r[y - y0, x - x0] = 1.0 / (sgv * sgv)  # inf when sigma = 0
-            s_full = 1.0 / inv_dt_m
-            sqrt_dt_m = math.sqrt(s_full)
-            inv_tu = 1.0 / tu_us
-            n_iv0 = n
-            key = frame_key(seed, key_idx[iv], SALT_SIGNAL)
-            for y in range(y0, y1):
-                for x in range(x0, x1):
-                    prev_out[y, x] = float(lum[iv, y - y0, x - x0])
-                    mu = mu_r[y - y0, x - x0]
-                    sg = sg_r[y - y0, x - x0]
-                    inv_sg2 = is_r[y - y0, x - x0]
-                    ton = th_on[y, x]
-                    toff = th_off[y, x]
-                    v = res_out[y, x]
-                    t = max(t0_rel, ready_out[y, x])
-                    st = pixel_state(key, y * W + x)
-                    cm = abs(mu)
-                    if sg > 0.0:
-                        z2 = 2.0 * mu * inv_sg2
-                    else:
-                        z2 = math.inf if mu > 0 else -math.inf
-                    npx = 0
-                    while t < t1_rel:
-                        if two_barrier:
-                            # exact two-barrier exit of the free drift-diffusion
-                            if t == t0_rel:
-                                s = s_full
-                                sq = sqrt_dt_m
-                            else:
-                                s = (t1_rel - t) * inv_tu
-                                sq = math.sqrt(s)
-                            st, zn = normal_zig(st)
-                            yend = v + mu * s + sg * sq * zn
-                            A = ton - v
-                            Bv = ton - yend
-                            C = v + toff
-                            D = yend + toff
-                            if Bv <= 0.0 or D <= 0.0:
-                                cross = True
-                            else:
-                                eu = 2.0 * A * Bv * inv_sg2
-                                ed = 2.0 * C * D * inv_sg2
-                                if eu > 40.0 * s and ed > 40.0 * s:
-                                    cross = False  # 1 - P(stay) < 2^-54
-                                else:
-                                    st, u = uniform_open(st)
-                                    cross = u >= bridge_stay_probability(v, yend, -toff, ton,
-                                                                         sg * sg * s)
-                            if not cross:
-                                v = min(max(yend, -toff * (1.0 - 1e-9)), ton * (1.0 - 1e-9))
-                                break
-                            # exit side and time given the bridge: propose from the
-                            # single-barrier bridge laws (weights = their crossing
-                            # probabilities), accept with g_two / g_single
-                            p_up = 1.0 if Bv <= 0.0 else math.exp(-2.0 * A * Bv * inv_sg2 / s)
-                            p_dn = 1.0 if D <= 0.0 else math.exp(-2.0 * C * D * inv_sg2 / s)
-                            wdt = ton + toff
-                            for _ in range(1000):
-                                st, u = uniform_open(st)
-                                on = u * (p_up + p_dn) < p_up
-                                eps = A if on else C
-                                dd = Bv if on else D
-                                st, zu = normal_zig(st)
-                                st, u = uniform_open(st)
-                                tau = bridge_crossing_time(s, eps, dd, zu * zu, u, sg)
-                                var_tau = sg * sg * tau
-                                # the ratio is 1 - c e^-E with E = 2 w (w - eps) /
-                                # (sigma^2 tau), c <= 2 w / eps + 1: E > 80 makes it
-                                # 1 to double precision for eps > 1e-16 w
-                                if var_tau <= 0.0 or 2.0 * wdt * (wdt - eps) > 80.0 * var_tau:
-                                    break
-                                st, u = uniform_open(st)
-                                if u < two_barrier_ratio(eps, wdt, var_tau):
-                                    break
-                        else:
-                            a = ton - v
-                            b = toff + v
-                            # |z| min(a, b) > 38 decides the polarity exactly at the
-                            # 2^-54 resolution of our uniforms: no draw needed then
-                            if z2 * b > 38.0:
-                                on = True
-                            elif z2 * a < -38.0:
-                                on = False
-                            else:
-                                pon = p_on_two_barrier(mu, sg, a, b)
-                                st, u = uniform_open(st)
-                                on = u < pon
-                            eps = a if on else b
-                            if t == t0_rel:
-                                s = s_full
-                                sq = sqrt_dt_m
-                            else:
-                                s = (t1_rel - t) * inv_tu
-                                sq = math.sqrt(s)
-                            st, zn = normal_zig(st)
-                            yv = cm * s + sg * sq * zn
-                            d = eps - yv
-                            if d > 0.0:
-                                # bridge crossing probability exp(-e), e = 2 eps d / (sigma^2 s);
-                                # e > 38 is decided without a draw (and without dividing)
-                                e_s = 2.0 * eps * d * inv_sg2
-                                if e_s > 38.0 * s:
-                                    cross = False
-                                else:
-                                    st, u = uniform_open(st)
-                                    cross = u < math.exp(-e_s / s)
-                            else:
-                                cross = True
-                            if not cross:
-                                v = v + yv if on else v - yv
-                                # the model fixes the polarity first, so the end point
-                                # may lie past the other barrier: keep it in the band
-                                lo = -toff * (1.0 - 1e-9)
-                                hi = ton * (1.0 - 1e-9)
-                                if v < lo:
-                                    v = lo
-                                elif v > hi:
-                                    v = hi
-                                break
-                            st, zu = normal_zig(st)
-                            st, u = uniform_open(st)
-                            tau = bridge_crossing_time(s, eps, d, zu * zu, u, sg)
-                        te = t + tau * tu_us
-                        if te > t1_rel:
-                            te = t1_rel
-                        if n < cap:
-                            ev_t[base + n] = te
-                            ev_x[base + n] = x
-                            ev_y[base + n] = y
-                            ev_p[base + n] = 1 if on else -1
-                        n += 1
-                        npx += 1
-                        v = 0.0
-                        t = te + refractory_us
-                        if npx >= max_events_px:
-                            capped[sl] += 1
-                            break
-                    res_out[y, x] = v
-                    ready_out[y, x] = t - t1_rel if t > t1_rel else -math.inf
-            fn[iv] = n - n_iv0
+        capped[sl] = _voltmeter_slot(sl, btiles, boff, t0_us, t1_us, key_idx, lum, H, W, tile, scale, seed, k,
+                                      tu_us, th_on, th_off, prev_in, res_in, ready_in, prev_out,
+                                      res_out, ready_out, refractory_us, max_events_px, cap, ev_t,
+                                      ev_x, ev_y, ev_p, fn, two_barrier)
     return capped.sum()
 
 

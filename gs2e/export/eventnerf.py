@@ -12,7 +12,8 @@ What its loader reads, per split ``train``, ``validation``, ``test``::
 
 The loader assumes the poses are evenly spaced in time over [0, t.max()] of
 the events (pose i at i / (N - 1) * t.max()) and hard-codes H, W = 260, 346.
-gs2e frames are evenly spaced (render.fps); t is written in seconds from the
+gs2e frames are evenly spaced (render.fps) but for the trajectory's last
+frame, which sits at its end time and is left out; t is written in seconds from the
 first exported frame, so pose i sits at t_i exactly and the loader's only
 approximation is that t.max() is the last event, not the last frame: the
 manifest records that gap (``alignment_gap_us``) and a warning is raised when
@@ -46,6 +47,17 @@ def intrinsics_matrix(K: np.ndarray) -> np.ndarray:
     return out
 
 
+def evenly_spaced_prefix(frames: np.ndarray, t_us: np.ndarray) -> np.ndarray:
+    """The frames from the first on while their spacing stays the median one
+    (to 1 us of rounding): render ends a trajectory with a frame at its end
+    time, off the fps grid."""
+    if len(frames) < 3:
+        return frames
+    d = np.diff(t_us[frames])
+    off = np.flatnonzero(np.abs(d - np.median(d)) > 1)
+    return frames if len(off) == 0 else frames[:off[0] + 1]
+
+
 def split_frames(frames: np.ndarray, holdout_every: int) -> dict[str, np.ndarray]:
     """train = every exported frame; validation = test = every
     ``holdout_every``-th frame (all frames when that leaves fewer than 3)."""
@@ -56,12 +68,17 @@ def split_frames(frames: np.ndarray, holdout_every: int) -> dict[str, np.ndarray
 
 
 def export_eventnerf(src, out: ExportOut, cfg: dict) -> None:
+    t_frames = src.frames["t_us"].to_numpy()
     frames = src.covered_frames()
+    on_grid = evenly_spaced_prefix(frames, t_frames)
+    if len(on_grid) < len(frames):
+        out.warn(f"{len(frames) - len(on_grid)} last frame(s) off the render.fps grid (the "
+                 f"trajectory's end) are not exported: the loader assumes evenly spaced poses")
+        frames = on_grid
     fit = SensorFit.centred(src.width, src.height, SENSOR_W, SENSOR_H, cfg["eventnerf_fit"],
                             "EventNeRF (data_loader_split.py)")
     c2w_all = src.c2w(frames)
     norm = unit_sphere(c2w_all[:, :3, 3], scene_points(src, frames))
-    t_frames = src.frames["t_us"].to_numpy()
     dt_frame = float(np.median(np.diff(t_frames[frames])))
     splits = split_frames(frames, int(cfg["eventnerf_holdout_every"]))
     info = {}

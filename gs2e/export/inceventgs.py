@@ -68,7 +68,9 @@ def export_inceventgs(src, out: ExportOut, cfg: dict) -> None:
         "  interval_selection: 1\n"
         "cam:\n"
         f"  H: {src.height}\n  W: {src.width}\n"
-        f"  fx: {K[0, 0]!r}\n  fy: {K[1, 1]!r}\n  cx: {K[0, 2]!r}\n  cy: {K[1, 2]!r}\n"
+        # Python floats: numpy 2 writes np.float64(...) as its repr
+        f"  fx: {float(K[0, 0])!r}\n  fy: {float(K[1, 1])!r}\n"
+        f"  cx: {float(K[0, 2])!r}\n  cy: {float(K[1, 2])!r}\n"
         "  crop_edge: 0\n")
     out.text("gs2e_inceventgs.yaml", yaml_text)
     out.manifest.update({

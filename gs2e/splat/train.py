@@ -94,14 +94,14 @@ def load_views(scene_dir: Path, scene: Scene, downscales: list[int]) -> list[Vie
 def split_views(views: list[View], test_every: int) -> tuple[list[View], list[View]]:
     """Every ``test_every``-th view (in natural name order, as everywhere in
     gs2e, starting with the first) is held out, as the official code's LLFF
-    hold-out; 0 disables the split."""
+    hold-out; 0 disables the split. Both lists are in natural name order."""
     from gs2e.io.views import natural_key
 
     order = sorted(range(len(views)), key=lambda i: natural_key(views[i].name))
     if test_every <= 0 or len(views) < 3:
         return views, []
     test = {order[i] for i in range(0, len(order), test_every)}
-    return [v for i, v in enumerate(views) if i not in test], [v for i, v in enumerate(views) if i in test]
+    return [views[i] for i in order if i not in test], [views[i] for i in order if i in test]
 
 
 def scene_extent(views: list[View]) -> float:
