@@ -121,6 +121,17 @@ def run_tiny_pipeline(wd: Path, overrides: str = TINY_OVERRIDES) -> tuple[Path, 
     return wd, args
 
 
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """Tests on the shared tiny pipeline run are in the slow tier: with a cold
+    numba cache the run takes over 20 min on a slow 2-core machine, where CI
+    must finish in 90 (the default tier checks the stages one by one and the
+    workflow by dry runs)."""
+    for item in items:
+        if "tiny_pipeline" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.slow)
+
+
 @pytest.fixture(scope="session")
 def tiny_pipeline(tmp_path_factory) -> tuple[Path, tuple[str, ...]]:
     return run_tiny_pipeline(tmp_path_factory.mktemp("tiny_pipeline"))
