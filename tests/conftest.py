@@ -116,7 +116,7 @@ def run_tiny_pipeline(wd: Path, overrides: str = TINY_OVERRIDES) -> tuple[Path, 
     wd.mkdir(parents=True, exist_ok=True)
     (wd / "scenes.tsv").write_text(f"scene_id\tlayout\tpath\toverrides\ntiny\tdemo\t\t{overrides}\n")
     args = tiny_pipeline_args(wd)
-    proc = run_snakemake(*args)
+    proc = run_snakemake(*args, timeout=3600)  # cold numba caches on a slow machine: > 25 min
     assert proc.returncode == 0, proc.stderr[-5000:]
     return wd, args
 
