@@ -137,7 +137,6 @@ def _has(folder: Path, pattern: str, at_least: int = 1) -> bool:
     return folder.is_dir() and sum(1 for _ in folder.glob(pattern)) >= at_least
 
 
-@pytest.mark.slow
 def test_killed_jobs_rerun_to_identical_outputs_without_debris(tiny_pipeline, tmp_path):
     wd = tmp_path / "killed"
     wd.mkdir()

@@ -41,9 +41,6 @@ from gs2e.codeversion import STAGE_DEPS, code_version
 from gs2e.config import derive_seed
 from tests.conftest import run_tiny_pipeline
 
-# a second complete pipeline run; the default tier checks byte-reproducibility per stage
-pytestmark = pytest.mark.slow
-
 # Timing keys of each stage's stats JSON / metrics parquet (path under results/).
 _SFM = {"time_undistortion_s", "time_writing_s", "time_total_s"}
 _TRAIN = {"train_time_s", "train_cpu_s", "time_scene_analysis_s"}

@@ -138,14 +138,13 @@ def test_unchanged_config_reruns_nothing(tiny_pipeline):
 # -- one key of one stage changed (--configfile) ------------------------------
 
 @pytest.mark.parametrize("change, changed", [
-    # the upstream stages in the slow tier (one dry run each, ~0.5 min on a slow machine)
-    pytest.param("demo: {seed: 3}", {"demo_scene"}, marks=pytest.mark.slow),
-    pytest.param("ingest: {max_side: 100}", {"ingest"}, marks=pytest.mark.slow),
-    pytest.param("sfm: {max_num_features: 4096}", {"sfm"}, marks=pytest.mark.slow),
-    pytest.param("trajectory: {velocity: '0.3*sin(t)+1.0'}", {"trajectory"}, marks=pytest.mark.slow),
+    ("demo: {seed: 3}", {"demo_scene"}),
+    ("ingest: {max_side: 100}", {"ingest"}),
+    ("sfm: {max_num_features: 4096}", {"sfm"}),
+    ("trajectory: {velocity: '0.3*sin(t)+1.0'}", {"trajectory"}),
     ("render: {write_depth: false}", {"render"}),
     ("render: {background: [0.2, 0.2, 0.2]}", {"render", "events"}),
-    pytest.param("events: {theta_mismatch_sigma: 0.01}", {"events"}, marks=pytest.mark.slow),
+    ("events: {theta_mismatch_sigma: 0.01}", {"events"}),
     ("events: {sampling: {bound_fraction: 0.5}}", {"events"}),
     # seeds are derived per (scene, stage) from the global seed: sfm, train,
     # trajectory and events use one; demo (own demo.seed), ingest and render do not
@@ -173,11 +172,10 @@ def test_report_key_change_reruns_only_tables_and_report(tiny_pipeline, tmp_path
 # -- one key changed in the scene's overrides (scenes table) ------------------
 
 @pytest.mark.parametrize("changes, changed", [
-    pytest.param({"splat__max_iterations": "100", "splat__min_iterations": "100"}, {"train"},
-                 marks=pytest.mark.slow),
-    pytest.param({"trajectory__mini_frames": "40"}, {"trajectory"}, marks=pytest.mark.slow),
-    ({"render__fps": "20"}, {"render"}),  # the frame rate is not the event stage's business
-    pytest.param({"events__theta_on": "0.25"}, {"events"}, marks=pytest.mark.slow),
+    ({"splat__max_iterations": "100", "splat__min_iterations": "100"}, {"train"}),
+    ({"trajectory__mini_frames": "40"}, {"trajectory"}),
+    ({"render__fps": "20"}, {"render"}),
+    ({"events__theta_on": "0.25"}, {"events"}),
     ({"events__model": "voltmeter"}, {"events"}),
 ], ids=lambda x: ",".join(f"{k.replace('__', '.')}={v}" for k, v in x.items()) if isinstance(x, dict) else None)
 def test_scene_override_change_reruns_the_stage_and_downstream(tiny_pipeline, tmp_path, changes, changed):
@@ -204,7 +202,6 @@ def test_new_speed_preset_adds_its_trajectory_jobs(tiny_pipeline, tmp_path):
     assert status["results/tiny/events/base_strong"] == "missing"
 
 
-@pytest.mark.slow
 def test_added_scene_leaves_the_existing_scene_alone(tiny_pipeline, tmp_path):
     """A second row in the scenes table plans every job of the new scene and the
     summary; the existing scene gets nothing beyond what moving its table costs."""
@@ -220,14 +217,12 @@ def test_added_scene_leaves_the_existing_scene_alone(tiny_pipeline, tmp_path):
     assert plan["summary"] == {"results/summary.parquet"}
 
 
-@pytest.mark.slow
 def test_same_table_elsewhere_reruns_nothing(tiny_pipeline, tmp_path):
     wd, _ = tiny_pipeline
     shutil.copy(wd / "scenes.tsv", tmp_path / "scenes.tsv")
     assert pending(summary_rows(*sm_args(wd, tmp_path / "scenes.tsv"))) == {}
 
 
-@pytest.mark.slow
 def test_listing_another_trajectory_renders_only_that_one(tiny_pipeline, tmp_path):
     wd, _ = tiny_pipeline
     over = tiny_overrides_with(render__trajectories="[mini00_medium,base_medium]")
