@@ -440,7 +440,7 @@ def test_sigterm_cleans_up_like_an_exception(tmp_path):
     frames = _frames(tmp_path, n=400, size=(64, 48), values=list(np.resize(np.arange(20, 220), 400)))
     proc = _subprocess_gs2e(["events", frames, "--fps", "1000", "-o", tmp_path / "out",
                              "--set", "preview=false", "--set", "batch_frames=4"])
-    deadline = time.time() + 120
+    deadline = time.time() + 1800  # a cold start compiles the simulator first
     while not any(p.name.startswith(".out.tmp-") for p in tmp_path.iterdir()):
         assert proc.poll() is None and time.time() < deadline, "no temporary appeared"
         time.sleep(0.01)

@@ -155,7 +155,11 @@ def test_exposure_longer_than_frame_interval_rejected(plane, tmp_path):
 
     model, _ = plane
     traj = _straight_trajectory(tmp_path, dx=0.3)
-    cfg = load_config({"render": {"fps": 100.0, "exposure_us": 20_000.0}})["render"]
+    # The config check rejects it before any job runs ...
+    with pytest.raises(ConfigError, match="render.exposure_us"):
+        load_config({"render": {"fps": 100.0, "exposure_us": 20_000.0}})
+    # ... and the render stage still refuses a section that skipped that check.
+    cfg = dict(load_config({"render": {"fps": 100.0, "exposure_us": 5_000.0}})["render"], exposure_us=20_000.0)
     with pytest.raises(ConfigError, match="render.exposure_us"):
         render_dataset(model, traj, tmp_path / "out", cfg)
     assert not (tmp_path / "out").exists()

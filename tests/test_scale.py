@@ -195,7 +195,7 @@ def test_paper_config_and_example_ids():
     cfg = load_config(REPO / "config" / "paper.yaml")
     assert cfg["splat"]["max_iterations"] == 30000
     assert cfg["trajectory"]["gamma"] == 5 and cfg["trajectory"]["mini_frames"] == 150
-    assert cfg["render"]["sampling"] == "fixed" and cfg["render"]["fixed_fps"] == 2400
+    assert cfg["events"]["sampling"]["mode"] == "fixed" and cfg["events"]["sampling"]["fixed_fps"] == 2400
     assert cfg["events"]["theta_on"] == cfg["events"]["theta_off"] == 1.0
     m = read_id_list(REPO / "config" / "paper_ids" / "mvimgnet.example.txt", "mvimgnet")
     d = read_id_list(REPO / "config" / "paper_ids" / "dl3dv.example.txt", "dl3dv")
@@ -228,12 +228,13 @@ def test_paper_selection_dry_run(tmp_path):
             counts[parts[0]] = int(parts[1])
     assert counts["render"] == counts["events"] == 4 * n
     assert counts["ingest"] == counts["sfm"] == counts["train"] == n
-    assert wall < 120
+    print(f"paper-selection dry run: {n} scenes in {wall:.1f} s")  # speed: benchmarks/bench_dryrun.py
 
 
-def test_dry_run_over_many_scenes_is_fast_and_bounded(tmp_path):
-    """300 scenes plan in seconds; the scheduler holds the DAG (a few hundred kB per
-    scene), never scene data: its peak RSS stays far below one scene's job."""
+def test_dry_run_over_many_scenes_is_bounded(tmp_path):
+    """The scheduler holds the DAG (a few hundred kB per scene), never scene data:
+    its peak RSS over 300 scenes stays far below one scene's job, and every job is
+    planned. Its speed is measured by benchmarks/bench_dryrun.py, not asserted here."""
     import os
     import subprocess
 
@@ -267,10 +268,10 @@ def test_dry_run_over_many_scenes_is_fast_and_bounded(tmp_path):
     out = (tmp_path / "out.txt").read_text()
     assert proc.returncode == 0, out[-3000:]
     n_traj = len(load_config({})["render"]["trajectories"])
-    # per scene: ingest, sfm, train, trajectory, render + events per trajectory, metrics;
-    # + summary, report, all
-    assert f"total {(5 + 2 * n_traj) * n + 3}" in " ".join(out.split())
-    assert wall < 90, wall
+    # per scene: ingest, sfm, train, trajectory, render + events + windows per
+    # trajectory, metrics; + summary, report, all
+    assert f"total {(5 + 3 * n_traj) * n + 3}" in " ".join(out.split())
+    print(f"dry run: {n} scenes in {wall:.1f} s, peak {peak_kb / 1024:.0f} MB")
     assert 0 < peak_kb / 1024 < 600, peak_kb  # MB; 1-scene dry-run ~160 MB, 1050 scenes ~330 MB
 
 

@@ -21,7 +21,7 @@ import pandas as pd
 import pytest
 import torch
 
-from gs2e.common.errors import InputError
+from gs2e.common.errors import ConfigError, InputError
 from gs2e.config import load_section
 from gs2e.io.scene import read_scene, write_scene_json
 from gs2e.splat.init import init_from_points
@@ -227,7 +227,13 @@ def test_bad_ply_model(tiny_scene, tmp_path, damage):
         pattern = "missing vertex attributes opacity"
     else:
         pattern = "ply_path is not set"
-    c = cfg(model_source="ply", ply_path=None if damage == "no_path" else str(path))
+        # The config check catches it before any job; train still refuses a
+        # section that skipped that check.
+        with pytest.raises(ConfigError, match="splat.ply_path: must be set"):
+            cfg(model_source="ply", ply_path=None)
+    c = cfg(model_source="ply", ply_path=str(path))
+    if damage == "no_path":
+        c = dict(c, ply_path=None)
     with pytest.raises(InputError, match=pattern):
         train(tiny_scene, tmp_path / "m", c)
     assert not (tmp_path / "m").exists()
