@@ -37,8 +37,13 @@ demo: $(STAMP)
 	$(BIN)/snakemake --cores $(CORES) --configfile config/config.yaml $(DEMO_CONFIG)
 	@echo "demo outputs: results/demo/, report: results/report.html (see README.md, 'What the demo produces')"
 
+# The default tier runs on TEST_WORKERS pytest-xdist workers, one test file per
+# worker at a time (cold numba compiles and CLI start-up are single-threaded).
+# The slow tier stays serial: its tests share one session-wide pipeline run.
+TEST_WORKERS ?= 2
+
 test: $(STAMP)
-	$(BIN)/python -m pytest -m "not slow" tests
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile -m "not slow" tests
 
 test-slow: $(STAMP)
 	$(BIN)/python -m pytest -m "slow" tests

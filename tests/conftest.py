@@ -7,6 +7,14 @@ import os
 # Before torch/numba load OpenMP (see gs2e/__init__.py): spinning waits halve
 # throughput on a shared 2-core machine.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+# A fresh test run is dominated by cold numba compiles (minutes per kernel on a
+# small machine). Tests compile at LLVM -O1, about 3x faster to compile; with
+# fastmath off everywhere and no SVML, -O1 and -O3 give the same IEEE results
+# (tests/test_numba_opt.py checks the bytes). They cache into their own folder so
+# the pipeline's -O3 cache (gs2e/**/__pycache__) is never replaced by these.
+os.environ.setdefault("NUMBA_OPT", "1")
+os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(os.path.dirname(os.path.dirname(
+    os.path.abspath(__file__))), ".numba-test-cache"))
 import shutil
 import signal
 import subprocess
