@@ -240,6 +240,18 @@ def _temp_prefix(final: Path) -> str:
     return f".{final.name}.tmp-{owner_tag()}-"
 
 
+def _temp_name(final: Path, suffix: str = "") -> Path:
+    """A free temporary name beside ``final``, chosen before anything exists so
+    the caller creates it inside its cleanup ``try``: a signal that lands just
+    after creation (SIGTERM raises at the next bytecode) cannot leak it. The
+    prefix holds this process's pid and start time, so no other process takes
+    the name between this check and the creation."""
+    while True:
+        tmp = final.parent / f"{_temp_prefix(final)}{secrets.token_hex(4)}{suffix}"
+        if not os.path.lexists(tmp):
+            return tmp
+
+
 @contextlib.contextmanager
 def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary directory that replaces ``path`` on success.
@@ -251,9 +263,9 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     final = Path(path)
     final.parent.mkdir(parents=True, exist_ok=True)
     sweep_output(final)
-    tmp = Path(tempfile.mkdtemp(prefix=_temp_prefix(final), dir=final.parent))
-    os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700; outputs get normal permissions
+    tmp = _temp_name(final)
     try:
+        os.mkdir(tmp, 0o777)  # minus the umask: outputs get normal permissions
         yield tmp
         _fsync_tree(tmp)
     except BaseException:
@@ -274,8 +286,9 @@ def scratch_dir(path: str | os.PathLike) -> Iterator[Path]:
     a killed job's is swept with them), removed on exit whatever happens."""
     final = Path(path)
     final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=_temp_prefix(final), dir=final.parent))
+    tmp = _temp_name(final)
     try:
+        os.mkdir(tmp, 0o700)
         yield tmp
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -296,11 +309,10 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     final = Path(path)
     final.parent.mkdir(parents=True, exist_ok=True)
     sweep_output(final)
-    fd, tmp_name = tempfile.mkstemp(prefix=_temp_prefix(final), suffix=final.suffix,
-                                    dir=final.parent)
-    os.close(fd)
-    os.chmod(tmp_name, default_file_mode())
+    tmp_name = str(_temp_name(final, final.suffix))
     try:
+        # 0o666 minus the umask: the renamed output gets normal permissions
+        os.close(os.open(tmp_name, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
         yield Path(tmp_name)
         _fsync_path(tmp_name)
         _commit(tmp_name, final)
