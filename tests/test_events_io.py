@@ -10,7 +10,7 @@ import pytest
 
 from gs2e.cli import main
 from gs2e.common.errors import InputError
-from gs2e.events.io import (H5EventWriter, read_aedat4, read_h5, read_npz, read_text,
+from gs2e.events.io import (H5EventSlicer, H5EventWriter, read_aedat4, read_h5, read_npz, read_text,
                             write_npz, write_text)
 from gs2e.events.models import Events
 from gs2e.events.represent import event_frame, voxel_grid, write_preview
@@ -58,6 +58,18 @@ def test_h5_round_trip_dsec_layout(tmp_path):
     win, _ = read_h5(out, (a, b))
     sel = (ev.t >= a) & (ev.t < b)
     assert np.array_equal(win.t, ev.t[sel]) and np.array_equal(win.x, ev.x[sel])
+    # index ranges through one handle: the same events as the time window
+    i0, i1 = np.searchsorted(ev.t, [a, b])
+    sl = H5EventSlicer(out)
+    assert sl.n_events == len(ev)
+    part = sl.read(int(i0), int(i1))
+    for k in "txyp":
+        got, want = getattr(part, k), getattr(win, k)
+        assert np.array_equal(got, want) and got.dtype == want.dtype
+    assert len(sl.read(len(ev), len(ev))) == 0
+    with pytest.raises(InputError, match="ev.h5.*out of range"):
+        sl.read(0, len(ev) + 1)
+    sl.close()
 
 
 def test_h5_writer_is_atomic(tmp_path):
@@ -99,6 +111,37 @@ def test_event_frame_and_voxel_grid():
     assert vg.shape == (5, 12, 16)
     assert vg.sum() == pytest.approx(2.0 * ev.p.sum() - len(ev), abs=1e-2)
     assert np.allclose(vg.sum(0), s, atol=1e-3)
+
+
+def test_voxel_grid_matches_sequential_adds():
+    """Same bytes as sequential float64 adds in event order (np.add.at), on a
+    hard case: thousands of events on one pixel, events exactly at t0 and at
+    t1 - 1, a window of one microsecond, and one bin."""
+    rng = np.random.default_rng(3)
+    n, H, W = 20_000, 6, 7
+    t = np.sort(rng.integers(100, 900, n)).astype(np.int64)
+    t[0], t[-1] = 100, 899
+    x = np.where(rng.random(n) < 0.5, 3, rng.integers(0, W, n)).astype(np.uint16)
+    y = np.where(x == 3, 2, rng.integers(0, H, n)).astype(np.uint16)
+    ev = Events(t, x, y, rng.integers(0, 2, n).astype(np.uint8))
+
+    def sequential(e, n_bins, t0, t1):
+        grid = np.zeros(n_bins * H * W)
+        tn = np.clip((e.t - float(t0)) / max(float(t1 - t0), 1.0) * (n_bins - 1), 0, n_bins - 1)
+        lo = np.floor(tn).astype(np.int64)
+        hi = np.minimum(lo + 1, n_bins - 1)
+        pol, pix = 2.0 * e.p - 1.0, e.y.astype(np.int64) * W + e.x
+        np.add.at(grid, lo * H * W + pix, pol * (1.0 - (tn - lo)))
+        np.add.at(grid, hi * H * W + pix, pol * (tn - lo) * (hi != lo))
+        return grid.reshape(n_bins, H, W).astype(np.float32)
+
+    for n_bins, (t0, t1) in [(5, (100, 900)), (1, (100, 900)), (9, (450, 451)), (3, (0, 10_000))]:
+        i0, i1 = np.searchsorted(t, [t0, t1])
+        sub = Events(t[i0:i1], x[i0:i1], y[i0:i1], ev.p[i0:i1])
+        assert voxel_grid(ev, (H, W), n_bins, t0, t1).tobytes() == sequential(sub, n_bins, t0, t1).tobytes()
+    counts = np.zeros(2 * H * W, np.int32)
+    np.add.at(counts, ev.p.astype(np.int64) * H * W + ev.y.astype(np.int64) * W + ev.x, 1)
+    assert np.array_equal(event_frame(ev, (H, W)), counts.reshape(2, H, W))
 
 
 def test_stats_and_accumulator_agree():

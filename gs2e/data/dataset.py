@@ -111,28 +111,50 @@ class EventWindowDataset(Dataset):
             ok = windows[f"{self.kind}_covered"].to_numpy(bool)
             items += [(k, int(i)) for i in np.nonzero(ok)[0]]
         self.items = items
+        self._readers: dict = {}
+        self._readers_pid: int | None = None
 
     def __len__(self) -> int:
         return len(self.items)
 
-    def _events(self, tr: _Trajectory, t0: int, t1: int, n_expected: int) -> Events:
-        from gs2e.events.io import read_h5
+    def _events(self, k: int, i0: int, i1: int, t0: int, t1: int) -> Events:
+        """events[i0:i1] of trajectory ``k`` (the windows table's index range),
+        through a handle opened once per process (DataLoader workers each open
+        their own), checked against the table's event count and window."""
+        import os
 
+        from gs2e.events.io import H5EventSlicer
+
+        if self._readers_pid != os.getpid():
+            self._readers, self._readers_pid = {}, os.getpid()
+        tr = self.trajectories[k]
         path = tr.scene_dir / "events" / tr.name / "events.h5"
-        ev, _ = read_h5(path, (t0, t1))
-        if len(ev) != n_expected:
-            raise InputError(f"{path}: {len(ev)} events in [{t0}, {t1}) us, the windows table says "
-                             f"{n_expected} (stale windows table: rerun gs2e windows)")
+        if k not in self._readers:
+            reader = H5EventSlicer(path)
+            if reader.n_events != tr.n_events:
+                reader.close()
+                raise InputError(f"{path}: {reader.n_events} events, the windows table says "
+                                 f"{tr.n_events} (stale windows table: rerun gs2e windows)")
+            self._readers[k] = reader
+        ev = self._readers[k].read(i0, i1)
+        if len(ev) and not (ev.t[0] >= t0 and ev.t[-1] < t1):
+            raise InputError(f"{path}: events[{i0}:{i1}] span [{ev.t[0]}, {ev.t[-1]}] us, outside the "
+                             f"window [{t0}, {t1}) (stale windows table: rerun gs2e windows)")
         return Events(check_times_us(ev.t, str(path)), ev.x, ev.y, check_polarity01(ev.p, str(path)))
+
+    def __getstate__(self) -> dict:
+        # open HDF5 handles stay in their process (spawned workers open their own)
+        return {**self.__dict__, "_readers": {}, "_readers_pid": None}
 
     def __getitem__(self, idx: int) -> dict[str, Any]:
         k, i = self.items[idx]
         tr = self.trajectories[k]
         w, f = tr.windows.iloc[i], tr.frames.iloc[i]
         t0, t1 = int(w[f"{self.kind}_t0_us"]), int(w[f"{self.kind}_t1_us"])
-        n = int(w[f"{self.kind}_i1"] - w[f"{self.kind}_i0"])
+        i0, i1 = int(w[f"{self.kind}_i0"]), int(w[f"{self.kind}_i1"])
+        n = i1 - i0
         H, W = int(f["height"]), int(f["width"])
-        ev = self._events(tr, t0, t1, n)
+        ev = self._events(k, i0, i1, t0, t1)
         check_events_in_sensor(ev.x, ev.y, W, H, f"{tr.scene}/{tr.name}")
         if self.representation == "voxel":
             events: Any = torch.from_numpy(voxel_grid(ev, (H, W), self.n_bins, t0, t1))
@@ -142,7 +164,7 @@ class EventWindowDataset(Dataset):
             events = to_tonic(ev.t, ev.x, ev.y, ev.p, f"{tr.scene}/{tr.name}")
         item = {"scene": tr.scene, "trajectory": tr.name, "frame": i, "t0_us": t0, "t1_us": t1,
                 "n_events": n, "events": events,
-                "c2w": torch.from_numpy(np.asarray(f["c2w"], np.float64)),
+                "c2w": torch.from_numpy(np.array(f["c2w"], np.float64)),  # a copy: pandas rows are read-only
                 "K": torch.tensor([[f["fx"], 0.0, f["cx"]], [0.0, f["fy"], f["cy"]], [0.0, 0.0, 1.0]],
                                   dtype=torch.float64)}
         frames_dir = tr.scene_dir / "frames" / tr.name

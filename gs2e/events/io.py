@@ -175,6 +175,43 @@ def read_h5(path: str | os.PathLike, t_range_us: tuple[int, int] | None = None) 
     return ev, attrs
 
 
+class H5EventSlicer:
+    """``events[i0:i1]`` of a DSEC-layout file through one open handle, for
+    readers that take many index ranges (data loaders, with the ranges of a
+    windows table): no search, no attribute reads per call.
+
+    Open it in the process that reads (an HDF5 handle must not cross a fork).
+    ``n_events`` is the file's event count; t comes back absolute (us, int64).
+    """
+
+    def __init__(self, path: str | os.PathLike):
+        import h5py
+        import hdf5plugin  # noqa: F401  (registers blosc & co. for reading)
+
+        self.path = Path(path)
+        try:
+            self._f = h5py.File(self.path, "r")
+            self.t_offset_us = int(self._f["t_offset"][()]) if "t_offset" in self._f else 0
+            g = self._f["events"]
+            self._t, self._x, self._y, self._p = g["t"], g["x"], g["y"], g["p"]
+            self.n_events = int(self._t.shape[0])
+        except (OSError, KeyError) as exc:
+            raise InputError(f"{self.path}: not a readable DSEC-layout event file ({exc})") from exc
+
+    def read(self, i0: int, i1: int) -> Events:
+        if not 0 <= i0 <= i1 <= self.n_events:
+            raise InputError(f"{self.path}: events[{i0}:{i1}] out of range ({self.n_events} events)")
+        try:
+            return Events(self._t[i0:i1].astype(np.int64) + self.t_offset_us,
+                          self._x[i0:i1].astype(np.uint16), self._y[i0:i1].astype(np.uint16),
+                          self._p[i0:i1].astype(np.uint8))
+        except OSError as exc:
+            raise InputError(f"{self.path}: cannot read events[{i0}:{i1}] ({exc})") from exc
+
+    def close(self) -> None:
+        self._f.close()
+
+
 # ---------------------------------------------------------------- text & npz
 def write_text(path: str | os.PathLike, ev: Events, polarity: str = "01") -> None:
     """``t x y p`` per line (t absolute us); polarity "01" or "pm1" (-1/+1)."""

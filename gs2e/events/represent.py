@@ -29,9 +29,9 @@ def event_frame(ev: Events, shape: tuple[int, int], t0_us: int | None = None,
     H, W = shape
     idx = e.y.astype(np.int64) * W + e.x.astype(np.int64)
     if mode == "counts":
-        out = np.zeros(2 * H * W, np.int32)
-        np.add.at(out, idx + e.p.astype(np.int64) * H * W, 1)
-        return out.reshape(2, H, W)
+        # bincount, not np.add.at: same sums, 10-50x faster
+        return np.bincount(idx + e.p.astype(np.int64) * H * W,
+                           minlength=2 * H * W).astype(np.int32).reshape(2, H, W)
     if mode == "signed":
         return np.bincount(idx, weights=2.0 * e.p - 1.0, minlength=H * W).astype(np.int32).reshape(H, W)
     raise ValueError(f"unknown mode {mode!r}")
@@ -44,9 +44,8 @@ def voxel_grid(ev: Events, shape: tuple[int, int], n_bins: int, t0_us: int | Non
     time normalised so t0 -> bin 0 and t1 -> bin n_bins - 1."""
     e = _window(ev, t0_us, t1_us)
     H, W = shape
-    grid = np.zeros(n_bins * H * W, np.float64)
     if len(e) == 0:
-        return grid.reshape(n_bins, H, W).astype(np.float32)
+        return np.zeros((n_bins, H, W), np.float32)
     a = float(e.t[0] if t0_us is None else t0_us)
     b = float(e.t[-1] if t1_us is None else t1_us)
     tn = (e.t.astype(np.float64) - a) / max(b - a, 1.0) * (n_bins - 1)
@@ -55,9 +54,12 @@ def voxel_grid(ev: Events, shape: tuple[int, int], n_bins: int, t0_us: int | Non
     w_hi = tn - lo
     pol = 2.0 * e.p - 1.0
     pix = e.y.astype(np.int64) * W + e.x.astype(np.int64)
-    np.add.at(grid, lo * H * W + pix, pol * (1.0 - w_hi))
     hi = np.minimum(lo + 1, n_bins - 1)
-    np.add.at(grid, hi * H * W + pix, pol * w_hi * (hi != lo))
+    # one bincount over (lower-bin, upper-bin) contributions: float64 sums in
+    # event order, as sequential adds would give, at bincount's speed
+    grid = np.bincount(np.concatenate([lo * H * W + pix, hi * H * W + pix]),
+                       weights=np.concatenate([pol * (1.0 - w_hi), pol * w_hi * (hi != lo)]),
+                       minlength=n_bins * H * W)
     return grid.reshape(n_bins, H, W).astype(np.float32)
 
 
