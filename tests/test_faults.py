@@ -69,8 +69,9 @@ def temporaries(root: Path) -> list[str]:
 
 def _snakemake(wd: Path, *targets: str) -> subprocess.Popen:
     env = {**os.environ, "GS2E_PROGRESS": "0", "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}"}
-    cmd = [str(BIN / "snakemake"), "--snakefile", str(REPO / "Snakefile"), *tiny_pipeline_args(wd),
-           *targets]
+    # targets first: tiny_pipeline_args ends with --config, which would take them as entries
+    cmd = [str(BIN / "snakemake"), "--snakefile", str(REPO / "Snakefile"), *targets,
+           *tiny_pipeline_args(wd)]
     return subprocess.Popen(cmd, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             text=True, start_new_session=True)
 
