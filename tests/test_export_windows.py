@@ -3,6 +3,8 @@ default workflow writes on the tiny pipeline (events on part of the trajectory).
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -119,7 +121,8 @@ def test_export_rule_is_off_by_default_and_planned_alone_when_configured(tiny_pi
     proc = run_snakemake(*base, "export={formats: [inceventgs]}")
     out = proc.stdout + proc.stderr
     assert proc.returncode == 0, out[-3000:]
-    planned = {ln.split()[0]: int(ln.split()[1]) for ln in out.split("Job stats:")[1].splitlines()[3:]
-               if ln.strip() and ln.split()[0] != "total" and ln.split()[1].isdigit()}
+    # the first job-stats table, up to its total (job blocks follow it)
+    table = out.split("Job stats:", 1)[1].split("total", 1)[0]
+    planned = {m[0]: int(m[1]) for m in re.findall(r"^(\w+)\s+(\d+)\s*$", table, flags=re.M)}
     assert planned == {"all": 1, "export": 1}, out[-3000:]
     assert "results/tiny/export/inceventgs/mini00_medium" in out
