@@ -15,6 +15,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 os.environ.setdefault("NUMBA_OPT", "1")
 os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(os.path.dirname(os.path.dirname(
     os.path.abspath(__file__))), ".numba-test-cache"))
+import re
 import shutil
 import signal
 import subprocess
@@ -113,6 +114,13 @@ TINY_OVERRIDES = ";".join([
     "events.max_duration_s=0.03", "render.min_coverage=0.0",
     "events.model=ideal", "events.theta_on=0.3", "events.theta_off=0.3", "events.preview=false",
 ])
+
+
+def planned_jobs(out: str) -> dict[str, int]:
+    """Jobs per rule from the first "Job stats:" table of Snakemake's output
+    (Snakemake 9 prints it again after the job blocks)."""
+    table = out.split("Job stats:", 1)[1].split("total", 1)[0]
+    return {m[0]: int(m[1]) for m in re.findall(r"^(\w+)\s+(\d+)\s*$", table, flags=re.M)}
 
 
 def tiny_pipeline_args(wd: Path) -> tuple[str, ...]:

@@ -3,8 +3,6 @@ default workflow writes on the tiny pipeline (events on part of the trajectory).
 
 from __future__ import annotations
 
-import re
-
 import numpy as np
 import pandas as pd
 import pytest
@@ -112,7 +110,7 @@ def test_workflow_writes_windows_that_slice_the_events(tiny_pipeline):
 def test_export_rule_is_off_by_default_and_planned_alone_when_configured(tiny_pipeline):
     """export.formats: [] plans nothing; asking for a format plans one export job
     per trajectory and nothing else (exports change no dataset product or table)."""
-    from tests.conftest import run_snakemake
+    from tests.conftest import planned_jobs, run_snakemake
 
     wd, _ = tiny_pipeline
     base = ("--cores", "2", "--directory", str(wd), "-n", "--config", f"scenes={wd / 'scenes.tsv'}")
@@ -121,8 +119,5 @@ def test_export_rule_is_off_by_default_and_planned_alone_when_configured(tiny_pi
     proc = run_snakemake(*base, "export={formats: [inceventgs]}")
     out = proc.stdout + proc.stderr
     assert proc.returncode == 0, out[-3000:]
-    # the first job-stats table, up to its total (job blocks follow it)
-    table = out.split("Job stats:", 1)[1].split("total", 1)[0]
-    planned = {m[0]: int(m[1]) for m in re.findall(r"^(\w+)\s+(\d+)\s*$", table, flags=re.M)}
-    assert planned == {"all": 1, "export": 1}, out[-3000:]
+    assert planned_jobs(out) == {"all": 1, "export": 1}, out[-3000:]
     assert "results/tiny/export/inceventgs/mini00_medium" in out

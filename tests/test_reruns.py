@@ -28,7 +28,7 @@ from pathlib import Path
 import pytest
 
 from gs2e.codeversion import STAGE_DEPS, code_version
-from tests.conftest import REPO, TINY_OVERRIDES, run_snakemake
+from tests.conftest import REPO, TINY_OVERRIDES, planned_jobs, run_snakemake
 
 # The workflow's rules (one job each per scene, render/events one per trajectory)
 # and the rules each one feeds.
@@ -238,8 +238,7 @@ def test_summary_agrees_with_dry_run(tiny_pipeline, tmp_path):
     extra = ("--configfile", str(tmp_path / "change.yaml"))
     proc = run_snakemake("-n", *args, *extra)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    table = proc.stdout.split("Job stats:", 1)[1].split("total", 1)[0]
-    counts = {m[0]: int(m[1]) for m in re.findall(r"^(\w+)\s+(\d+)\s*$", table, flags=re.M)}
+    counts = planned_jobs(proc.stdout)
     assert set(re.findall(r"^rule (\w+):", proc.stdout, flags=re.M)) == set(counts)
     plan = pending(summary_rows(*args, *extra))
     assert {r: len(o) for r, o in plan.items()} == {r: n for r, n in counts.items() if r != "all"}

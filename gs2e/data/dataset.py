@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Sequence
@@ -121,8 +122,6 @@ class EventWindowDataset(Dataset):
         """events[i0:i1] of trajectory ``k`` (the windows table's index range),
         through a handle opened once per process (DataLoader workers each open
         their own), checked against the table's event count and window."""
-        import os
-
         from gs2e.events.io import H5EventSlicer
 
         if self._readers_pid != os.getpid():

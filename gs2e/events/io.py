@@ -144,31 +144,24 @@ def read_h5(path: str | os.PathLike, t_range_us: tuple[int, int] | None = None) 
     ``t_range_us`` = (start, end) absolute microseconds selects a window via
     ms_to_idx without reading the whole file.
     """
-    import h5py
-    import hdf5plugin  # noqa: F401  (registers blosc & co. for reading)
-
-    path = Path(path)
-    try:
-        with h5py.File(path, "r") as f:
-            t_off = int(f["t_offset"][()]) if "t_offset" in f else 0
-            g = f["events"]
-            i0, i1 = 0, g["t"].shape[0]
+    with contextlib.closing(H5EventSlicer(path)) as s:
+        f, t_off = s.file, s.t_offset_us
+        i0, i1 = 0, s.n_events
+        try:
             if t_range_us is not None and "ms_to_idx" in f:
                 ms = f["ms_to_idx"]
                 a = max(0, (int(t_range_us[0]) - t_off) // 1000)
                 b = max(0, -(-(int(t_range_us[1]) - t_off) // 1000))
                 i0 = int(ms[min(a, ms.shape[0] - 1)])
                 i1 = int(ms[min(b, ms.shape[0] - 1)]) if b < ms.shape[0] else i1
-            t = g["t"][i0:i1].astype(np.int64) + t_off
-            ev = Events(t, g["x"][i0:i1].astype(np.uint16), g["y"][i0:i1].astype(np.uint16),
-                        g["p"][i0:i1].astype(np.uint8))
+            ev = s.read(i0, i1)
             attrs = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in f.attrs.items()}
             attrs["t_offset"] = t_off
             for k in ("theta/on", "theta/off"):
                 if k in f:
                     attrs[k] = f[k][()]
-    except (OSError, KeyError) as exc:
-        raise InputError(f"{path}: not a readable DSEC-layout event file ({exc})") from exc
+        except (OSError, KeyError) as exc:
+            raise InputError(f"{s.path}: not a readable DSEC-layout event file ({exc})") from exc
     if t_range_us is not None:
         keep = (ev.t >= t_range_us[0]) & (ev.t < t_range_us[1])
         ev = Events(ev.t[keep], ev.x[keep], ev.y[keep], ev.p[keep])
@@ -176,8 +169,8 @@ def read_h5(path: str | os.PathLike, t_range_us: tuple[int, int] | None = None) 
 
 
 class H5EventSlicer:
-    """``events[i0:i1]`` of a DSEC-layout file through one open handle, for
-    readers that take many index ranges (data loaders, with the ranges of a
+    """``events[i0:i1]`` of a DSEC-layout file through one open handle (``file``),
+    for readers that take many index ranges (data loaders, with the ranges of a
     windows table): no search, no attribute reads per call.
 
     Open it in the process that reads (an HDF5 handle must not cross a fork).
@@ -190,12 +183,16 @@ class H5EventSlicer:
 
         self.path = Path(path)
         try:
-            self._f = h5py.File(self.path, "r")
-            self.t_offset_us = int(self._f["t_offset"][()]) if "t_offset" in self._f else 0
-            g = self._f["events"]
+            self.file = h5py.File(self.path, "r")
+        except OSError as exc:
+            raise InputError(f"{self.path}: not a readable DSEC-layout event file ({exc})") from exc
+        try:
+            self.t_offset_us = int(self.file["t_offset"][()]) if "t_offset" in self.file else 0
+            g = self.file["events"]
             self._t, self._x, self._y, self._p = g["t"], g["x"], g["y"], g["p"]
             self.n_events = int(self._t.shape[0])
         except (OSError, KeyError) as exc:
+            self.file.close()
             raise InputError(f"{self.path}: not a readable DSEC-layout event file ({exc})") from exc
 
     def read(self, i0: int, i1: int) -> Events:
@@ -209,7 +206,7 @@ class H5EventSlicer:
             raise InputError(f"{self.path}: cannot read events[{i0}:{i1}] ({exc})") from exc
 
     def close(self) -> None:
-        self._f.close()
+        self.file.close()
 
 
 # ---------------------------------------------------------------- text & npz
