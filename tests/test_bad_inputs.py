@@ -539,7 +539,7 @@ def test_frames_play_in_natural_order(tmp_path):
 
 def test_ingest_and_training_split_use_the_same_natural_order(tmp_path):
     from gs2e.io.images import list_images
-    from gs2e.splat.train import split_views
+    from gs2e.splat.views import split_views
 
     names = [f"img{i}.png" for i in (1, 2, 10, 11, 3)]
     d = _frames(tmp_path, names=names, values=[10, 20, 30, 40, 50])

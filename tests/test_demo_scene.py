@@ -19,6 +19,7 @@ from gs2e.demo.textures import BUNDLED_PHOTOS, build_atlas, load_photo
 from gs2e.demo.world import (TARGET, build_world, camera_rays, cast, check_orbit, intrinsics,
                              orbit_c2w, render_view, wall_size)
 from gs2e.io.scene import check_pose, read_scene
+from tests.conftest import REPO
 
 SMALL = {"n_views": 8, "width": 96, "height": 72, "n_points": 2000}
 
@@ -297,9 +298,9 @@ def test_chunking_does_not_change_the_image():
 def test_config_yaml_lists_every_demo_key_with_its_default():
     import yaml
 
-    from gs2e.config import DEFAULT_CONFIG, load_schema
+    from gs2e.config import load_schema
 
     props = load_schema()["properties"]["demo"]["properties"]
-    listed = yaml.safe_load(DEFAULT_CONFIG.read_text())["demo"]
+    listed = yaml.safe_load((REPO / "config" / "config.yaml").read_text())["demo"]
     assert listed == {k: v["default"] for k, v in props.items()}
     assert all(v.get("description") for v in props.values())

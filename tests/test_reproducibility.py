@@ -37,7 +37,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from gs2e.codeversion import STAGE_DEPS, code_version
+from gs2e.codeversion import STAGE_ENTRY, code_version
 from gs2e.config import derive_seed
 from tests.conftest import run_tiny_pipeline
 
@@ -127,7 +127,7 @@ def test_second_run_reproduces_every_output(tiny_pipeline, second_run):
 def test_scene_table_carries_code_versions_config_hash_and_seeds(tiny_pipeline, second_run):
     wd = tiny_pipeline[0]
     row = pd.read_parquet(wd / "results" / "summary.parquet").iloc[0]
-    for stage in STAGE_DEPS:
+    for stage in STAGE_ENTRY:
         assert row[f"code_version_{stage}"] == code_version(stage)
     assert row["code_version_trajectory"] == json.loads(
         (wd / "results/tiny/trajectories/trajectories.json").read_text())["code_version"]

@@ -10,8 +10,9 @@ Keys set in the scene's ``overrides`` column (tests/conftest.py
 TINY_OVERRIDES) win over ``--configfile``, so they are changed through a copy
 of the scenes table (``--config scenes=<copy>``); the others through a
 ``--configfile``. A report-only key (``metrics`` section) reruns the scene
-tables, the summary and the report, nothing upstream. Library edits rerun a stage through its
-``code_version`` param, unit-tested at the end.
+tables, the summary and the report, nothing upstream. Library edits rerun a
+stage through its ``code_version`` param (tests/test_codeversion.py); the
+end checks that every rule carries it.
 
 Nothing here changes the fixture's outputs: dry runs only; change files are
 written under each test's tmp_path.
@@ -20,14 +21,12 @@ written under each test's tmp_path.
 from __future__ import annotations
 
 import csv
-import importlib.util
 import re
 import shutil
 from pathlib import Path
 
 import pytest
 
-from gs2e.codeversion import STAGE_DEPS, code_version
 from tests.conftest import REPO, TINY_OVERRIDES, planned_jobs, run_snakemake
 
 # The workflow's rules (one job each per scene, render/events one per trajectory)
@@ -247,60 +246,13 @@ def test_summary_agrees_with_dry_run(tiny_pipeline, tmp_path):
 
 # -- library code changes ------------------------------------------------------
 
-def _codeversion_copy(tmp_path: Path):
-    """gs2e/codeversion.py loaded from a copy of the package's .py files."""
-    pkg = tmp_path / "gs2e"
-    shutil.copytree(REPO / "gs2e", pkg, ignore=lambda d, names: [
-        n for n in names if not (n.endswith(".py") or (Path(d) / n).is_dir()) or n == "__pycache__"])
-    spec = importlib.util.spec_from_file_location("codeversion_copy", pkg / "codeversion.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return pkg, mod
-
-
-def test_code_version_follows_the_stage_sources(tmp_path):
-    pkg, cv = _codeversion_copy(tmp_path)
-    stages = list(STAGE_DEPS)
-    before = {s: cv.code_version(s) for s in stages}
-    # hashed on paths relative to the package: a copy has the same versions
-    assert before == {s: code_version(s) for s in stages}
-
-    def edit_and_diff(rel: str) -> set[str]:
-        f = pkg / rel
-        f.write_text(f.read_text() + "\n# edited\n")
-        cv.code_version.cache_clear()
-        now = {s: cv.code_version(s) for s in stages}
-        changed = {s for s in stages if now[s] != before[s]}
-        before.update(now)
-        return changed
-
-    # the report reads event files with gs2e.events; exports use events,
-    # render and trajectory code; the windows table only events/io.py, models.py
-    assert edit_and_diff("events/__init__.py") == {"events", "report", "export"}
-    assert edit_and_diff("events/io.py") == {"events", "report", "export", "windows"}
-    assert edit_and_diff("trajectory/__init__.py") == {"trajectory", "render", "events", "export"}
-    assert edit_and_diff("splat/__init__.py") == {"train", "render", "events"}
-    # the event stage renders with gs2e.splat, not the render stage's code
-    assert edit_and_diff("render/__init__.py") == {"render", "export"}
-    assert edit_and_diff("sfm/__init__.py") == {"sfm"}
-    assert edit_and_diff("demo/__init__.py") == {"demo"}
-    # stages write their tables with metrics/table.py; the scene tables are metrics' own
-    assert edit_and_diff("metrics/collect.py") == {"metrics"}
-    assert edit_and_diff("metrics/table.py") == {"sfm", "train", "render", "events", "metrics", "report"}
-    assert edit_and_diff("common/__init__.py") == set(stages)
-    # a new file counts too, a non-.py file does not
-    (pkg / "events" / "extra.py").write_text("x = 1\n")
-    (pkg / "events" / "notes.txt").write_text("x\n")
-    cv.code_version.cache_clear()
-    assert {s for s in stages if cv.code_version(s) != before[s]} == {"events", "report", "export"}
-
-
 def test_every_rule_carries_its_stage_code_version():
     """Each rule's params include code=code_version(<its stage>) (so an edit in
     the stage's sources changes its params and reruns it)."""
     expected = {"demo_scene": "demo", "ingest": "ingest", "sfm": "sfm", "train": "train",
                 "trajectory": "trajectory", "render": "render", "events": "events",
-                "scene_metrics": "metrics", "summary": "metrics", "report": "report"}
+                "scene_metrics": "metrics", "summary": "metrics", "report": "report",
+                "windows": "windows", "export": "export"}
     found = {}
     for smk in sorted((REPO / "workflow" / "rules").glob("*.smk")):
         for m in re.finditer(r"^rule (\w+):(.*?)(?=^rule |\Z)", smk.read_text(), flags=re.M | re.S):

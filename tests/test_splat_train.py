@@ -28,11 +28,12 @@ from gs2e.splat.init import init_from_points
 from gs2e.splat.ply import read_ply, write_ply
 from gs2e.splat.rasterize import NonFiniteError
 from gs2e.splat.scene_stats import choose_sh_degree, detail_budget
-from gs2e.splat.strategy import (PARAMS, Adam, DensifyConfig, GradStats, densify_and_prune,
-                                 reset_opacity)
+from gs2e.splat.strategy import (PARAMS, Adam, DensifyConfig, DensifyStrategy, GradStats,
+                                 densify_and_prune, reset_opacity)
 from gs2e.splat.model import to_params
-from gs2e.splat.train import evaluate, load_views, split_views, train
-from gs2e.splat.views import render_views
+from gs2e.splat.evaluate import evaluate, render_views
+from gs2e.splat.train import train
+from gs2e.splat.views import load_views, split_views
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
@@ -339,6 +340,33 @@ def test_prune_big_and_opacity_reset():
     reset_opacity(p, opt)
     assert torch.all(torch.sigmoid(p["opacity_logits"]) <= 0.01 + 1e-7)
     assert torch.all(opt.m["opacity_logits"] == 0) and torch.all(opt.m["means"] != 0)
+
+
+def test_strategy_owns_the_schedule():
+    """Densify every 2 steps from 2 until 7, reset opacities every 4; oversized
+    Gaussians are pruned only after the first reset."""
+    p, _ = _toy()
+    opt = _adam_with_marked_rows(p)
+    c = cfg(densify_from=2, densify_every=2, densify_until=7, opacity_reset_every=4)
+    strategy = DensifyStrategy.from_config(c, budget=1000, extent=1.0)
+    assert (strategy.ops.grad_threshold, strategy.ops.budget) == (c["densify_grad_threshold"], 1000)
+    gen = torch.Generator().manual_seed(0)
+    sizes, resets = [], []
+    for step in range(1, 10):
+        n = p["means"].shape[0]
+        # every Gaussian seen with a large gradient, 30 px wide (> max_screen_px)
+        meta = {"grad2d": torch.full((n, 2), 1e-2), "radii": torch.full((n,), 30, dtype=torch.int32)}
+        resets.append(strategy.step_post_update(p, opt, step, meta, 96, 72, 1, gen))
+        sizes.append(p["means"].shape[0])
+        assert strategy.stats.grad_accum.shape[0] == p["means"].shape[0]
+    assert resets == [False, False, False, True, False, False, False, False, False]
+    # step 2: 2 clones + 2 x 2 split children - 2 originals - 1 transparent; step 4 grows
+    # again; step 6 prunes every Gaussian seen 30 px wide, only its new ones stay;
+    # nothing after densify_until
+    assert sizes[0] == 6 and sizes[1] == 9 and sizes[2] == 9 and sizes[3] > sizes[2]
+    assert sizes[4] == sizes[3] and 0 < sizes[5] < sizes[4] and sizes[5:] == [sizes[5]] * 4
+    assert torch.all(torch.sigmoid(p["opacity_logits"]) <= 0.01 + 1e-7)  # reset at step 4
+    assert strategy.stats.count.sum() == 0  # no statistics after densify_until
 
 
 def test_grad_stats_resolution_independent():

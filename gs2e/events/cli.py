@@ -25,7 +25,9 @@ def register(subparsers) -> None:
                    help="with --model: resolution relative to the trajectory's camera (default 1)")
     p.add_argument("--backend", default="cpu", choices=["cpu", "gsplat", "auto"],
                    help="with --model: rasterizer (default cpu)")
-    p.add_argument("--threads", type=int, default=None, help="CPU threads for rendering")
+    p.add_argument("--threads", type=int, default=None,
+                   help="CPU threads for rendering and simulation (default events.num_threads; "
+                        "-1 = the CPUs this process may use)")
     p.add_argument("-o", "--out", required=True, help="output folder (replaced atomically)")
     p.add_argument("--timestamps", help="text file, one frame time per line (see --time-unit)")
     p.add_argument("--time-unit", default="us", choices=["us", "ms", "s"],
@@ -93,15 +95,15 @@ def run(args) -> int:
 
     log = logging.getLogger("gs2e.events")
     from gs2e.common.errors import ConfigError
+    from gs2e.common.threads import pick_threads, set_threads
 
     cfg = _section(args)
+    set_threads(pick_threads(args.threads, cfg["num_threads"]))
     if args.model or args.trajectory:
         if not (args.model and args.trajectory) or args.input:
             raise ConfigError("workflow mode needs both --model and --trajectory and no INPUT")
         from gs2e.events.rendered import RenderedSource
-        from gs2e.splat.train import set_threads
 
-        set_threads(args.threads)
         src = RenderedSource(args.model, args.trajectory, cfg, background=args.background,
                              scale=args.scale, backend=args.backend, batch_frames=cfg["batch_frames"])
         extra = {"model_dir": str(args.model), "trajectory": str(args.trajectory),

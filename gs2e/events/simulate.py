@@ -26,6 +26,7 @@ from contextlib import ExitStack
 from pathlib import Path
 from typing import Iterator
 
+import numba
 import numpy as np
 
 from gs2e import __version__
@@ -39,16 +40,6 @@ from gs2e.events.represent import PreviewWriter
 from gs2e.events.stats import StatsAccumulator
 
 log = logging.getLogger("gs2e.events")
-
-
-def set_threads(n: int) -> int:
-    """Set numba's thread count (-1 = all it has); returns the count in use."""
-    import numba
-    if n is not None and n > 0:
-        numba.set_num_threads(min(int(n), numba.config.NUMBA_NUM_THREADS))
-    else:
-        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
-    return numba.get_num_threads()
 
 
 class FrameBatches:
@@ -131,7 +122,7 @@ def simulate_to_folder(source, cfg: dict, out_dir: str | Path, seed: int,
     f_first = np.asarray(f_first)
     shape = tuple(f_first.shape)
     H, W = shape
-    threads = set_threads(cfg.get("num_threads", -1))
+    threads = numba.get_num_threads()  # set by the caller (gs2e.common.threads); recorded only
     model_seed = int(seed) + int(cfg["seed_offset"])
     model, info = make_model(cfg, shape, model_seed, source=name)
     meta = {"gs2e_version": __version__, "config": cfg, "seed": model_seed,

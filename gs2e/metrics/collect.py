@@ -18,7 +18,7 @@ from pathlib import Path
 import pandas as pd
 
 from gs2e import __version__
-from gs2e.codeversion import STAGE_DEPS, code_version
+from gs2e.codeversion import STAGE_ENTRY, code_version
 from gs2e.common.errors import InputError
 from gs2e.config import scene_params_json
 from gs2e.metrics.table import read_metrics, read_table
@@ -60,7 +60,7 @@ def scene_table(scene_dir: str | Path, scene_id: str, trajectories: list[str], c
     """
     scene_dir = Path(scene_dir)
     base = {"scene_id": scene_id, "gs2e_version": __version__,
-            **{f"code_version_{s}": code_version(s) for s in STAGE_DEPS},
+            **{f"code_version_{s}": code_version(s) for s in STAGE_ENTRY},
             "config_hash": config_hash(config),
             **{f"seed_{k}": v for k, v in (seeds or {}).items()}}
     for stage, rel in STAGE_FILES.items():

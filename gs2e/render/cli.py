@@ -17,7 +17,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--trajectory", required=True, help="trajectory .npz")
     p.add_argument("--out", required=True, help="output folder (written atomically)")
     p.add_argument("--scene-id", default=None)
-    p.add_argument("--threads", type=int, default=None)
+    p.add_argument("--threads", type=int, default=None,
+                   help="CPU threads (default or -1: the CPUs this process may use)")
     add_config_args(p)
     p.set_defaults(func=run)
 
@@ -25,7 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from gs2e.config import load_section
     from gs2e.render.dataset import render_dataset
-    from gs2e.splat.train import set_threads
+    from gs2e.common.threads import set_threads
 
     cfg = load_section("render", args.config_json, args.config)
     set_threads(args.threads)

@@ -17,7 +17,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="output folder (written atomically)")
     p.add_argument("--seed", type=int, default=0, help="COLMAP mapper seed")
     p.add_argument("--threads", type=int, default=None,
-                   help="CPU threads (default: sfm.num_threads; -1 = all)")
+                   help="CPU threads (default: sfm.num_threads; -1: the CPUs this process may use)")
     p.add_argument("--scene-id", default=None, help="scene id recorded in the metrics")
     add_config_args(p)
     p.set_defaults(func=run)

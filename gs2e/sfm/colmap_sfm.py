@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import shutil
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +21,7 @@ import numpy as np
 from gs2e.common.atomic import atomic_dir, scratch_dir, write_json_atomic
 from gs2e.common.errors import InputError
 from gs2e.common.log import get_logger, timed
+from gs2e.common.threads import pick_threads, set_threads
 from gs2e.metrics.table import write_metrics
 from gs2e.io.scene import IMAGES_DIR, Scene, read_scene, write_scene_json
 from gs2e.sfm.align import alignment_errors
@@ -119,9 +121,144 @@ def _known_pose_reconstruction(db_path: Path, scene: Scene):
     return rec
 
 
+@dataclass
+class _Run:
+    """What the steps of one SfM run share."""
+
+    scene: Scene
+    scene_dir: Path
+    cfg: dict
+    seed: int
+    colmap_threads: int  # extraction, matching, mapping
+    work: Path  # scratch folder: database, models
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def image_dir(self) -> Path:
+        return self.scene_dir / IMAGES_DIR
+
+    @property
+    def names(self) -> list[str]:
+        return [f.name for f in self.scene.frames]
+
+    @property
+    def db(self) -> Path:
+        return self.work / "database.db"
+
+    @property
+    def model_dir(self) -> Path:
+        return self.work / "model"
+
+    def features(self, camera_mode, camera_model: str, matcher: str) -> None:
+        """SIFT features and verified matches into the run's database."""
+        with timed("extraction", log, self.timings):
+            _extract(self.db, self.image_dir, self.names, self.cfg, self.colmap_threads, camera_mode,
+                     camera_model)
+        with timed("matching", log, self.timings):
+            _match(self.db, matcher, self.cfg, self.colmap_threads, self.seed)
+
+
+def _reconstruct_given(run: _Run):
+    """The scene's own cameras, poses and points (COLMAP project, demo, DL3DV
+    colmap/): nothing to recover."""
+    from gs2e.io.colmap import reconstruction_from_scene
+
+    rec = reconstruction_from_scene(run.scene)
+    rec.write(run.model_dir)
+    return rec
+
+
+def _reconstruct_known_poses(run: _Run, matcher: str):
+    """The scene's own cameras and poses; points triangulated from matches."""
+    import pycolmap
+
+    frames = run.scene.frames
+    same_k = len({(f.camera.model, f.camera.fx, f.camera.fy, f.camera.cx, f.camera.cy, *f.camera.dist)
+                  for f in frames}) == 1
+    mode = pycolmap.CameraMode.SINGLE if same_k else pycolmap.CameraMode.PER_IMAGE
+    run.features(mode, frames[0].camera.model, matcher)
+    with timed("mapping", log, run.timings):
+        rec = _known_pose_reconstruction(run.db, run.scene)
+        return pycolmap.triangulate_points(rec, run.db, run.image_dir, run.model_dir,
+                                           options=_mapper_options(run.colmap_threads, run.seed))
+
+
+def _reconstruct_incremental(run: _Run, matcher: str):
+    """Cameras, poses and points recovered by COLMAP's incremental mapper (its
+    largest model)."""
+    import pycolmap
+
+    cfg = run.cfg
+    mode = pycolmap.CameraMode.SINGLE if cfg["single_camera"] else pycolmap.CameraMode.PER_IMAGE
+    run.features(mode, cfg["camera_model"], matcher)
+    with timed("mapping", log, run.timings):
+        recs = pycolmap.incremental_mapping(run.db, run.image_dir, run.work / "sparse",
+                                            options=_mapper_options(run.colmap_threads, run.seed))
+    if not recs:
+        raise InputError(f"{run.scene_dir}: COLMAP registered no views (no initial pair found)")
+    rec = max(recs.values(), key=lambda r: r.num_reg_images())
+    rec.write(run.model_dir)
+    return rec
+
+
+def _check_registration(rec, run: _Run) -> set[str]:
+    """Names of the registered views; InputError naming the others when too few register."""
+    names = run.names
+    n_reg, n_views = rec.num_reg_images(), len(names)
+    registered = {rec.image(i).name for i in rec.reg_image_ids()}
+    rate = n_reg / n_views
+    if rate < run.cfg["min_registered_fraction"]:
+        missing = [n for n in names if n not in registered]
+        raise InputError(
+            f"{run.scene_dir}: only {n_reg} of {n_views} views registered "
+            f"({rate:.0%} < sfm.min_registered_fraction={run.cfg['min_registered_fraction']}); "
+            f"not registered: {', '.join(missing[:10])}{' ...' if len(missing) > 10 else ''}")
+    return registered
+
+
+def _write_undistorted(run: _Run, out: Path, threads: int, keep_points: bool, registered: set[str]) -> Scene:
+    """Undistort the model's views to PINHOLE and write them as an internal-layout
+    scene plus ``sparse/0`` into ``out``; returns that scene."""
+    import pycolmap
+
+    from gs2e.io.colmap import scene_from_reconstruction
+
+    undist = run.work / "undist"
+    with timed("undistortion", log, run.timings):
+        pycolmap.undistort_images(undist, run.model_dir, run.image_dir, num_threads=threads)
+    with timed("writing", log, run.timings):
+        scene = run.scene
+        out_scene = scene_from_reconstruction(pycolmap.Reconstruction(str(undist / "sparse")))
+        if keep_points:
+            out_scene.points_xyz, out_scene.points_rgb = scene.points_xyz, scene.points_rgb
+        out_scene.layout = "sfm"
+        out_scene.source = str(run.scene_dir)
+        out_scene.extra = {"input_extra": scene.extra, "registered": sorted(registered)}
+        shutil.move(str(undist / "images"), str(out / IMAGES_DIR))
+        (out / "sparse").mkdir()
+        shutil.move(str(undist / "sparse"), str(out / "sparse" / "0"))
+        write_scene_json(out_scene, out)
+    return out_scene
+
+
+def _camera_errors(scene: Scene, out_scene: Scene) -> dict[str, float]:
+    """Errors of the recovered cameras against the input poses (after a
+    similarity alignment; at least 3 common views), ``gt_``-prefixed."""
+    gt = {f.name: f.c2w for f in scene.frames}
+    common = [f for f in out_scene.frames if f.name in gt]
+    if len(common) < 3:
+        return {}
+    errs = alignment_errors(np.stack([f.c2w for f in common]), np.stack([gt[f.name] for f in common]))
+    return {f"gt_{k}": v for k, v in errs.items()}
+
+
 def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
             threads: int | None = None, scene_id: str | None = None) -> dict[str, Any]:
     """Recover cameras and sparse points for the scene in ``scene_dir``.
+
+    Two modes: with ``cfg['reuse_poses']`` and a scene that has poses, the
+    known cameras are kept (``given`` when the scene has points too, else
+    ``triangulate``); otherwise COLMAP's ``incremental`` mapping recovers them.
 
     Parameters
     ----------
@@ -129,7 +266,8 @@ def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0
     out_dir : output folder, written atomically (nothing is left on failure).
     cfg : the validated ``sfm`` config section.
     seed : seed of COLMAP's RANSAC/mapper.
-    threads : CPU threads (None: ``cfg['num_threads']``, -1 = all).
+    threads : CPU threads (None: ``cfg['num_threads']``; -1: the CPUs this
+        process may use, see gs2e.common.threads).
 
     Returns
     -------
@@ -144,117 +282,51 @@ def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0
     InputError if fewer than ``cfg['min_registered_fraction']`` of the views
     register (the message names the scene folder and unregistered views).
     """
-    import pycolmap
-
     scene_dir, out_dir = Path(scene_dir), Path(out_dir)
     scene = read_scene(scene_dir)
-    image_dir = scene_dir / IMAGES_DIR
-    names = [f.name for f in scene.frames]
-    n_views = len(names)
+    n_views = len(scene.frames)
     if n_views < 2:
         raise InputError(f"{scene_dir}: SfM needs at least 2 views, got {n_views}")
-    threads = int(cfg["num_threads"] if threads is None else threads)
+    threads = set_threads(pick_threads(threads, cfg["num_threads"]))
     # COLMAP's multi-threaded extraction, matching and mapping depend on thread
     # timing (which job finishes first), so runs differ under load; one thread
     # gives the same bytes on every machine (undistortion stays parallel).
     colmap_threads = 1 if cfg["deterministic"] else threads
     reuse = bool(cfg["reuse_poses"]) and scene.has_poses
     matcher = choose_matcher(cfg, n_views)
-    timings: dict[str, float] = {}
+    keep_points = reuse and scene.points_xyz is not None and len(scene.points_xyz) > 0
+    mode = "given" if keep_points else "triangulate" if reuse else "incremental"
     t_start = time.perf_counter()
     log.info("SfM on %s: %d views, matcher=%s, mode=%s, threads=%d (COLMAP %d)", scene_dir, n_views,
-             matcher, "triangulate (reuse poses)" if reuse else "incremental mapping", threads,
-             colmap_threads)
+             "none" if mode == "given" else matcher, mode, threads, colmap_threads)
 
     with atomic_dir(out_dir) as out, scratch_dir(out_dir) as work:
-        db = work / "database.db"
-        if reuse:
-            same_k = len({(f.camera.model, f.camera.fx, f.camera.fy, f.camera.cx, f.camera.cy,
-                           *f.camera.dist) for f in scene.frames}) == 1
-            mode = pycolmap.CameraMode.SINGLE if same_k else pycolmap.CameraMode.PER_IMAGE
-            cam_model = scene.frames[0].camera.model
+        run = _Run(scene, scene_dir, cfg, seed, colmap_threads, work)
+        run.model_dir.mkdir()
+        if mode == "given":
+            rec, matcher = _reconstruct_given(run), "none"
+        elif mode == "triangulate":
+            rec = _reconstruct_known_poses(run, matcher)
         else:
-            mode = pycolmap.CameraMode.SINGLE if cfg["single_camera"] else pycolmap.CameraMode.PER_IMAGE
-            cam_model = cfg["camera_model"]
-        opts = _mapper_options(colmap_threads, seed)
-        model_dir = work / "model"
-        model_dir.mkdir()
-        keep_points = reuse and scene.points_xyz is not None and len(scene.points_xyz) > 0
-        if keep_points:
-            # poses and points given (COLMAP project, demo, DL3DV colmap/): nothing to recover
-            from gs2e.io.colmap import reconstruction_from_scene
-
-            matcher = "none"
-            rec = reconstruction_from_scene(scene)
-            rec.write(model_dir)
-        else:
-            with timed("extraction", log, timings):
-                _extract(db, image_dir, names, cfg, colmap_threads, mode, cam_model)
-            with timed("matching", log, timings):
-                _match(db, matcher, cfg, colmap_threads, seed)
-        if keep_points:
-            pass
-        elif reuse:
-            with timed("mapping", log, timings):  # triangulation with the known poses
-                rec = _known_pose_reconstruction(db, scene)
-                rec = pycolmap.triangulate_points(rec, db, image_dir, model_dir, options=opts)
-        else:
-            with timed("mapping", log, timings):
-                recs = pycolmap.incremental_mapping(db, image_dir, work / "sparse", options=opts)
-            if not recs:
-                raise InputError(f"{scene_dir}: COLMAP registered no views (no initial pair found)")
-            rec = max(recs.values(), key=lambda r: r.num_reg_images())
-            rec.write(model_dir)
-
+            rec = _reconstruct_incremental(run, matcher)
+        registered = _check_registration(rec, run)
+        out_scene = _write_undistorted(run, out, threads, keep_points, registered)
         n_reg = rec.num_reg_images()
-        rate = n_reg / n_views
-        registered = {rec.image(i).name for i in rec.reg_image_ids()}
-        if rate < cfg["min_registered_fraction"]:
-            missing = [n for n in names if n not in registered]
-            raise InputError(
-                f"{scene_dir}: only {n_reg} of {n_views} views registered "
-                f"({rate:.0%} < sfm.min_registered_fraction={cfg['min_registered_fraction']}); "
-                f"not registered: {', '.join(missing[:10])}{' ...' if len(missing) > 10 else ''}")
-
-        with timed("undistortion", log, timings):
-            undist = work / "undist"
-            pycolmap.undistort_images(undist, model_dir, image_dir, num_threads=threads)
-
-        with timed("writing", log, timings):
-            from gs2e.io.colmap import scene_from_reconstruction
-
-            rec_u = pycolmap.Reconstruction(str(undist / "sparse"))
-            out_scene = scene_from_reconstruction(rec_u)
-            if keep_points:
-                out_scene.points_xyz, out_scene.points_rgb = scene.points_xyz, scene.points_rgb
-            out_scene.layout = "sfm"
-            out_scene.source = str(scene_dir)
-            out_scene.extra = {"input_extra": scene.extra, "registered": sorted(registered)}
-            shutil.move(str(undist / "images"), str(out / IMAGES_DIR))
-            (out / "sparse").mkdir()
-            shutil.move(str(undist / "sparse"), str(out / "sparse" / "0"))
-            write_scene_json(out_scene, out)
-
         stats: dict[str, Any] = {
             "n_views": n_views,
             "n_registered": n_reg,
-            "registration_rate": rate,
+            "registration_rate": n_reg / n_views,
             "n_points": int(len(scene.points_xyz)) if keep_points else int(rec.num_points3D()),
             "mean_reproj_error_px": (float(rec.compute_mean_reprojection_error())
                                      if rec.num_points3D() and not keep_points else float("nan")),
             "mean_track_length": float(rec.compute_mean_track_length()) if rec.num_points3D() else float("nan"),
             "matcher": matcher,
-            "mode": "given" if keep_points else "triangulate" if reuse else "incremental",
+            "mode": mode,
             "threads": threads,
-            **{f"time_{k}_s": v for k, v in timings.items()},
+            **{f"time_{k}_s": v for k, v in run.timings.items()},
         }
-        if scene.has_poses and not reuse:
-            gt = {f.name: f.c2w for f in scene.frames}
-            common = [f for f in out_scene.frames if f.name in gt]
-            if len(common) >= 3:
-                errs = alignment_errors(np.stack([f.c2w for f in common]),
-                                        np.stack([gt[f.name] for f in common]))
-                stats.update({f"gt_{k}": v for k, v in errs.items()})
+        if scene.has_poses and mode == "incremental":
+            stats.update(_camera_errors(scene, out_scene))
         stats["time_total_s"] = time.perf_counter() - t_start
         write_json_atomic(out / "sfm_stats.json", {k: (None if isinstance(v, float) and not np.isfinite(v) else v)
                                                    for k, v in stats.items()})

@@ -16,7 +16,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scene", required=True, help="sfm output folder (PINHOLE views + points3d.npz)")
     p.add_argument("--out", required=True, help="output folder (written atomically)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--threads", type=int, default=None, help="CPU threads (default: all)")
+    p.add_argument("--threads", type=int, default=None, help="CPU threads (default or -1: the CPUs this process may use)")
     p.add_argument("--scene-id", default=None, help="scene id recorded in the metrics")
     p.add_argument("--checkpoint-dir", default=None,
                    help="where checkpoints go (default: <out>.ckpt); a matching one is resumed")
@@ -49,7 +49,7 @@ def run_train(args: argparse.Namespace) -> int:
 
 
 def run_render_views(args: argparse.Namespace) -> int:
-    from gs2e.splat.views import render_views
+    from gs2e.splat.evaluate import render_views
 
     render_views(args.model, args.scene, args.out, args.views, args.test_every, args.backend)
     return 0

@@ -1,5 +1,6 @@
-"""Adaptive density control (clone / split / prune / opacity reset) and the
-optimiser state that must follow it. Pure functions on dicts of tensors.
+"""Adaptive density control (clone / split / prune / opacity reset), the
+optimiser state that must follow it, and :class:`DensifyStrategy`, which owns
+when each of them runs (the 3DGS schedule) so the trainer's loop only calls it.
 
 Gaussian parameters are a dict of float tensors with the Gaussian index first:
 ``means (N,3)``, ``quats (N,4)``, ``log_scales (N,3)``, ``opacity_logits (N,)``,
@@ -9,11 +10,14 @@ Gaussian parameters are a dict of float tensors with the Gaussian index first:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import torch
 
+from gs2e.common.log import get_logger
 from gs2e.common.so3 import quat_to_rotmat
+
+log = get_logger("gs2e.splat")
 
 PARAMS = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
 
@@ -196,3 +200,57 @@ def reset_opacity(params: dict[str, torch.Tensor], opt: Adam, max_opacity: float
         cap = math.log(max_opacity / (1 - max_opacity))
         params["opacity_logits"].clamp_(max=cap)
     opt.reset_rows("opacity_logits")
+
+
+@dataclass
+class DensifyStrategy:
+    """Density control on the 3DGS schedule (like gsplat's ``DefaultStrategy``).
+
+    After each optimiser step, until ``densify_until``: accumulate the
+    screen-space gradient statistics of the step's view; every
+    ``densify_every`` steps from ``densify_from`` clone / split / prune
+    (:func:`densify_and_prune` with ``ops``; Gaussians too large on screen or in
+    the world are pruned too once the first opacity reset is past); every
+    ``opacity_reset_every`` steps reset the opacities. Step counts are steps
+    done (1 after the first step). The statistics are the strategy's state
+    (``stats``), saved with checkpoints.
+    """
+
+    ops: DensifyConfig
+    extent: float  # scene extent (world units): the scale of percent_dense and max_world_frac
+    densify_from: int = 500
+    densify_until: int = 15_000
+    densify_every: int = 100
+    opacity_reset_every: int = 3000
+    stats: GradStats | None = None
+
+    @classmethod
+    def from_config(cls, cfg: dict, budget: int, extent: float) -> "DensifyStrategy":
+        """The strategy of the validated ``splat`` config section."""
+        ops = DensifyConfig(grad_threshold=cfg["densify_grad_threshold"], percent_dense=cfg["percent_dense"],
+                            min_opacity=cfg["prune_min_opacity"], budget=budget)
+        return cls(ops, extent, densify_from=cfg["densify_from"], densify_until=cfg["densify_until"],
+                   densify_every=cfg["densify_every"], opacity_reset_every=cfg["opacity_reset_every"])
+
+    def step_post_update(self, params: dict[str, torch.Tensor], opt: Adam, step: int, meta: dict,
+                         width: int, height: int, downscale: int, gen: torch.Generator) -> bool:
+        """Run what the schedule holds after optimiser step number ``step``, in
+        place on ``params`` and ``opt``. ``meta`` is the step's render
+        metadata (``grad2d`` (N, 2) px, ``radii`` (N,)) at ``width`` x
+        ``height`` px, ``downscale`` the factor of that resolution; ``gen``
+        draws the split samples. Returns True when the opacities were reset
+        (the held-out PSNR dips and recovers after that)."""
+        if step >= self.densify_until:
+            return False
+        if self.stats is None:
+            self.stats = GradStats.zeros(params["means"].shape[0])
+        self.stats.update(meta["grad2d"], meta["radii"], width, height, downscale)
+        if step >= self.densify_from and step % self.densify_every == 0:
+            ops = replace(self.ops, prune_big=step > self.opacity_reset_every)
+            res = densify_and_prune(params, opt, self.stats, ops, self.extent, gen)
+            self.stats = GradStats.zeros(params["means"].shape[0])
+            log.debug("it %d densify: %s", step, res)
+        if step % self.opacity_reset_every == 0:
+            reset_opacity(params, opt)
+            return True
+        return False

@@ -11,119 +11,35 @@ plateaus. Checkpoints allow resuming an interrupted run.
 
 from __future__ import annotations
 
-import hashlib
-import json
 import math
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-from gs2e.common.atomic import atomic_dir, atomic_path, sweep_output, write_json_atomic
 from gs2e.common.errors import InputError
 from gs2e.common.log import get_logger, timed
 from gs2e.common.progress import progress
+from gs2e.common.threads import set_threads
 from gs2e.io.scene import IMAGES_DIR, Scene, read_scene
 from gs2e.splat.backend import resolve_backend
+from gs2e.splat.checkpoint import Checkpoint
+from gs2e.splat.evaluate import evaluate
+from gs2e.splat.import_ply import import_ply
 from gs2e.splat.init import init_from_points
-from gs2e.splat.loss import photometric_loss, psnr, ssim
-from gs2e.splat.model import from_params, render, save_model, to_params
-from gs2e.splat.ply import read_ply, write_cameras_json
-from gs2e.splat.rasterize import NonFiniteError, SplatCamera, rasterize
+from gs2e.splat.loss import photometric_loss
+from gs2e.splat.model import from_params, render, to_params
+from gs2e.splat.output import write_train_output
+from gs2e.splat.rasterize import NonFiniteError
 from gs2e.splat.scene_stats import choose_sh_degree, detail_budget, view_dependence
-from gs2e.splat.strategy import PARAMS, Adam, DensifyConfig, GradStats, densify_and_prune, reset_opacity
+from gs2e.splat.strategy import PARAMS, Adam, DensifyStrategy
+from gs2e.splat.views import View, load_views, scene_extent, split_views
 
 log = get_logger("gs2e.splat")
 
-
-def set_threads(threads: int | None) -> None:
-    """CPU threads for torch and the numba kernels (None or <= 0: leave as is)."""
-    if threads and threads > 0:
-        import numba
-
-        torch.set_num_threads(threads)
-        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
-
-
-# ----------------------------------------------------------------- data
-@dataclass
-class View:
-    name: str
-    c2w: np.ndarray
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    images: dict[int, torch.Tensor]  # downscale factor -> (H, W, 3) float32 in [0,1]
-
-    def camera(self, downscale: int) -> tuple[SplatCamera, torch.Tensor]:
-        img = self.images[downscale]
-        h, w = img.shape[:2]
-        full = self.images[1]
-        sx, sy = w / full.shape[1], h / full.shape[0]
-        cam = SplatCamera.from_c2w(self.c2w, self.fx * sx, self.fy * sy, self.cx * sx,
-                                   self.cy * sy, w, h)
-        return cam, img
-
-
-def load_views(scene_dir: Path, scene: Scene, downscales: list[int]) -> list[View]:
-    import cv2
-
-    from gs2e.io.images import read_image
-
-    views = []
-    for f in progress(scene.frames, desc="loading views"):
-        if f.c2w is None:
-            raise InputError(f"{scene_dir}: frame {f.name} has no pose; run sfm first")
-        if f.camera.model not in ("PINHOLE", "SIMPLE_PINHOLE"):
-            raise InputError(f"{scene_dir}: frame {f.name} has a {f.camera.model} camera; "
-                             "training needs undistorted PINHOLE views (gs2e sfm output)")
-        rgb = read_image(scene_dir / IMAGES_DIR / f.name)
-        imgs = {}
-        for d in sorted(set(downscales)):
-            im = rgb if d == 1 else cv2.resize(
-                rgb, (max(1, rgb.shape[1] // d), max(1, rgb.shape[0] // d)), interpolation=cv2.INTER_AREA)
-            imgs[d] = torch.from_numpy(im.astype(np.float32) / 255.0)
-        views.append(View(f.name, f.c2w, f.camera.fx, f.camera.fy, f.camera.cx, f.camera.cy, imgs))
-    return views
-
-
-def split_views(views: list[View], test_every: int) -> tuple[list[View], list[View]]:
-    """Every ``test_every``-th view (in natural name order, as everywhere in
-    gs2e, starting with the first) is held out, as the official code's LLFF
-    hold-out; 0 disables the split. Both lists are in natural name order."""
-    from gs2e.io.views import natural_key
-
-    order = sorted(range(len(views)), key=lambda i: natural_key(views[i].name))
-    if test_every <= 0 or len(views) < 3:
-        return views, []
-    test = {order[i] for i in range(0, len(order), test_every)}
-    return [views[i] for i in order if i not in test], [views[i] for i in order if i in test]
-
-
-def scene_extent(views: list[View]) -> float:
-    """1.1 x the largest camera distance from the cameras' centroid (3DGS)."""
-    c = np.stack([v.c2w[:3, 3] for v in views])
-    r = float(np.max(np.linalg.norm(c - c.mean(0), axis=1)))
-    return 1.1 * r if r > 0 else 1.0
-
-
-# ----------------------------------------------------------------- evaluation
-def evaluate(p, views: list[View], background, sh_degree: int, backend: str = "cpu") -> dict[str, float]:
-    """Mean PSNR (dB) and SSIM over ``views`` at full resolution."""
-    if not views:
-        return {"psnr": float("nan"), "ssim": float("nan")}
-    ps, ss = [], []
-    with torch.no_grad():
-        for v in views:
-            cam, gt = v.camera(1)
-            img = render(p, cam, background, sh_degree, backend)[0].clamp(0, 1)
-            ps.append(psnr(img, gt))
-            ss.append(float(ssim(img, gt)))
-    return {"psnr": float(np.mean(ps)), "ssim": float(np.mean(ss))}
+__all__ = ["train"]
 
 
 def downscale_at(schedule: list[list[int]], it: int) -> int:
@@ -142,8 +58,39 @@ def position_lr(it: int, cfg: dict, extent: float) -> float:
     return extent * math.exp((1 - t) * math.log(hi) + t * math.log(lo))
 
 
-def config_hash(cfg: dict, scene_dir: Path) -> str:
-    return hashlib.sha256(json.dumps([cfg, str(scene_dir)], sort_keys=True).encode()).hexdigest()[:16]
+def scene_needs(scene_dir: Path, train_v: list[View], cfg: dict, seed: int) -> dict[str, Any]:
+    """SH degree and Gaussian budget of the scene (``auto``: measured from the
+    SfM tracks' view dependence and the training images' detail)."""
+    if cfg["sh_degree"] == "auto":
+        score = view_dependence(scene_dir / "sparse" / "0", scene_dir / IMAGES_DIR, seed=seed)
+        sh_max = choose_sh_degree(score, cfg["sh_thresholds"])
+    else:
+        score, sh_max = None, int(cfg["sh_degree"])
+    if cfg["budget"] == "auto":
+        budget, edges = detail_budget([v.images[1].numpy() for v in train_v],
+                                      cfg["budget_per_edge_pixel"], cfg["budget_min"], cfg["budget_max"])
+    else:
+        budget, edges = int(cfg["budget"]), None
+    return {"view_dependence": score, "sh_degree": sh_max, "budget": budget, "median_edge_pixels": edges}
+
+
+def initial_params(scene: Scene, scene_dir: Path, cfg: dict, sh_degree: int) -> dict[str, torch.Tensor]:
+    """Gaussians initialised from the scene's SfM points."""
+    if scene.points_xyz is None:
+        raise InputError(f"{scene_dir}: no points3d.npz to initialise Gaussians from")
+    try:
+        g0 = init_from_points(scene.points_xyz, scene.points_rgb, sh_degree=sh_degree,
+                              init_opacity=cfg["init_opacity"], min_points=cfg["min_points"])
+    except InputError as exc:
+        raise InputError(f"{scene_dir / 'points3d.npz'}: {exc} (splat.min_points)") from exc
+    return to_params(g0)
+
+
+def make_optimizer(cfg: dict, extent: float) -> Adam:
+    """Adam with the per-parameter learning rates of the config (position lr at step 0)."""
+    return Adam({"means": position_lr(0, cfg, extent), "quats": cfg["lr_rotation"],
+                 "log_scales": cfg["lr_scaling"], "opacity_logits": cfg["lr_opacity"],
+                 "sh_dc": cfg["lr_sh_dc"], "sh_rest": cfg["lr_sh_rest"]})
 
 
 # ----------------------------------------------------------------- training
@@ -189,70 +136,44 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
                              "test_every": cfg["test_every"], "background": list(cfg["background"])}
 
     if cfg["model_source"] == "ply":
-        return _import_ply(scene, scene_dir, out_dir, cfg, views, test_v, bg, stats, scene_id, t0)
+        stats = import_ply(cfg.get("ply_path"), scene, scene_dir, out_dir, test_v, bg, stats, scene_id)
+        stats["time_total_s"] = time.perf_counter() - t0
+        return stats
 
-    # ---- what the scene needs
     with timed("scene analysis", log, timings):
-        if cfg["sh_degree"] == "auto":
-            score = view_dependence(scene_dir / "sparse" / "0", scene_dir / IMAGES_DIR, seed=seed)
-            sh_max = choose_sh_degree(score, cfg["sh_thresholds"])
-        else:
-            score, sh_max = None, int(cfg["sh_degree"])
-        if cfg["budget"] == "auto":
-            budget, edges = detail_budget([v.images[1].numpy() for v in train_v],
-                                          cfg["budget_per_edge_pixel"], cfg["budget_min"], cfg["budget_max"])
-        else:
-            budget, edges = int(cfg["budget"]), None
-    stats.update({"view_dependence": score, "sh_degree": sh_max, "budget": budget,
-                  "median_edge_pixels": edges})
-    log.info("scene needs: SH degree %d (view dependence %s), budget %d Gaussians",
-             sh_max, "n/a" if score is None else f"{score:.3f}", budget)
+        needs = scene_needs(scene_dir, train_v, cfg, seed)
+    stats.update(needs)
+    sh_max = needs["sh_degree"]
+    log.info("scene needs: SH degree %d (view dependence %s), budget %d Gaussians", sh_max,
+             "n/a" if needs["view_dependence"] is None else f"{needs['view_dependence']:.3f}", needs["budget"])
 
-    if scene.points_xyz is None:
-        raise InputError(f"{scene_dir}: no points3d.npz to initialise Gaussians from")
-    try:
-        g0 = init_from_points(scene.points_xyz, scene.points_rgb, sh_degree=sh_max,
-                              init_opacity=cfg["init_opacity"], min_points=cfg["min_points"])
-    except InputError as exc:
-        raise InputError(f"{scene_dir / 'points3d.npz'}: {exc} (splat.min_points)") from exc
-    p = to_params(g0)
-    lrs = {"means": position_lr(0, cfg, extent), "quats": cfg["lr_rotation"],
-           "log_scales": cfg["lr_scaling"], "opacity_logits": cfg["lr_opacity"],
-           "sh_dc": cfg["lr_sh_dc"], "sh_rest": cfg["lr_sh_rest"]}
-    opt = Adam(lrs)
-    gen = torch.Generator().manual_seed(seed)
-    rng = np.random.default_rng(seed)
-    dcfg = DensifyConfig(grad_threshold=cfg["densify_grad_threshold"], percent_dense=cfg["percent_dense"],
-                         min_opacity=cfg["prune_min_opacity"], budget=budget)
-    gstats = GradStats.zeros(p["means"].shape[0])
+    # ---- the loop's state: everything a checkpoint holds
+    p = initial_params(scene, scene_dir, cfg, sh_max)
+    opt = make_optimizer(cfg, extent)
+    strategy = DensifyStrategy.from_config(cfg, needs["budget"], extent)
+    gen = torch.Generator().manual_seed(seed)  # split samples
+    rng = np.random.default_rng(seed)  # view order
     order: list[int] = []  # views left in the current epoch (popped from the end)
     it0, curve, best, bad_evals, train_time, cpu_time = 0, [], -math.inf, 0, 0.0, 0.0
 
-    ckpt_dir = Path(checkpoint_dir) if checkpoint_dir else out_dir.with_name(out_dir.name + ".ckpt")
-    ckpt = ckpt_dir / "checkpoint.pt"
-    chash = config_hash(cfg, scene_dir) + f"-{seed}"
-    st = _load_checkpoint(ckpt) if resume else None
+    ckpt = Checkpoint(checkpoint_dir or out_dir.with_name(out_dir.name + ".ckpt"), cfg, scene_dir, seed)
+    st = ckpt.load() if resume else None
     if st is not None:
-        if st.get("hash") == chash:
-            p, it0, curve, best, bad_evals, train_time = (st["params"], st["iteration"], st["curve"],
-                                                          st["best"], st["bad_evals"], st["train_time"])
-            opt.load_state_dict(st["opt"])
-            gen.set_state(st["gen"])
-            rng.bit_generator.state = st["rng"]
-            gstats, order = st["gstats"], st["order"]
-            cpu_time = st.get("cpu_time", 0.0)
-            log.info("resumed from %s at iteration %d", ckpt, it0)
-        else:
-            log.info("ignoring checkpoint %s (different config or seed)", ckpt)
+        p, it0, curve, best, bad_evals, train_time = (st["params"], st["iteration"], st["curve"],
+                                                      st["best"], st["bad_evals"], st["train_time"])
+        opt.load_state_dict(st["opt"])
+        gen.set_state(st["gen"])
+        rng.bit_generator.state = st["rng"]
+        strategy.stats, order = st["gstats"], st["order"]
+        cpu_time = st.get("cpu_time", 0.0)
+        log.info("resumed from %s at iteration %d", ckpt.path, it0)
 
     def save_checkpoint(n_it: int) -> None:
-        ckpt_dir.mkdir(parents=True, exist_ok=True)
-        with atomic_path(ckpt) as tmp:
-            torch.save({"hash": chash, "params": p, "iteration": n_it, "curve": curve, "best": best,
-                        "bad_evals": bad_evals, "train_time": time.perf_counter() - t_loop,
-                        "cpu_time": time.process_time() - c_loop,
-                        "opt": opt.state_dict(), "gen": gen.get_state(),
-                        "rng": rng.bit_generator.state, "gstats": gstats, "order": order}, tmp)
+        ckpt.save({"params": p, "iteration": n_it, "curve": curve, "best": best,
+                   "bad_evals": bad_evals, "train_time": time.perf_counter() - t_loop,
+                   "cpu_time": time.process_time() - c_loop,
+                   "opt": opt.state_dict(), "gen": gen.get_state(),
+                   "rng": rng.bit_generator.state, "gstats": strategy.stats, "order": order})
 
     it = it0
     stop_reason = "max_iterations"
@@ -283,18 +204,10 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
             p[k].grad = None
         opt.step(p, grads)
         n_it = it + 1
-        if n_it < cfg["densify_until"]:
-            gstats.update(meta["grad2d"], meta["radii"], cam.width, cam.height, ds)
-            if n_it >= cfg["densify_from"] and n_it % cfg["densify_every"] == 0:
-                dcfg.prune_big = n_it > cfg["opacity_reset_every"]
-                res = densify_and_prune(p, opt, gstats, dcfg, extent, gen)
-                gstats = GradStats.zeros(p["means"].shape[0])
-                log.debug("it %d densify: %s", n_it, res)
-            if n_it % cfg["opacity_reset_every"] == 0:
-                reset_opacity(p, opt)
-                # the held-out PSNR drops and recovers: restart plateau tracking, or the
-                # run would stop during the recovery with a model worse than before
-                best, bad_evals = -math.inf, 0
+        if strategy.step_post_update(p, opt, n_it, meta, cam.width, cam.height, ds, gen):
+            # the held-out PSNR drops and recovers: restart plateau tracking, or the
+            # run would stop during the recovery with a model worse than before
+            best, bad_evals = -math.inf, 0
         if n_it % cfg["eval_every"] == 0 or n_it == cfg["max_iterations"]:
             elapsed = time.perf_counter() - t_loop
             ev = evaluate(p, test_v or train_v[:4], bg, sh_deg, backend)
@@ -316,8 +229,8 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
             save_checkpoint(n_it)
             if hasattr(bar, "close"):
                 bar.close()
-            log.info("interrupted after step %d; checkpoint %s", n_it, ckpt)
-            return {"interrupted": True, "iteration": n_it, "checkpoint": str(ckpt)}
+            log.info("interrupted after step %d; checkpoint %s", n_it, ckpt.path)
+            return {"interrupted": True, "iteration": n_it, "checkpoint": str(ckpt.path)}
         if cfg["checkpoint_every"] and n_it % cfg["checkpoint_every"] == 0 and n_it < cfg["max_iterations"]:
             save_checkpoint(n_it)
     if hasattr(bar, "close"):
@@ -331,79 +244,9 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
                   "n_gaussians": int(p["means"].shape[0]), "train_time_s": train_s, "train_cpu_s": cpu_s,
                   "test_psnr": final["psnr"], "test_ssim": final["ssim"], "test_lpips": None,
                   "sh_degree_final": sh_final, **{f"time_{k.replace(' ', '_')}_s": t for k, t in timings.items()}})
-    _write_model(out_dir, scene, from_params(p), n_iters, sh_final, stats, curve, scene_id, scene_dir)
-    if ckpt.exists():
-        ckpt.unlink()
-    if ckpt_dir.is_dir():
-        sweep_output(ckpt)  # a checkpoint write killed earlier
-        try:
-            ckpt_dir.rmdir()
-        except OSError:
-            pass
+    write_train_output(out_dir, scene, from_params(p), n_iters, sh_final, stats, curve, scene_id, scene_dir)
+    ckpt.remove()
     stats["time_total_s"] = time.perf_counter() - t0
     log.info("trained %d iterations (%s): %d Gaussians, held-out PSNR %.2f dB SSIM %.4f, %.1f s",
              n_iters, stop_reason, stats["n_gaussians"], final["psnr"], final["ssim"], train_s)
-    return stats
-
-
-def _load_checkpoint(path: Path) -> dict | None:
-    """The checkpoint at ``path``, or None if there is none or it cannot be read
-    (it is only a shortcut: training then starts from the beginning)."""
-    if not path.exists():
-        return None
-    try:
-        st = torch.load(path, weights_only=False)
-        if not isinstance(st, dict):
-            raise ValueError(f"a {type(st).__name__}, not a checkpoint")
-        return st
-    except Exception as exc:  # truncated or foreign file: torch raises several types
-        log.warning("ignoring unreadable checkpoint %s (%s); training from the start", path,
-                    " ".join(str(exc).split())[:200])
-        return None
-
-
-def _write_model(out_dir: Path, scene: Scene, g: dict[str, np.ndarray], iterations: int,
-                 sh_degree: int, stats: dict, curve: list[dict], scene_id: str | None,
-                 scene_dir: Path) -> None:
-    import pandas as pd
-
-    from gs2e.metrics.table import write_metrics
-
-    with atomic_dir(out_dir) as out:
-        save_model(out, g, iterations, sh_degree, {
-            "scene": str(scene_dir), "width": scene.width, "height": scene.height,
-            "source": stats.get("source"), "background": stats["background"],
-            "test_every": stats["test_every"]})
-        write_cameras_json(out / "cameras.json", scene)
-        write_json_atomic(out / "train_stats.json", stats)
-        write_metrics(out / "metrics.parquet", stats, scene_id=scene_id or out_dir.parent.name,
-                      stage="train")
-        if curve:
-            pd.DataFrame(curve).to_parquet(out / "curve.parquet", index=False)
-
-
-def _import_ply(scene, scene_dir, out_dir, cfg, views, test_v, bg, stats, scene_id, t0):
-    """Use a model trained elsewhere (official 3DGS, gsplat) instead of training."""
-    path = cfg.get("ply_path")
-    if not path:
-        raise InputError("splat.model_source is 'ply' but splat.ply_path is not set")
-    path = Path(path)
-    iterations = None
-    if path.is_dir():
-        its = sorted(path.glob("point_cloud/iteration_*/point_cloud.ply"),
-                     key=lambda q: int(q.parent.name.split("_")[1]))
-        if not its:
-            raise InputError(f"{path}: no point_cloud/iteration_*/point_cloud.ply")
-        path = its[-1]
-        iterations = int(path.parent.name.split("_")[1])
-    g = read_ply(path)
-    sh_deg = int(round(math.sqrt(g["sh"].shape[1]))) - 1
-    p = to_params(g)
-    ev = evaluate(p, test_v, bg, sh_deg, stats["backend"])
-    stats.update({"source": "ply", "ply_path": str(path), "iterations": iterations,
-                  "n_gaussians": int(len(g["means"])), "train_time_s": None,
-                  "test_psnr": ev["psnr"], "test_ssim": ev["ssim"], "test_lpips": None,
-                  "sh_degree": sh_deg, "sh_degree_final": sh_deg})
-    _write_model(out_dir, scene, g, iterations or 0, sh_deg, stats, [], scene_id, scene_dir)
-    stats["time_total_s"] = time.perf_counter() - t0
     return stats

@@ -1,53 +1,85 @@
-"""Rendering a trained model at a scene's cameras (inspection and metrics)."""
+"""The scene's posed views as the trainer and the evaluation use them: images
+at each downscale factor of the resolution schedule, cameras, the hold-out
+split and the scene extent."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from gs2e.common.atomic import atomic_dir
-from gs2e.common.log import get_logger
+from gs2e.common.errors import InputError
 from gs2e.common.progress import progress
-from gs2e.io.images import write_png
-from gs2e.io.scene import read_scene
-from gs2e.splat.backend import resolve_backend
-from gs2e.splat.loss import psnr, ssim
-from gs2e.splat.model import load_model, render
-from gs2e.splat.train import load_views, split_views
-
-log = get_logger("gs2e.splat")
+from gs2e.io.scene import IMAGES_DIR, Scene
+from gs2e.splat.rasterize import SplatCamera
 
 
-def render_views(model_dir: str | Path, scene_dir: str | Path, out_dir: str | Path,
-                 which: str = "test", test_every: int | None = None, backend: str = "cpu") -> list[dict]:
-    """Render ``which`` views (test/train/all) of ``scene_dir`` with the model in
-    ``model_dir``; writes ``<name>.png`` renders and ``metrics.parquet`` with
-    per-view PSNR (dB) and SSIM against the scene's images. The hold-out split
-    (``test_every``) and background are the model's own unless given.
-    ``backend``: 'cpu', 'gsplat' or 'auto' (see gs2e.splat.backend)."""
-    from gs2e.metrics.table import write_metrics
+@dataclass
+class View:
+    """One posed view: camera-to-world ``c2w`` (4, 4), intrinsics of the full
+    image (px) and the image at each downscale factor."""
 
-    p, info = load_model(model_dir)
-    backend = resolve_backend(backend, "--backend")
-    scene_dir = Path(scene_dir)
-    scene = read_scene(scene_dir)
-    views = load_views(scene_dir, scene, [1])
-    if test_every is None:
-        test_every = int(info.get("test_every", 8))
-    train_v, test_v = split_views(views, test_every)
-    sel = {"test": test_v, "train": train_v, "all": views}[which]
-    bg = torch.tensor(info.get("background", [0.0, 0.0, 0.0]), dtype=torch.float32)
-    rows = []
-    with atomic_dir(out_dir) as out, torch.no_grad():
-        for v in progress(sel, desc="rendering views"):
-            cam, gt = v.camera(1)
-            img = render(p, cam, bg, int(info["sh_degree"]), backend)[0].clamp(0, 1)
-            write_png(out / (Path(v.name).stem + ".png"), (img.numpy() * 255 + 0.5).astype(np.uint8))
-            rows.append({"view": v.name, "psnr": psnr(img, gt), "ssim": float(ssim(img, gt))})
-        write_metrics(out / "metrics.parquet", rows, stage="render-views")
-    if rows:
-        log.info("%d views: mean PSNR %.2f dB, SSIM %.4f", len(rows),
-                 np.mean([r["psnr"] for r in rows]), np.mean([r["ssim"] for r in rows]))
-    return rows
+    name: str
+    c2w: np.ndarray
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    images: dict[int, torch.Tensor]  # downscale factor -> (H, W, 3) float32 in [0,1]
+
+    def camera(self, downscale: int) -> tuple[SplatCamera, torch.Tensor]:
+        """The camera and image at ``downscale`` (intrinsics scaled to that size)."""
+        img = self.images[downscale]
+        h, w = img.shape[:2]
+        full = self.images[1]
+        sx, sy = w / full.shape[1], h / full.shape[0]
+        cam = SplatCamera.from_c2w(self.c2w, self.fx * sx, self.fy * sy, self.cx * sx,
+                                   self.cy * sy, w, h)
+        return cam, img
+
+
+def load_views(scene_dir: Path, scene: Scene, downscales: list[int]) -> list[View]:
+    """Every frame of ``scene`` (read from ``scene_dir``) with its image at the
+    given downscale factors (area-averaged). Raises InputError naming the frame
+    when it has no pose or a distorted camera."""
+    import cv2
+
+    from gs2e.io.images import read_image
+
+    views = []
+    for f in progress(scene.frames, desc="loading views"):
+        if f.c2w is None:
+            raise InputError(f"{scene_dir}: frame {f.name} has no pose; run sfm first")
+        if f.camera.model not in ("PINHOLE", "SIMPLE_PINHOLE"):
+            raise InputError(f"{scene_dir}: frame {f.name} has a {f.camera.model} camera; "
+                             "training needs undistorted PINHOLE views (gs2e sfm output)")
+        rgb = read_image(scene_dir / IMAGES_DIR / f.name)
+        imgs = {}
+        for d in sorted(set(downscales)):
+            im = rgb if d == 1 else cv2.resize(
+                rgb, (max(1, rgb.shape[1] // d), max(1, rgb.shape[0] // d)), interpolation=cv2.INTER_AREA)
+            imgs[d] = torch.from_numpy(im.astype(np.float32) / 255.0)
+        views.append(View(f.name, f.c2w, f.camera.fx, f.camera.fy, f.camera.cx, f.camera.cy, imgs))
+    return views
+
+
+def split_views(views: list[View], test_every: int) -> tuple[list[View], list[View]]:
+    """Every ``test_every``-th view (in natural name order, as everywhere in
+    gs2e, starting with the first) is held out, as the official code's LLFF
+    hold-out; 0 disables the split. Both lists are in natural name order."""
+    from gs2e.io.views import natural_key
+
+    order = sorted(range(len(views)), key=lambda i: natural_key(views[i].name))
+    if test_every <= 0 or len(views) < 3:
+        return views, []
+    test = {order[i] for i in range(0, len(order), test_every)}
+    return [views[i] for i in order if i not in test], [views[i] for i in order if i in test]
+
+
+def scene_extent(views: list[View]) -> float:
+    """1.1 x the largest camera distance from the cameras' centroid (3DGS)."""
+    c = np.stack([v.c2w[:3, 3] for v in views])
+    r = float(np.max(np.linalg.norm(c - c.mean(0), axis=1)))
+    return 1.1 * r if r > 0 else 1.0

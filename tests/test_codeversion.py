@@ -1,0 +1,160 @@
+"""Stage code versions come from the import closure of each stage's command:
+every gs2e module a stage really loads is covered (each stage's command is run
+on the tiny pipeline's files and its sys.modules checked), and a new import is
+covered the moment it is written (no hand-kept list)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from gs2e.codeversion import STAGE_ENTRY, code_version, stage_modules
+from gs2e.config import load_config, scene_config, scene_params_json, section_json
+from tests.conftest import REPO, TINY_OVERRIDES
+
+# What `python -m gs2e <command>` does for one stage, then the gs2e modules loaded.
+# (gs2e.cli also imports the other stages' CLI modules to declare their
+# subcommands; codeversion leaves those out, so the driver registers only this one.)
+DRIVER = """
+import argparse, importlib, json, sys
+from gs2e.common.log import setup_logging
+entry, out_json, *argv = sys.argv[1:]
+parser = argparse.ArgumentParser(prog="gs2e")
+importlib.import_module(entry.split(":")[0]).register(parser.add_subparsers(dest="command"))
+args = parser.parse_args(argv)
+setup_logging(False)
+rc = args.func(args) or 0
+with open(out_json, "w") as fh:
+    json.dump(sorted(m for m in sys.modules if m.split(".")[0] == "gs2e"), fh)
+sys.exit(rc)
+"""
+
+
+def stage_commands(wd: Path, out: Path) -> dict[str, list[str]]:
+    """Each stage's command on the tiny pipeline's files (training: 4 steps)."""
+    cfg = scene_config(load_config({}), {"scene_id": "tiny", "overrides": TINY_OVERRIDES})
+    cfg["splat"].update({"max_iterations": 4, "min_iterations": 0, "eval_every": 2, "densify_from": 1,
+                         "densify_every": 2, "densify_until": 4, "resolution_schedule": [[0, 2], [2, 1]]})
+    res = wd / "results"
+    tiny, traj = res / "tiny", str(res / "tiny" / "trajectories" / "mini00_medium.npz")
+    sec = lambda s: section_json(cfg, s)  # noqa: E731
+    return {
+        "demo": ["demo-scene", "--out", str(out / "source"), "--config-json", sec("demo")],
+        "ingest": ["ingest", "--layout", "demo", "--src", str(tiny / "source"), "--out", str(out / "ingest"),
+                   "--config-json", sec("ingest")],
+        "sfm": ["sfm", "--scene", str(tiny / "ingest"), "--out", str(out / "sfm"), "--config-json", sec("sfm")],
+        "train": ["train", "--scene", str(tiny / "sfm"), "--out", str(out / "splat"), "--config-json", sec("splat")],
+        "trajectory": ["trajectory", "--scene", str(tiny / "sfm"), "--out", str(out / "traj"),
+                       "--config-json", sec("trajectory")],
+        "render": ["render", "--model", str(tiny / "splat"), "--trajectory", traj, "--out", str(out / "frames"),
+                   "--config-json", sec("render")],
+        "events": ["events", "--model", str(tiny / "splat"), "--trajectory", traj, "-o", str(out / "events"),
+                   "--config-json", sec("events"), "--render-config-json", sec("render")],
+        "metrics": ["metrics", "--scene-dir", str(tiny), "--scene-id", "tiny", "--trajectories", "mini00_medium",
+                    "--config-json", scene_params_json(cfg), "--out", str(out / "metrics.parquet")],
+        "report": ["report", "--results-dir", str(res), "--out", str(out / "report.html"), "--scenes", "tiny",
+                   "--config-json", sec("metrics")],
+        "windows": ["windows", "--frames", str(tiny / "frames" / "mini00_medium"),
+                    "--events", str(tiny / "events" / "mini00_medium"), "--out", str(out / "windows.parquet")],
+        "export": ["export", "--scene-dir", str(tiny), "--trajectory", "mini00_medium", "--format", "eventnerf",
+                   "--out", str(out / "export"), "--config-json", sec("export")],
+    }
+
+
+@pytest.mark.parametrize("stage", list(STAGE_ENTRY))
+def test_every_module_a_stage_loads_is_in_its_code_version(stage, tiny_pipeline, tmp_path):
+    argv = stage_commands(tiny_pipeline[0], tmp_path)[stage]
+    loaded_json = tmp_path / "loaded.json"
+    proc = subprocess.run([sys.executable, "-c", DRIVER, STAGE_ENTRY[stage], str(loaded_json), *argv],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=600,
+                          env={**__import__("os").environ, "GS2E_PROGRESS": "0"})
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    loaded = set(json.loads(loaded_json.read_text()))
+    covered = set(stage_modules(stage))
+    assert STAGE_ENTRY[stage].split(":")[0] in loaded
+    assert loaded <= covered, f"{stage} loaded modules its code version misses: {sorted(loaded - covered)}"
+
+
+def _package_copy(tmp_path: Path):
+    """gs2e's .py files copied, with codeversion loaded from the copy."""
+    pkg = tmp_path / "gs2e"
+    shutil.copytree(REPO / "gs2e", pkg, ignore=shutil.ignore_patterns("__pycache__", "*.yaml"))
+    spec = importlib.util.spec_from_file_location("codeversion_copy", pkg / "codeversion.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return pkg, mod
+
+
+def test_a_new_import_is_covered_when_written(tmp_path):
+    pkg, cv = _package_copy(tmp_path)
+    before = {s: cv.code_version(s) for s in STAGE_ENTRY}
+    assert before == {s: code_version(s) for s in STAGE_ENTRY}  # relative paths: a copy hashes the same
+    # a new module nobody imports changes nothing
+    (pkg / "common" / "fresh.py").write_text("X = 1\n")
+    cv.code_version.cache_clear()
+    assert {s: cv.code_version(s) for s in STAGE_ENTRY} == before
+    # a function-level import of it in the sfm stage brings it into sfm's version only
+    f = pkg / "sfm" / "align.py"
+    f.write_text(f.read_text() + "\n\ndef _uses_fresh():\n    from gs2e.common import fresh\n    return fresh.X\n")
+    cv.code_version.cache_clear()
+    after = {s: cv.code_version(s) for s in STAGE_ENTRY}
+    assert {s for s in STAGE_ENTRY if after[s] != before[s]} == {"sfm"}
+    assert "gs2e.common.fresh" in cv.stage_modules("sfm")
+    (pkg / "common" / "fresh.py").write_text("X = 2\n")
+    cv.code_version.cache_clear()
+    assert {s for s in STAGE_ENTRY if cv.code_version(s) != after[s]} == {"sfm"}
+    # lazy imports through a table of module names count too (gs2e/trajectory/__init__.py)
+    assert "gs2e.trajectory.stage" in cv.stage_modules("render")
+
+
+def test_closure_follows_relative_and_package_imports(tmp_path):
+    pkg, cv = _package_copy(tmp_path)
+    (pkg / "demo" / "extra_a.py").write_text("from . import extra_b\nfrom .extra_c import f\n")
+    (pkg / "demo" / "extra_b.py").write_text("")
+    (pkg / "demo" / "extra_c.py").write_text("import gs2e.io.views as v\n\ndef f():\n    return v\n")
+    mods = cv.import_closure(("gs2e.demo.extra_a",), pkg)
+    assert {"gs2e", "gs2e.demo", "gs2e.demo.extra_b", "gs2e.demo.extra_c", "gs2e.io", "gs2e.io.views"} <= set(mods)
+    assert mods["gs2e.demo.extra_c"] == pkg / "demo" / "extra_c.py"
+
+
+def test_an_edit_reruns_the_stages_that_load_it(tmp_path):
+    """Which stages an edit of one file reruns (the import closures as they are
+    today; a static closure errs towards rerunning)."""
+    pkg, cv = _package_copy(tmp_path)
+    stages = list(STAGE_ENTRY)
+    before = {s: cv.code_version(s) for s in stages}
+
+    def edit_and_diff(rel: str) -> set[str]:
+        f = pkg / rel
+        f.write_text(f.read_text() + "\n# edited\n")
+        cv.code_version.cache_clear()
+        now = {s: cv.code_version(s) for s in stages}
+        changed = {s for s in stages if now[s] != before[s]}
+        before.update(now)
+        return changed
+
+    # the report reads event files with gs2e.events; the windows table reads them
+    # with events/io.py, which loads the package
+    assert edit_and_diff("events/__init__.py") == {"events", "report", "windows", "export"}
+    # the event stage renders with gs2e.splat, not the render stage's code;
+    # the windows table loads render/dataset.py (frames table), hence the
+    # render package and, through it, the renderer
+    assert edit_and_diff("splat/__init__.py") == {"train", "render", "events", "windows", "export"}
+    assert edit_and_diff("render/__init__.py") == {"render", "windows", "export"}
+    # one CLI module, two rules: each follows only its own command's imports
+    assert edit_and_diff("export/run.py") == {"export"}
+    assert edit_and_diff("export/windows.py") == {"windows", "export"}
+    assert edit_and_diff("sfm/__init__.py") == {"sfm"}
+    assert edit_and_diff("demo/__init__.py") == {"demo"}
+    # stages write their tables with metrics/table.py; the scene tables are metrics' own
+    assert edit_and_diff("metrics/collect.py") == {"metrics"}
+    assert edit_and_diff("metrics/table.py") == set(stages) - {"demo", "ingest", "trajectory"}
+    # every command loads gs2e.config, which checks trajectory.velocity by parsing it
+    for rel in ("common/__init__.py", "config.py", "trajectory/velocity.py"):
+        assert edit_and_diff(rel) == set(stages)
