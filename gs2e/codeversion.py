@@ -25,6 +25,7 @@ from __future__ import annotations
 import ast
 import functools
 import hashlib
+import os
 import re
 from pathlib import Path
 
@@ -54,25 +55,43 @@ DISPATCHER = "gs2e.cli"
 _MODULE_NAME = re.compile(r"^[A-Za-z_]\w*(\.[A-Za-z_]\w*)*$")
 
 
-def module_file(name: str, pkg: Path | None = None) -> Path | None:
-    """Source file of gs2e module ``name`` (``gs2e.a.b`` -> a/b.py or
-    a/b/__init__.py under ``pkg``), None if it is not a gs2e module."""
+def package_modules(pkg: Path | None = None) -> dict[str, Path]:
+    """Every module of the package under ``pkg``: {``gs2e.a.b``: its .py file}
+    (a package's name maps to its ``__init__.py``). One directory scan: a stat
+    per imported name would cost more than parsing the sources."""
     pkg = PKG if pkg is None else pkg
-    parts = name.split(".")
-    if parts[0] != ROOT:
-        return None
-    base = pkg.joinpath(*parts[1:])
-    for f in (base.with_suffix(".py") if len(parts) > 1 else None, base / "__init__.py"):
-        if f is not None and f.is_file():
-            return f
-    return None
+    out: dict[str, Path] = {}
+    for folder, dirs, files in os.walk(pkg):
+        dirs[:] = [d for d in dirs if d != "__pycache__"]
+        rel = Path(folder).relative_to(pkg).parts
+        for fname in files:
+            if fname.endswith(".py"):
+                stem = fname[:-3]
+                parts = (ROOT, *rel) if stem == "__init__" else (ROOT, *rel, stem)
+                out.setdefault(".".join(parts), Path(folder) / fname)
+    return out
+
+
+def _statements(node: ast.AST):
+    """``node`` and every statement nested in it (bodies of functions, classes,
+    if/for/while/with/try/match), without descending into expressions: imports
+    are statements, and skipping expressions makes the walk ~10x faster."""
+    todo = [node]
+    while todo:
+        n = todo.pop()
+        yield n
+        for field in ("body", "orelse", "finalbody", "handlers", "cases"):
+            sub = getattr(n, field, None)
+            if isinstance(sub, list):
+                todo.extend(sub)
 
 
 def _imported_names(tree: ast.AST, module: str, is_package: bool, strings: bool) -> set[str]:
     """Module names a module's source imports anywhere (``from A import b``
-    gives ``A.b`` and ``A``: ``b`` may be a submodule or an attribute)."""
+    gives ``A.b`` and ``A``: ``b`` may be a submodule or an attribute); with
+    ``strings``, also the gs2e module names its string constants spell."""
     out: set[str] = set()
-    for node in ast.walk(tree):
+    for node in _statements(tree):
         if isinstance(node, ast.Import):
             out.update(a.name for a in node.names)
         elif isinstance(node, ast.ImportFrom):
@@ -83,9 +102,10 @@ def _imported_names(tree: ast.AST, module: str, is_package: bool, strings: bool)
                 base = node.module or ""
             out.add(base)
             out.update(f"{base}.{a.name}" for a in node.names if a.name != "*")
-        elif strings and isinstance(node, ast.Constant) and isinstance(node.value, str) \
-                and node.value.startswith(ROOT + ".") and _MODULE_NAME.match(node.value):
-            out.add(node.value)
+    if strings:
+        out.update(n.value for n in ast.walk(tree) if isinstance(n, ast.Constant)
+                   and isinstance(n.value, str) and n.value.startswith(ROOT + ".")
+                   and _MODULE_NAME.match(n.value))
     return out
 
 
@@ -96,11 +116,25 @@ def _entry_nodes(tree: ast.Module, function: str) -> list[ast.AST]:
     return [n for n in tree.body if not isinstance(n, defs) or n.name in ("register", function)]
 
 
+@functools.lru_cache(maxsize=4096)
+def _file_imports(f: Path, stamp: tuple[int, int], name: str, function: str) -> frozenset[str]:
+    """What :func:`import_closure` follows from one source file (cached on the
+    file's mtime and size: the workflow asks for every stage's version)."""
+    tree = ast.parse(f.read_bytes(), filename=str(f))
+    nodes = _entry_nodes(tree, function) if function else [tree]
+    by_name = name != DISPATCHER and "importlib" in _imported_names(tree, name, False, strings=False)
+    out: set[str] = set()
+    for node in nodes:
+        out |= _imported_names(node, name, f.name == "__init__.py", strings=by_name)
+    return frozenset(out)
+
+
 def import_closure(roots: tuple[str, ...], pkg: Path | None = None) -> dict[str, Path]:
     """Every gs2e module reachable from ``roots`` by imports, with its parent
     packages: {module name: source file}. A root ``module:function`` follows
     only what that function of the module runs (see :func:`_entry_nodes`)."""
     pkg = PKG if pkg is None else pkg
+    modules = package_modules(pkg)
     found: dict[str, Path] = {}
     partial: set[str] = set()  # modules followed for one function only so far
     todo = list(roots)
@@ -108,7 +142,7 @@ def import_closure(roots: tuple[str, ...], pkg: Path | None = None) -> dict[str,
         name, _, function = todo.pop().partition(":")
         if name in found and not (name in partial and not function):
             continue
-        f = module_file(name, pkg)
+        f = modules.get(name)
         if f is None:
             continue
         found[name] = f
@@ -118,11 +152,8 @@ def import_closure(roots: tuple[str, ...], pkg: Path | None = None) -> dict[str,
             partial.discard(name)
         parts = name.split(".")
         todo.extend(".".join(parts[:i]) for i in range(1, len(parts)))  # parent packages run first
-        tree = ast.parse(f.read_bytes(), filename=str(f))
-        nodes = _entry_nodes(tree, function) if function else [tree]
-        by_name = name != DISPATCHER and "importlib" in _imported_names(tree, name, False, strings=False)
-        for node in nodes:
-            todo.extend(_imported_names(node, name, f.name == "__init__.py", strings=by_name))
+        st = f.stat()
+        todo.extend(_file_imports(f, (st.st_mtime_ns, st.st_size), name, function))
     return found
 
 
