@@ -55,7 +55,7 @@ def stage_commands(wd: Path, out: Path) -> dict[str, list[str]]:
         "render": ["render", "--model", str(tiny / "splat"), "--trajectory", traj, "--out", str(out / "frames"),
                    "--config-json", sec("render")],
         "events": ["events", "--model", str(tiny / "splat"), "--trajectory", traj, "-o", str(out / "events"),
-                   "--config-json", sec("events"), "--render-config-json", sec("render")],
+                   "--config-json", sec("events")],
         "metrics": ["metrics", "--scene-dir", str(tiny), "--scene-id", "tiny", "--trajectories", "mini00_medium",
                     "--config-json", scene_params_json(cfg), "--out", str(out / "metrics.parquet")],
         "report": ["report", "--results-dir", str(res), "--out", str(out / "report.html"), "--scenes", "tiny",
