@@ -360,11 +360,12 @@ def test_strategy_owns_the_schedule():
         sizes.append(p["means"].shape[0])
         assert strategy.stats.grad_accum.shape[0] == p["means"].shape[0]
     assert resets == [False, False, False, True, False, False, False, False, False]
-    # step 2: 2 clones + 2 x 2 split children - 2 originals - 1 transparent; step 4 grows
-    # again; step 6 prunes every Gaussian seen 30 px wide, only its new ones stay;
-    # nothing after densify_until
-    assert sizes[0] == 6 and sizes[1] == 9 and sizes[2] == 9 and sizes[3] > sizes[2]
-    assert sizes[4] == sizes[3] and 0 < sizes[5] < sizes[4] and sizes[5:] == [sizes[5]] * 4
+    # every Gaussian has a large gradient here. Step 2: 4 clones (0, 1, 4 and the
+    # transparent 5) + 2 x 2 split children - 2 originals - 5 and its clone = 10;
+    # step 4: 6 clones + 4 x 2 children - 4 originals = 20; step 6 (after the
+    # reset) prunes all 20, seen 30 px wide, and keeps its 12 clones and 8 x 2
+    # children; nothing after densify_until
+    assert sizes == [6, 10, 10, 20, 20, 28, 28, 28, 28]
     assert torch.all(torch.sigmoid(p["opacity_logits"]) <= 0.01 + 1e-7)  # reset at step 4
     assert strategy.stats.count.sum() == 0  # no statistics after densify_until
 

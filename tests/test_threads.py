@@ -23,18 +23,22 @@ needs_two_cpus = pytest.mark.skipif(N_CPUS < 2 or shutil.which("taskset") is Non
 
 PROBE = """
 import json, sys
-import numba, torch
+import numba
+if sys.argv[2] == "early":
+    import torch
 from gs2e.common.threads import available_cpus, set_threads
 req = None if sys.argv[1] == "None" else int(sys.argv[1])
 n = set_threads(req)
+import torch  # "late": loaded after set_threads, it reads OMP_NUM_THREADS
 print(json.dumps({"available": available_cpus(), "set": n, "torch": torch.get_num_threads(),
                   "numba": numba.get_num_threads()}))
 """
 
 
-def probe(request: str, cpus: str | None = None) -> dict:
-    """set_threads(request) in a fresh process, optionally pinned to ``cpus`` by taskset."""
-    cmd = [sys.executable, "-c", PROBE, request]
+def probe(request: str, cpus: str | None = None, torch_import: str = "early") -> dict:
+    """set_threads(request) in a fresh process, optionally pinned to ``cpus`` by
+    taskset, with torch imported before it ("early") or after ("late")."""
+    cmd = [sys.executable, "-c", PROBE, request, torch_import]
     if cpus is not None:
         cmd = ["taskset", "-c", cpus] + cmd
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
@@ -53,6 +57,9 @@ def test_affinity_limits_every_request(request_):
 
 def test_explicit_count_and_default_unpinned():
     r = probe("1")
+    assert (r["set"], r["torch"], r["numba"]) == (1, 1, 1)
+    # set_threads does not import torch (the event stage on frames never loads it)
+    r = probe("1", torch_import="late")
     assert (r["set"], r["torch"], r["numba"]) == (1, 1, 1)
     r = probe("None")
     assert r["available"] == N_CPUS and (r["set"], r["torch"]) == (N_CPUS, N_CPUS)
