@@ -18,7 +18,6 @@ from gs2e.io.nerf import write_transforms
 from gs2e.io.scene import Camera, Frame, Scene
 from gs2e.render.blur import average_srgb, subframe_times_us, subframes_needed
 from gs2e.render.motion import pixel_motion_px
-from gs2e.render.renderer import TrajectoryRenderer
 from gs2e.trajectory import fixed_times_us
 
 log = get_logger("gs2e.render")
@@ -55,6 +54,9 @@ def render_dataset(model_dir: str | Path, trajectory_path: str | Path, out_dir: 
     import pandas as pd
 
     from gs2e.metrics.table import write_metrics
+    # here, not at the top: readers of the frames table (windows, export, the
+    # DataLoader) must not load the renderer (torch, splat) or carry its code version
+    from gs2e.render.renderer import TrajectoryRenderer
 
     check_render_config(cfg)
     t_start = time.perf_counter()
