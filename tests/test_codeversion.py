@@ -16,7 +16,7 @@ import pytest
 
 from gs2e.codeversion import STAGE_ENTRY, code_version, stage_modules
 from gs2e.config import load_config, scene_config, scene_params_json, section_json
-from tests.conftest import REPO, TINY_OVERRIDES
+from tests.conftest import REPO, TINY_OVERRIDES, run_cli
 
 # What `python -m gs2e <command>` does for one stage, then the gs2e modules loaded.
 # (gs2e.cli also imports the other stages' CLI modules to declare their
@@ -41,6 +41,7 @@ def stage_commands(wd: Path, out: Path) -> dict[str, list[str]]:
     cfg = scene_config(load_config({}), {"scene_id": "tiny", "overrides": TINY_OVERRIDES})
     cfg["splat"].update({"max_iterations": 4, "min_iterations": 0, "eval_every": 2, "densify_from": 1,
                          "densify_every": 2, "densify_until": 4, "resolution_schedule": [[0, 2], [2, 1]]})
+    cfg["export"]["eventnerf_fit"] = "pad"  # EventNeRF's loader hard-codes 346x260; the tiny frames are 128x96
     res = wd / "results"
     tiny, traj = res / "tiny", str(res / "tiny" / "trajectories" / "mini00_medium.npz")
     sec = lambda s: section_json(cfg, s)  # noqa: E731
@@ -62,13 +63,35 @@ def stage_commands(wd: Path, out: Path) -> dict[str, list[str]]:
                    "--config-json", sec("metrics")],
         "windows": ["windows", "--frames", str(tiny / "frames" / "mini00_medium"),
                     "--events", str(tiny / "events" / "mini00_medium"), "--out", str(out / "windows.parquet")],
-        "export": ["export", "--scene-dir", str(tiny), "--trajectory", "mini00_medium", "--format", "eventnerf",
-                   "--out", str(out / "export"), "--config-json", sec("export")],
+        # the tiny run's events (30 ms) cover no two frames: see _scene_with_longer_events
+        "export": ["export", "--scene-dir", str(out / "scene"), "--trajectory", "mini00_medium",
+                   "--format", "eventnerf", "--out", str(out / "export"), "--config-json", sec("export")],
     }
+
+
+def _scene_with_longer_events(wd: Path, out: Path) -> None:
+    """``out/scene``: the tiny run's scene folder with events over 0.25 s of
+    mini00_medium and their windows table. Exporters need events that cover
+    two consecutive frames (100 ms apart at the tiny run's 10 fps); the tiny run
+    simulates 30 ms."""
+    tiny, scene = wd / "results" / "tiny", out / "scene"
+    scene.mkdir()
+    for name in ("frames", "trajectories", "sfm", "splat"):
+        (scene / name).symlink_to(tiny / name)
+    cfg = scene_config(load_config({}), {"scene_id": "tiny", "overrides": TINY_OVERRIDES})
+    events = {**cfg["events"], "max_duration_s": 0.25}
+    ev_dir = scene / "events" / "mini00_medium"
+    run_cli("events", "--model", str(tiny / "splat"), "--trajectory",
+            str(tiny / "trajectories" / "mini00_medium.npz"), "-o", str(ev_dir),
+            "--config-json", json.dumps(events), check=True)
+    run_cli("windows", "--frames", str(tiny / "frames" / "mini00_medium"), "--events", str(ev_dir),
+            "--out", str(scene / "windows" / "mini00_medium.parquet"), check=True)
 
 
 @pytest.mark.parametrize("stage", list(STAGE_ENTRY))
 def test_every_module_a_stage_loads_is_in_its_code_version(stage, tiny_pipeline, tmp_path):
+    if stage == "export":
+        _scene_with_longer_events(tiny_pipeline[0], tmp_path)
     argv = stage_commands(tiny_pipeline[0], tmp_path)[stage]
     loaded_json = tmp_path / "loaded.json"
     proc = subprocess.run([sys.executable, "-c", DRIVER, STAGE_ENTRY[stage], str(loaded_json), *argv],
