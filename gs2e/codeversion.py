@@ -14,10 +14,11 @@ transitively, read from the sources with ``ast``: module-level and
 function-level imports alike (a stage's heavy imports sit inside its
 functions), the packages' ``__init__.py`` on the way, and, in modules that
 import by name with ``importlib``, the gs2e modules their string constants
-name (lazy import tables). Not followed: the dispatcher's list of the other stages' CLI modules, which ``gs2e`` imports only
-to declare their subcommands' arguments. No list is kept by hand, so a new
-import is covered the moment it is written (tests/test_codeversion.py runs each
-stage and checks that every gs2e module it loaded is covered).
+name (lazy import tables). Not followed: the dispatcher's list of the other
+stages' CLI modules, which ``gs2e`` imports only to declare their subcommands'
+arguments. No list is kept by hand, so a new import is covered the moment it is
+written (tests/test_codeversion.py runs each stage and checks that every gs2e
+module it loaded is covered).
 """
 
 from __future__ import annotations

@@ -3,9 +3,9 @@ per-scene overrides.
 
 The schema files are package data (``gs2e/schemas/``, read through
 ``importlib.resources``), so an installed gs2e validates without the
-repository. The Snakefile and the CLI both validate through this module, so a bad value is rejected before any job runs
-with a message naming its key (``sfm.matcher``) or the table cell
-(``config/scenes.tsv:3: layout``).
+repository. The Snakefile and the CLI both validate through this module, so a
+bad value is rejected before any job runs with a message naming its key
+(``sfm.matcher``) or the table cell (``config/scenes.tsv:3: layout``).
 """
 
 from __future__ import annotations

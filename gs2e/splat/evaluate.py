@@ -21,19 +21,23 @@ from gs2e.splat.views import View, load_views, split_views
 log = get_logger("gs2e.splat")
 
 
+def score_view(p: dict[str, torch.Tensor], view: View, background: torch.Tensor, sh_degree: int,
+               backend: str = "cpu") -> tuple[torch.Tensor, float, float]:
+    """The model's render of ``view`` at full resolution ((H, W, 3) in [0, 1]),
+    its PSNR (dB) and SSIM against the view's image (call under no_grad)."""
+    cam, gt = view.camera(1)
+    img = render(p, cam, background, sh_degree, backend)[0].clamp(0, 1)
+    return img, psnr(img, gt), float(ssim(img, gt))
+
+
 def evaluate(p: dict[str, torch.Tensor], views: list[View], background: torch.Tensor,
              sh_degree: int, backend: str = "cpu") -> dict[str, float]:
     """Mean PSNR (dB) and SSIM over ``views`` at full resolution (NaN without views)."""
     if not views:
         return {"psnr": float("nan"), "ssim": float("nan")}
-    ps, ss = [], []
     with torch.no_grad():
-        for v in views:
-            cam, gt = v.camera(1)
-            img = render(p, cam, background, sh_degree, backend)[0].clamp(0, 1)
-            ps.append(psnr(img, gt))
-            ss.append(float(ssim(img, gt)))
-    return {"psnr": float(np.mean(ps)), "ssim": float(np.mean(ss))}
+        scores = [score_view(p, v, background, sh_degree, backend)[1:] for v in views]
+    return {"psnr": float(np.mean([s[0] for s in scores])), "ssim": float(np.mean([s[1] for s in scores]))}
 
 
 def render_views(model_dir: str | Path, scene_dir: str | Path, out_dir: str | Path,
@@ -58,10 +62,9 @@ def render_views(model_dir: str | Path, scene_dir: str | Path, out_dir: str | Pa
     rows = []
     with atomic_dir(out_dir) as out, torch.no_grad():
         for v in progress(sel, desc="rendering views"):
-            cam, gt = v.camera(1)
-            img = render(p, cam, bg, int(info["sh_degree"]), backend)[0].clamp(0, 1)
+            img, view_psnr, view_ssim = score_view(p, v, bg, int(info["sh_degree"]), backend)
             write_png(out / (Path(v.name).stem + ".png"), (img.numpy() * 255 + 0.5).astype(np.uint8))
-            rows.append({"view": v.name, "psnr": psnr(img, gt), "ssim": float(ssim(img, gt))})
+            rows.append({"view": v.name, "psnr": view_psnr, "ssim": view_ssim})
         write_metrics(out / "metrics.parquet", rows, stage="render-views")
     if rows:
         log.info("%d views: mean PSNR %.2f dB, SSIM %.4f", len(rows),
