@@ -133,17 +133,20 @@ def events_cfg(model: str, mode: str, fps: float = 2400.0, bound: float = 1.0) -
     return load_config({"events": ev})["events"]
 
 
-def run(model_dir, traj, span, mode, fps=2400.0, bound=1.0, seeds=(0,)) -> dict:
-    """One sampling run feeding the ideal model and DVS-Voltmeter (one per
-    seed); events, rendered pixel values and timings."""
-    # the sampling bound: ideal theta (0.2) and dvs346's log(1 + 1/k1) = 0.174 are close;
-    # sample once with the ideal model's bound and feed both models
-    cfg = events_cfg("ideal", mode, fps, bound)
+def run(model_dir, traj, span, mode, fps=2400.0, bound=1.0, seeds=(0,),
+        sample_for=("ideal", "voltmeter")) -> dict:
+    """One sampling run feeding the ideal model and/or DVS-Voltmeter (one per
+    seed); events, rendered pixel values and timings. Adaptive modes sample the
+    signal of the model they feed (``sample_for`` one model); fixed-rate
+    samples do not depend on it and feed both."""
+    cfg = events_cfg(sample_for[0], mode, fps, bound)
     src = RenderedSource(model_dir, traj, cfg, span_us=span, batch_frames=64)
     a = time.perf_counter()
     t0, f0 = src.start()
-    models = {"ideal": make_model(cfg, src.shape, 0)[0]}
-    for s in seeds:
+    models = {}
+    if "ideal" in sample_for:
+        models["ideal"] = make_model(events_cfg("ideal", mode, fps, bound), src.shape, 0)[0]
+    for s in seeds if "voltmeter" in sample_for else ():
         models[f"voltmeter{s}"] = make_model(events_cfg("voltmeter", mode), src.shape, s)[0]
     for m in models.values():
         m.start(t0, f0)
@@ -270,20 +273,27 @@ def main() -> None:
         settings = ([("fixed", f, None) for f in FIXED] + [("adaptive", 2400.0, b) for b in BOUNDS]
                     + [("tile", 2400.0, b) for b in BOUNDS])
         for mode, fps, b in settings:
-            r = run(model, traj, span, mode, fps, b or 1.0)
+            if mode == "fixed":
+                r = run(model, traj, span, mode, fps, b or 1.0)
+                rv = r
+            else:  # each model's own signal (DVS-Voltmeter's dark floor is k2, not log_eps)
+                r = run(model, traj, span, mode, fps, b or 1.0, sample_for=("ideal",))
+                rv = run(model, traj, span, mode, fps, b or 1.0, sample_for=("voltmeter",))
             row = {"scene": name, "mode": mode, "fps": fps if mode == "fixed" else None,
                    "bound_fraction": b, "span_s": span_s, "width": shape[1], "height": shape[0],
                    "pixel_samples_per_s": r["pixel_samples"] / span_s,
+                   "voltmeter_pixel_samples_per_s": rv["pixel_samples"] / span_s,
                    "renders": r["renders"], "rejected": r["rejected"], "forced": r["forced"],
-                   "render_s_per_s": r["render_s"] / span_s, "voltmeter_floor": floor}
-            for mk, rk in (("ideal", "ideal"), ("voltmeter", "voltmeter0")):
-                ev, rev = r["events"][rk], ref["events"][rk]
+                   "render_s_per_s": r["render_s"] / span_s,
+                   "voltmeter_render_s_per_s": rv["render_s"] / span_s, "voltmeter_floor": floor}
+            for mk, rk, rr in (("ideal", "ideal", r), ("voltmeter", "voltmeter0", rv)):
+                ev, rev = rr["events"][rk], ref["events"][rk]
                 row.update({f"{mk}_count_err": count_error(ev, rev, shape),
                             f"{mk}_t_err_us": timestamp_error(ev, rev, shape),
                             f"{mk}_on_frac": float(ev.p.mean()) if len(ev) else None,
                             f"{mk}_on_frac_ref": float(rev.p.mean()) if len(rev) else None,
                             f"{mk}_n": len(ev), f"{mk}_n_ref": len(rev),
-                            f"{mk}_s_per_s": (r["render_s"] + r["model_s"][rk]) / span_s})
+                            f"{mk}_s_per_s": (rr["render_s"] + rr["model_s"][rk]) / span_s})
             rows.append(row)
             label = f"{mode} {fps:.0f} fps" if mode == "fixed" else f"{mode} {b:g}θ"
             print(f"  {label:14s} {row['pixel_samples_per_s'] / 1e6:8.2f} M px/s  "
@@ -320,8 +330,9 @@ def report(df, extra: dict, footer: str = "") -> None:
     tile mode needs than fixed 2400 fps for the same ideal-model errors
     (count and time), and the whole command's cost on the demo."""
     cols = ["scene", "mode", "fps", "bound_fraction", "pixel_samples_per_s", "ideal_count_err",
-            "ideal_t_err_us", "voltmeter_count_err", "voltmeter_floor", "ideal_on_frac",
-            "voltmeter_on_frac", "render_s_per_s", "voltmeter_s_per_s"]
+            "ideal_t_err_us", "voltmeter_pixel_samples_per_s", "voltmeter_count_err",
+            "voltmeter_floor", "ideal_on_frac", "voltmeter_on_frac", "render_s_per_s",
+            "voltmeter_s_per_s"]
     print()
     print(df[cols].to_string(index=False, float_format="%.4g"))
     for name, (old_ms, new_ms) in extra["legacy"].items():
@@ -339,8 +350,13 @@ def report(df, extra: dict, footer: str = "") -> None:
             ok = t[(t["ideal_count_err"] <= base["ideal_count_err"]) & (t["ideal_t_err_us"] <= base["ideal_t_err_us"])]
             need = float(ok["pixel_samples_per_s"].min()) if len(ok) else float("nan")
         ratio = base["pixel_samples_per_s"] / need
-        heads.append(f"{name}: tile sampling needs {ratio:.1f}x fewer rendered pixels than fixed 2400 fps "
-                     f"at its ideal-model errors (target >= 5x: {'met' if ratio >= 5 else 'not met'})")
+        # DVS-Voltmeter: the cheapest tile run whose count error is no worse than fixed 2400's
+        okv = t[t["voltmeter_count_err"] <= base["voltmeter_count_err"]]
+        rv = (base["voltmeter_pixel_samples_per_s"] / okv["voltmeter_pixel_samples_per_s"].min()
+              if len(okv) else float("nan"))
+        heads.append(f"{name}: tile sampling needs {ratio:.1f}x (ideal) / {rv:.1f}x (DVS-Voltmeter) "
+                     f"fewer rendered pixels than fixed 2400 fps at its errors "
+                     f"(target >= 5x: {'met' if min(ratio, rv) >= 5 else 'not met'})")
     for name, w in extra.get("whole", {}).items():
         sps = w["wall_s"] / w["simulated_s"]
         heads.append(f"{name} whole `gs2e events` (default, full {w['simulated_s']:.2f} s trajectory): "
@@ -358,12 +374,13 @@ def plot(df, path: Path) -> None:
         for ax, col, lab in ((row[0], "ideal_count_err", "ideal: count error"),
                              (row[1], "ideal_t_err_us", "ideal: mean |t - t_ref| (us)"),
                              (row[2], "voltmeter_count_err", "DVS-Voltmeter: count error")):
+            xc = "voltmeter_pixel_samples_per_s" if col.startswith("voltmeter") else "pixel_samples_per_s"
             for mode, mk in (("fixed", "o-"), ("adaptive", "s-"), ("tile", "^-")):
-                h = g[g["mode"] == mode].sort_values("pixel_samples_per_s")
-                ax.plot(h["pixel_samples_per_s"], h[col], mk, label=mode)
+                h = g[g["mode"] == mode].sort_values(xc)
+                ax.plot(h[xc], h[col], mk, label=mode)
                 for _, r in h.iterrows():
                     ax.annotate(f"{r['fps']:.0f}" if mode == "fixed" else f"{r['bound_fraction']:g}θ",
-                                (r["pixel_samples_per_s"], r[col]), fontsize=7, xytext=(3, 3),
+                                (r[xc], r[col]), fontsize=7, xytext=(3, 3),
                                 textcoords="offset points")
             if col == "voltmeter_count_err":
                 ax.axhline(g["voltmeter_floor"].iloc[0], color="grey", ls=":", label="noise floor")

@@ -289,6 +289,15 @@ def _check_events(cfg: dict) -> None:
     lo, hi = e["theta_range"]
     if lo > hi:
         raise ConfigError(f"events.theta_range: low {lo:g} is larger than high {hi:g}")
+    if e["sensor"] == "custom":
+        if not e["sensor_file"]:
+            raise ConfigError("events.sensor=custom needs events.sensor_file (a sensor YAML)")
+        if not Path(e["sensor_file"]).is_file():
+            raise ConfigError(f"events.sensor_file: {e['sensor_file']} does not exist (relative "
+                              f"paths start at the working directory {Path.cwd()})")
+    elif e["sensor_file"]:
+        raise ConfigError(f"events.sensor_file is set but events.sensor is {e['sensor']!r} "
+                          "(set events.sensor: custom to use it)")
 
 
 def _check_metrics(cfg: dict) -> None:
@@ -354,8 +363,10 @@ def derive_seed(seed: int, scene_id: str, stage: str) -> int:
 
 
 def _type_str(sub: dict) -> str:
+    if "anyOf" in sub:
+        return " \\| ".join(f"`{a['const']}`" if "const" in a else _type_str(a) for a in sub["anyOf"])
     if "enum" in sub:
-        return " \\| ".join(f"`{v}`" for v in sub["enum"])
+        return " \\| ".join("`null`" if v is None else f"`{v}`" for v in sub["enum"])
     t = sub.get("type", "")
     t = " \\| ".join(t) if isinstance(t, list) else t
     rng = []

@@ -263,5 +263,13 @@ def test_video_source_and_presets_command(tmp_path, capsys):
     assert items[0][1].dtype == np.float32 and items[-1][1].mean() > items[1][1].mean()
     assert main(["events", str(path), "-o", str(tmp_path / "o"), "--set", "model=ideal"]) == 0
     assert main(["events-presets"]) == 0
-    rows = json.loads(capsys.readouterr().out)
-    assert {r["preset"] for r in rows} == {"dvs346", "dvs240", "gs2e_paper"}
+    out = json.loads(capsys.readouterr().out)
+    assert {r["preset"] for r in out["voltmeter_presets"]} == {"dvs346", "dvs240", "gs2e_paper"}
+    sensors = {s["name"]: s for s in out["sensors"]}
+    assert (sensors["imx636"]["width"]["value"], sensors["imx636"]["height"]["value"]) == (1280, 720)
+    # every value says where it comes from; nothing unpublished passes as measured
+    for s in sensors.values():
+        for k, v in s.items():
+            if isinstance(v, dict):
+                assert v["source"].split(":")[0] in ("datasheet resolution (REFERENCE.md section 9)",
+                                                     "assumed", "measured"), (s["name"], k)

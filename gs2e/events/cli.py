@@ -55,9 +55,12 @@ def register(subparsers) -> None:
     q.set_defaults(func=run_stats)
 
     r = subparsers.add_parser(
-        "events-presets", help="list the DVS-Voltmeter presets and their effective thresholds",
-        description="k1..k6 of each preset, their units, and the relative-intensity change "
-                    "dL/L that crosses a threshold theta at several luminances.")
+        "events-presets", help="list the target sensors and DVS-Voltmeter presets, with sources",
+        description="Target sensors (events.sensor): pixel array and pixel non-idealities, each "
+                    "value with its source (datasheet, paper, measured, or assumed). "
+                    "DVS-Voltmeter presets (events.preset): k1..k6, their units, and the "
+                    "relative-intensity change dL/L that crosses a threshold theta at several "
+                    "luminances.")
     r.add_argument("--theta", type=float, default=1.0, help="threshold (normalised voltage)")
     r.set_defaults(func=run_presets)
 
@@ -108,12 +111,17 @@ def run(args) -> int:
                              scale=args.scale, backend=args.backend, batch_frames=cfg["batch_frames"])
         extra = {"model_dir": str(args.model), "trajectory": str(args.trajectory),
                  "render": {"background": list(args.background), "scale": args.scale,
-                            "backend": args.backend}}
+                            "backend": args.backend}, "camera": src.camera}
     else:
         if not args.input:
             raise ConfigError("give INPUT (frames) or --model and --trajectory")
         src = open_frame_source(args.input, args.timestamps, args.fps, args.encoding, args.time_unit)
         extra = None
+        if cfg["sensor"] is not None:
+            from gs2e.events.frames import SensorFrames
+
+            src = SensorFrames(src, cfg)
+            extra = {"camera": src.camera}
     with timed(f"events {cfg['model']} on {src.name}", log):
         simulate_to_folder(src, cfg, args.out, args.seed, extra_meta=extra)
     if getattr(src, "stats", None) is not None:
@@ -152,9 +160,10 @@ def run_presets(args) -> int:
     import json
 
     from gs2e.events.presets import PRESETS, effective_threshold_report
+    from gs2e.events.sensors import sensor_table
 
     rows = effective_threshold_report(args.theta)
     for r in rows:
         r["k"] = list(PRESETS[r["preset"]].k)
-    print(json.dumps(rows, indent=2))
+    print(json.dumps({"sensors": sensor_table(), "voltmeter_presets": rows}, indent=2))
     return 0

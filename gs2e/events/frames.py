@@ -29,6 +29,7 @@ import numpy as np
 from gs2e.common.errors import InputError
 from gs2e.common.color import REC709 as _REC709, srgb_to_linear
 from gs2e.io.images import list_images
+from gs2e.events.sensors import fit_frame, fit_scale, get_sensor
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".exr", ".pgm", ".ppm")
 VIDEO_EXTS = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v")
@@ -246,3 +247,27 @@ def open_frame_source(path: str | Path, timestamps: str | Path | None = None,
         return VideoSource(p, fps, timestamps, encoding or "srgb", time_unit)
     raise InputError(f"{p}: unsupported frame input (folder of images, video "
                      f"{'/'.join(VIDEO_EXTS)}, or .npy/.npz)")
+
+
+class SensorFrames:
+    """A frame source as an ``events.sensor`` sees it: every frame scaled
+    about its centre to the sensor's pixel array (:func:`gs2e.events.sensors.fit_frame`)."""
+
+    def __init__(self, frames, events_cfg: dict):
+        self.src, self.fit = frames, events_cfg["sensor_fit"]
+        self.sensor = get_sensor(events_cfg)
+        self.width, self.height = self.sensor.size
+        self.name = getattr(frames, "name", "frames")
+        self.n_frames = getattr(frames, "n_frames", None)
+        self.shape = (self.height, self.width)
+        self.camera = {"width": self.width, "height": self.height, "sensor": self.sensor.name,
+                       "sensor_fit": self.fit, "input_shape": None, "scale": None}
+
+    def __iter__(self):
+        for t, f in self.src:
+            f = np.asarray(f)
+            if self.camera["input_shape"] is None and f.ndim == 2:
+                self.camera["input_shape"] = list(f.shape)
+                self.camera["scale"] = fit_scale(f.shape[1], f.shape[0], self.width,
+                                                       self.height, self.fit)
+            yield t, (fit_frame(f, self.width, self.height, self.fit) if f.ndim == 2 else f)

@@ -78,6 +78,7 @@ import numpy as np
 from gs2e.common.errors import InputError, ConfigError
 from gs2e.events import _kernels as K
 from gs2e.events.presets import Preset, get_preset
+from gs2e.events.sensors import resolve_noise
 
 log = logging.getLogger("gs2e.events")
 
@@ -580,12 +581,15 @@ def make_model(cfg: dict, shape: tuple[int, int], seed: int, source: str = "fram
     th_on, th_off = sample_sequence_theta(
         rng, cfg["theta_on"], cfg["theta_off"], cfg["theta_sampling"], cfg["theta_range"],
         cfg["theta_on_off_independent"])
-    sig = cfg["theta_mismatch_sigma"]
-    on_map = threshold_map(rng, shape, th_on, sig)
-    off_map = threshold_map(rng, shape, th_off, sig)
-    common = dict(theta_on=on_map, theta_off=off_map, refractory_us=cfg["refractory_us"],
-                  leak_rate_hz=cfg["leak_rate_hz"], shot_noise_rate_hz=cfg["shot_noise_rate_hz"],
-                  shot_noise_on_fraction=cfg["shot_noise_on_fraction"], seed=int(seed),
+    # a sensor's mismatch is relative: sigma scales with each polarity's threshold
+    noise_on, sources = resolve_noise(cfg, th_on)
+    noise_off, _ = resolve_noise(cfg, th_off)
+    on_map = threshold_map(rng, shape, th_on, noise_on["theta_mismatch_sigma"])
+    off_map = threshold_map(rng, shape, th_off, noise_off["theta_mismatch_sigma"])
+    common = dict(theta_on=on_map, theta_off=off_map, refractory_us=noise_on["refractory_us"],
+                  leak_rate_hz=noise_on["leak_rate_hz"],
+                  shot_noise_rate_hz=noise_on["shot_noise_rate_hz"],
+                  shot_noise_on_fraction=noise_on["shot_noise_on_fraction"], seed=int(seed),
                   max_events_per_pixel=cfg["max_events_per_pixel"], source=source)
     if cfg["model"] == "voltmeter":
         ko = {i: cfg.get(f"k{i}") for i in range(1, 7)}
@@ -597,5 +601,7 @@ def make_model(cfg: dict, shape: tuple[int, int], seed: int, source: str = "fram
         raise ConfigError(f"events.model: unknown model '{cfg['model']}'")
     info = {"theta_on_nominal": th_on, "theta_off_nominal": th_off,
             "theta_sampling": cfg["theta_sampling"], "theta_range": list(cfg["theta_range"]),
-            "theta_mismatch_sigma": sig}
+            "theta_mismatch_sigma": noise_on["theta_mismatch_sigma"],
+            "theta_mismatch_sigma_off": noise_off["theta_mismatch_sigma"],
+            "noise": noise_on, "noise_sources": sources}
     return model, info

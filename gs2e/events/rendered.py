@@ -23,6 +23,7 @@ import torch
 from gs2e.common.errors import ConfigError, InputError
 from gs2e.events.models import TileBatch
 from gs2e.events.presets import get_preset
+from gs2e.events.sensors import fit_camera, get_sensor
 from gs2e.events.sampling import (MODES, SamplerStats, TileSampler, adaptive_samples,
                                   image_luminance)
 from gs2e.splat.backend import resolve_backend
@@ -33,7 +34,8 @@ from gs2e.trajectory import fixed_times_us, load_trajectory
 
 
 def bound_log(events_cfg: dict) -> float:
-    """The sampling bound on the per-pixel change of log(L + log_eps):
+    """The sampling bound on the per-pixel change of log(L + eps), eps the
+    model's dark floor (:func:`sampling_log_eps`):
     ``sampling.bound_fraction`` x the smallest contrast threshold the config
     can draw (theta_on / theta_off, or the low end of theta_range), as a
     log-intensity step (voltmeter: log(1 + theta / k1), the bright-pixel
@@ -45,6 +47,19 @@ def bound_log(events_cfg: dict) -> float:
         k = {i + 1: events_cfg.get(f"k{i + 1}") for i in range(6)}
         theta = float(np.log1p(theta / get_preset(events_cfg["preset"], k).k[0]))
     return float(events_cfg["sampling"]["bound_fraction"]) * theta
+
+
+def sampling_log_eps(events_cfg: dict) -> float:
+    """The dark floor of the signal the sampling bound applies to: the event
+    model's own log signal. Ideal: log(L + log_eps). DVS-Voltmeter: its voltage
+    drifts at k1 d/dt log(L * scale + k2) (mu = k1 dL/dt / (L + k2)), so its
+    signal is log(L + k2 / scale), luminance L in [0, 1]: dark pixels, where
+    the ideal model's log swings widely, barely move its voltage."""
+    if events_cfg["model"] == "voltmeter":
+        k = {i + 1: events_cfg.get(f"k{i + 1}") for i in range(6)}
+        p = get_preset(events_cfg["preset"], k)
+        return float(p.k[1] / p.intensity_scale)
+    return float(events_cfg["log_eps"])
 
 
 class _GsplatRenderer:
@@ -95,11 +110,23 @@ class RenderedSource:
         self.traj = load_trajectory(trajectory_path)
         self.name = Path(trajectory_path).stem
         K = np.asarray(self.traj.K, np.float64)
-        W = max(1, int(round(self.traj.width * scale)))
-        H = max(1, int(round(self.traj.height * scale)))
-        sx, sy = W / self.traj.width, H / self.traj.height
-        self.K = np.array([[K[0, 0] * sx, 0, K[0, 2] * sx], [0, K[1, 1] * sy, K[1, 2] * sy], [0, 0, 1.0]])
+        sensor = get_sensor(events_cfg)
+        if sensor is not None:  # the sensor's pixel array; render.scale does not apply
+            W, H = sensor.size
+            self.K = fit_camera(K, self.traj.width, self.traj.height, W, H,
+                                events_cfg["sensor_fit"])
+        else:
+            W = max(1, int(round(self.traj.width * scale)))
+            H = max(1, int(round(self.traj.height * scale)))
+            sx, sy = W / self.traj.width, H / self.traj.height
+            self.K = np.array([[K[0, 0] * sx, 0, K[0, 2] * sx], [0, K[1, 1] * sy, K[1, 2] * sy],
+                               [0, 0, 1.0]])
         self.shape = (H, W)
+        self.camera = {"K": self.K.tolist(), "width": W, "height": H,
+                       "sensor": sensor.name if sensor else None,
+                       "sensor_fit": events_cfg["sensor_fit"] if sensor else None,
+                       "trajectory_camera": {"K": K.tolist(), "width": int(self.traj.width),
+                                             "height": int(self.traj.height)}}
         self.backend = resolve_backend(backend, "render.backend")
         cpu = ForwardRenderer(self.params, int(self.info["sh_degree"]), self.K[0, 0], self.K[1, 1],
                               self.K[0, 2], self.K[1, 2], W, H, background=background)
@@ -117,7 +144,7 @@ class RenderedSource:
         if self.t1_us <= self.t0_us:
             raise InputError(f"trajectory {self.name}: zero duration, nothing to simulate")
         self.bound = bound_log(events_cfg)
-        self.log_eps = float(events_cfg["log_eps"])
+        self.log_eps = sampling_log_eps(events_cfg)
         self.batch_frames = int(batch_frames)
         self.stats = SamplerStats()
         self.luminance = np.zeros(self.shape, np.float32)

@@ -35,6 +35,10 @@ def register(subparsers) -> None:
     p.add_argument("--layout", required=True, choices=LAYOUTS, help="source layout (see below)")
     p.add_argument("--src", required=True, metavar="PATH", help="source scene folder (or json for nerf)")
     p.add_argument("--out", required=True, metavar="DIR", help="output scene folder")
+    p.add_argument("--target-size", type=_size, metavar="WxH",
+                   help="the largest image the outputs need (the workflow passes the event "
+                        "sensor's array): with ingest.max_side=auto the views are shrunk to the "
+                        "smallest size that still covers it")
     add_config_args(p)
     p.set_defaults(func=run)
     _register_scenes(subparsers)
@@ -94,6 +98,16 @@ def run_scenes(args: argparse.Namespace) -> int:
     return 0
 
 
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WxH (e.g. 346x260), got {text!r}") from None
+    if w < 1 or h < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive WxH, got {text!r}")
+    return w, h
+
+
 def run(args: argparse.Namespace) -> int:
     from gs2e.config import load_section
     from gs2e.io.ingest import ingest_scene
@@ -101,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
     log = logging.getLogger("gs2e.ingest")
     cfg = load_section("ingest", text=args.config_json, path=args.config)
     log.info("ingest config: %s", cfg)
-    scene = ingest_scene(args.src, args.layout, args.out, cfg)
+    scene = ingest_scene(args.src, args.layout, args.out, cfg, target_size=args.target_size)
     log.info("scene %s: %d views %dx%d, poses=%s", args.out, len(scene.frames), scene.width,
              scene.height, scene.has_poses)
     return 0

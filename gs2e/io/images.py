@@ -125,6 +125,18 @@ def scaled_size(width: int, height: int, downscale: int = 1,
     return w, h
 
 
+def cover_max_side(width: int, height: int, target: tuple[int, int] | None) -> int | None:
+    """The smallest longer side at which a (width, height) image, scaled
+    uniformly, still covers a target (W, H) image at scale >= 1 (what a camera
+    fitted with ``cover`` renders from it); None when that needs the full size
+    or there is no target."""
+    if target is None:
+        return None
+    tw, th = target
+    side = int(math.ceil(max(tw / width, th / height) * max(width, height)))
+    return None if side >= max(width, height) else max(16, side)
+
+
 def resize_image(rgb: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """Resize (H, W, 3) to ``size`` = (W', H'): area filter when shrinking,
     bilinear when enlarging. Returns the input unchanged if the size matches."""

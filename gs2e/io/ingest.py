@@ -57,8 +57,8 @@ from gs2e.common.log import timed
 from gs2e.common.progress import progress
 from gs2e.io import colmap as colmap_io
 from gs2e.io import nerf as nerf_io
-from gs2e.io.images import (IMAGE_EXTS, decode_image, is_image_file, list_images,
-                            read_image_bytes, resize_image, resize_with_camera, scaled_size,
+from gs2e.io.images import (IMAGE_EXTS, cover_max_side, decode_image, is_image_file,
+                            list_images, read_image_bytes, resize_image, resize_with_camera, scaled_size,
                             write_png)
 from gs2e.io.scene import (IMAGES_DIR, SCENE_JSON, Camera, Frame, Scene, read_scene,
                            write_scene_json)
@@ -357,7 +357,7 @@ def _declared_to_actual(view: SourceView, actual: tuple[int, int]) -> tuple[Came
 
 
 def ingest_scene(src: str | os.PathLike, layout: str, out_dir: str | os.PathLike,
-                 cfg: dict | None = None) -> Scene:
+                 cfg: dict | None = None, target_size: tuple[int, int] | None = None) -> Scene:
     """Read the scene at ``src`` in ``layout`` and write the internal layout to ``out_dir``.
 
     Parameters
@@ -366,6 +366,9 @@ def ingest_scene(src: str | os.PathLike, layout: str, out_dir: str | os.PathLike
     layout : one of ``LAYOUTS``.
     out_dir : output folder; written atomically (replaced only on success).
     cfg : the ``ingest`` config section (defaults filled in if keys are missing).
+    target_size : (W, H) of the largest image the scene's outputs need (the event
+        sensor's array); with ``max_side: auto`` the views are shrunk to the
+        smallest size that still covers it (None: auto keeps the resolution).
 
     Returns
     -------
@@ -377,6 +380,9 @@ def ingest_scene(src: str | os.PathLike, layout: str, out_dir: str | os.PathLike
     mixed resolutions, invalid poses, fewer than 2 views; ConfigError for bad cfg.
     """
     cfg = _validated_cfg(cfg)
+    auto = cfg["max_side"] == "auto"
+    if auto:  # resolved on the first image's size
+        cfg["max_side"] = None
     if layout not in LAYOUTS:
         raise ConfigError(f"layout '{layout}' is not one of {', '.join(LAYOUTS)}")
     src = Path(src)
@@ -419,6 +425,11 @@ def ingest_scene(src: str | os.PathLike, layout: str, out_dir: str | os.PathLike
             cam, s0 = _declared_to_actual(v, (w, h))
             if first_size is None:
                 first_size = (w, h)
+                if auto:
+                    d = cfg["downscale"]
+                    cfg["max_side"] = cover_max_side(w / d, h / d, target_size)
+                    log.info("ingest.max_side=auto: %s (outputs need %s)", cfg["max_side"] or "full size",
+                             "x".join(map(str, target_size)) if target_size else "no more")
                 out_size = scaled_size(w, h, cfg["downscale"], cfg["max_side"])
             if (w, h) != first_size:
                 if not cfg["allow_mixed_resolutions"]:

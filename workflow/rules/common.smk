@@ -74,6 +74,19 @@ def train_runtime_min(wc, attempt):
     return attempt * max(30, -(-steps * TRAIN_MIN_PER_1000_STEPS // 1000))
 
 
+def ingest_target_arg(wc):
+    """--target-size for ingest.max_side=auto: the event sensor's array, the
+    largest image a scene's outputs need ('' when there is no sensor, or
+    max_side is set: then the sensor does not change the ingest job)."""
+    c = SCENE_CFG[wc.scene]
+    if c["ingest"]["max_side"] != "auto" or c["events"]["sensor"] is None:
+        return ""
+    from gs2e.events.sensors import get_sensor
+
+    w, h = get_sensor(c["events"]).size
+    return f"--target-size {w}x{h}"
+
+
 def scene_layout(wc):
     return SCENES[wc.scene]["layout"]
 

@@ -2,6 +2,8 @@ rule events:
     input:
         model=res("{scene}", "splat"),
         trajectories=res("{scene}", "trajectories"),
+        # a custom sensor's YAML: editing it reruns the scene's event jobs
+        sensor=lambda wc: SCENE_CFG[wc.scene]["events"]["sensor_file"] or [],
     output:
         report(directory(res("{scene}", "events", "{traj}")), patterns=["{video}.mp4"],
                category="Event previews", subcategory="{scene}",

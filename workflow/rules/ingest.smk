@@ -22,6 +22,7 @@ rule ingest:
         directory(res("{scene}", "ingest")),
     params:
         layout=scene_layout,
+        target=ingest_target_arg,
         cfg=stage_cfg("ingest"),
         code=code_version("ingest"),
     conda:
@@ -33,4 +34,4 @@ rule ingest:
     threads: 1
     shell:
         "python -m gs2e ingest --layout {params.layout} --src {input:q} --out {output:q}"
-        " --config-json {params.cfg:q} 2> {log:q}"
+        " {params.target} --config-json {params.cfg:q} 2> {log:q}"

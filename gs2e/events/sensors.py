@@ -1,0 +1,261 @@
+"""Target sensors: the camera an event stream is simulated for.
+
+A sensor preset (``events.sensor``) sets the virtual event camera -- its pixel
+array and a field of view fitted to the scene's camera -- and the pixel
+non-idealities the event models have: per-pixel threshold mismatch, refractory
+period and background activity (leak and shot noise). Every value carries its
+source; a value nobody has published or measured for that sensor is labelled
+``assumed`` and says where the number comes from.
+
+The contrast threshold itself stays the event model's (``events.preset``,
+``events.theta_on`` / ``theta_off``): the only published calibration of the
+DVS-Voltmeter model is the DAVIS346 one (k1..k6 of its public code), and the
+Prophesee datasheet figures are not public, so a sensor does not pretend to
+know its threshold. No gs2e event model has a photoreceptor low-pass, so no
+preset sets a bandwidth.
+
+Field of view (``events.sensor_fit``): the sensor camera is the trajectory's
+camera scaled uniformly about the image centre so that
+
+* ``cover``: the sensor image is filled (aspect mismatch crops the scene
+  camera's view; the default, no empty borders), or
+* ``contain``: the whole scene-camera view is inside the sensor image
+  (aspect mismatch leaves borders that see past the views' framing).
+
+Pixel coordinates are continuous with the image corner at (0, 0), the
+convention of the trajectory's K: a scene-camera point x maps to
+``s * x + (W_sensor - s * W) / 2``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from gs2e.common.errors import ConfigError, InputError
+
+# The pixel non-idealities a sensor sets, and their value without a sensor.
+NOISE_KEYS = {"theta_mismatch_sigma": 0.0, "refractory_us": 0.0, "leak_rate_hz": 0.0,
+              "shot_noise_rate_hz": 0.0, "shot_noise_on_fraction": 0.5}
+FITS = ("cover", "contain")
+
+_V2E = "assumed: v2e's default (REFERENCE.md section 9); not published for this sensor"
+_MISMATCH = ("assumed: 15 % of the threshold, as DVS128's 2.1 % contrast mismatch at a ~15 % "
+             "threshold (Lichtsteiner et al., JSSC 2008) and v2e's 0.03 around 0.2")
+_REFRACTORY = "assumed: ESIM's and IEBCS's default 100 us (REFERENCE.md section 9)"
+
+
+@dataclass(frozen=True)
+class Sourced:
+    """A preset value and where it comes from."""
+
+    value: float | int | None
+    source: str
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """An event camera: pixel array and pixel non-idealities, each sourced.
+
+    ``theta_mismatch_rel`` is the per-pixel threshold std as a fraction of the
+    nominal threshold (so it holds for any model's threshold units); rates in
+    events per pixel per second; ``refractory_us`` in microseconds.
+    """
+
+    name: str
+    description: str
+    width: Sourced
+    height: Sourced
+    theta_mismatch_rel: Sourced
+    refractory_us: Sourced
+    leak_rate_hz: Sourced
+    shot_noise_rate_hz: Sourced
+    shot_noise_on_fraction: Sourced
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) in pixels."""
+        return int(self.width.value), int(self.height.value)
+
+    def to_dict(self) -> dict:
+        out = {"name": self.name, "description": self.description}
+        for k in ("width", "height", "theta_mismatch_rel", "refractory_us", "leak_rate_hz",
+                  "shot_noise_rate_hz", "shot_noise_on_fraction"):
+            v = getattr(self, k)
+            out[k] = {"value": v.value, "source": v.source}
+        out.update(self.extra)
+        return out
+
+
+def _sensor(name, description, w, h, size_source, ba=None, ba_on=None, **extra) -> Sensor:
+    return Sensor(
+        name, description, Sourced(w, size_source), Sourced(h, size_source),
+        Sourced(0.15, _MISMATCH), Sourced(100.0, _REFRACTORY),
+        Sourced(0.01, _V2E + " (leak 0.01 Hz)"),
+        ba or Sourced(0.001, _V2E + " (shot noise 0.001 Hz)"),
+        ba_on or Sourced(0.5, "assumed: balanced ON/OFF background activity"), dict(extra))
+
+
+_RES = "datasheet resolution (REFERENCE.md section 9)"
+SENSORS: dict[str, Sensor] = {
+    "davis346": _sensor("davis346", "iniVation DAVIS346 (DVS + APS)", 346, 260, _RES),
+    "dvxplorer": _sensor(
+        "dvxplorer", "iniVation DVXplorer", 640, 480, _RES,
+        ba=Sourced(0.56, "measured: background activity of ../shared/data/events/"
+                         "dvxplorer_sample.aedat4 (a DVXplorer recording, 320x240 readout; "
+                         "scene-dependent; gs2e events-stats)"),
+        ba_on=Sourced(0.54, "measured: ON fraction of the isolated events of the same recording")),
+    "prophesee_gen3": _sensor("prophesee_gen3", "Prophesee Gen3 VGA (CD)", 640, 480, _RES),
+    "imx636": _sensor("imx636", "Sony IMX636 / Prophesee Gen4 HD", 1280, 720, _RES),
+}
+
+
+def load_sensor_file(path: str | Path) -> Sensor:
+    """A ``custom`` sensor from YAML: ``width`` and ``height`` (required) and
+    any of ``theta_mismatch_rel``, ``refractory_us``, ``leak_rate_hz``,
+    ``shot_noise_rate_hz``, ``shot_noise_on_fraction``; each a number or
+    ``{value: ..., source: ...}``. Missing values are 0 (0.5 for the ON
+    fraction), labelled as such. ``gs2e events-stats --write-preset`` writes
+    this layout."""
+    import yaml
+
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise InputError(f"{path}: cannot read the sensor file ({exc})") from exc
+    if not isinstance(doc, dict):
+        raise InputError(f"{path}: a sensor file is a YAML mapping")
+
+    def val(key, default=None):
+        v = doc.get(key)
+        if v is None:
+            if default is None:
+                raise InputError(f"{path}: sensor file lacks '{key}'")
+            return Sourced(default, f"not in {path.name}: gs2e's default")
+        if isinstance(v, dict):
+            if "value" not in v:
+                raise InputError(f"{path}: '{key}' needs a 'value'")
+            src, v = str(v.get("source", f"custom sensor file {path.name}")), v["value"]
+        else:
+            src = f"custom sensor file {path.name}"
+        try:
+            v = float(v)
+        except (TypeError, ValueError):
+            raise InputError(f"{path}: '{key}' must be a number, got {v!r}") from None
+        if not np.isfinite(v) or v < 0:
+            raise InputError(f"{path}: '{key}' must be finite and >= 0, got {v}")
+        return Sourced(v, src)
+
+    w, h = val("width"), val("height")
+    for s in (w, h):
+        if s.value < 1 or s.value != int(s.value):
+            raise InputError(f"{path}: width and height must be positive integers")
+    on = val("shot_noise_on_fraction", 0.5)
+    if on.value > 1:
+        raise InputError(f"{path}: 'shot_noise_on_fraction' must be in [0, 1]")
+    return Sensor(str(doc.get("name", path.stem)), str(doc.get("description", f"custom ({path.name})")),
+                  Sourced(int(w.value), w.source), Sourced(int(h.value), h.source),
+                  val("theta_mismatch_rel", 0.0), val("refractory_us", 0.0),
+                  val("leak_rate_hz", 0.0), val("shot_noise_rate_hz", 0.0), on)
+
+
+def get_sensor(events_cfg: dict) -> Sensor | None:
+    """The sensor an ``events`` config section asks for (None: no sensor)."""
+    name = events_cfg.get("sensor")
+    if name is None:
+        return None
+    if name == "custom":
+        if not events_cfg.get("sensor_file"):
+            raise ConfigError("events.sensor=custom needs events.sensor_file (a sensor YAML)")
+        return load_sensor_file(events_cfg["sensor_file"])
+    try:
+        return SENSORS[name]
+    except KeyError:
+        raise ConfigError(f"events.sensor: unknown sensor '{name}' "
+                          f"(choose from {', '.join([*SENSORS, 'custom'])})") from None
+
+
+def resolve_noise(events_cfg: dict, theta_nominal: float) -> tuple[dict, dict]:
+    """The pixel non-idealities the models get: an explicit config value wins,
+    then the sensor's, then none (0; ON fraction 0.5).
+
+    Returns (values, sources): ``values`` maps each key of :data:`NOISE_KEYS`
+    to a float (``theta_mismatch_sigma`` in the model's threshold units, the
+    sensor's relative mismatch x ``theta_nominal``); ``sources`` says where
+    each came from.
+    """
+    sensor = get_sensor(events_cfg)
+    values, sources = {}, {}
+    for key, default in NOISE_KEYS.items():
+        if events_cfg.get(key) is not None:
+            values[key], sources[key] = float(events_cfg[key]), "config"
+        elif sensor is not None:
+            if key == "theta_mismatch_sigma":
+                s = sensor.theta_mismatch_rel
+                values[key] = float(s.value) * float(theta_nominal)
+            else:
+                s = getattr(sensor, key)
+                values[key] = float(s.value)
+            sources[key] = f"sensor {sensor.name}: {s.source}"
+        else:
+            values[key], sources[key] = default, "default (no sensor)"
+    return values, sources
+
+
+def fit_scale(width: int, height: int, sensor_w: int, sensor_h: int, fit: str = "cover") -> float:
+    """Uniform scale from a (width, height) camera image to the sensor's."""
+    if fit not in FITS:
+        raise ConfigError(f"events.sensor_fit must be one of {FITS}, got {fit!r}")
+    sx, sy = sensor_w / width, sensor_h / height
+    return max(sx, sy) if fit == "cover" else min(sx, sy)
+
+
+def fit_camera(K: np.ndarray, width: int, height: int, sensor_w: int, sensor_h: int,
+               fit: str = "cover") -> np.ndarray:
+    """Intrinsics (3, 3) of the sensor camera fitted to a scene camera K of a
+    (width, height) image: same centre of view, uniform scale (square pixels
+    stay square), the sensor's pixel array. See the module docstring."""
+    s = fit_scale(width, height, sensor_w, sensor_h, fit)
+    K = np.asarray(K, np.float64)
+    return np.array([[K[0, 0] * s, 0.0, K[0, 2] * s + (sensor_w - s * width) / 2],
+                     [0.0, K[1, 1] * s, K[1, 2] * s + (sensor_h - s * height) / 2],
+                     [0.0, 0.0, 1.0]])
+
+
+def fit_frame(frame: np.ndarray, sensor_w: int, sensor_h: int, fit: str = "cover") -> np.ndarray:
+    """A (H, W) frame as the sensor sees it: scaled uniformly about the centre
+    (area filter when shrinking), cropped (cover) or padded with zeros
+    (contain) to (sensor_h, sensor_w); the same geometry as :func:`fit_camera`."""
+    import cv2
+
+    H, W = frame.shape
+    s = fit_scale(W, H, sensor_w, sensor_h, fit)
+    # output pixel centre u + 0.5 samples input x = (u + 0.5 - ox) / s - 0.5 (pixel-centre grid)
+    ox, oy = (sensor_w - s * W) / 2, (sensor_h - s * H) / 2
+    M = np.array([[s, 0.0, ox + 0.5 * s - 0.5], [0.0, s, oy + 0.5 * s - 0.5]])
+    src = np.ascontiguousarray(frame, dtype=np.float32)
+    if s < 1:  # integrate over the footprint first: plain warping would alias
+        k = int(np.floor(1 / s))
+        if k > 1:
+            src = cv2.resize(src, (max(1, W // k), max(1, H // k)), interpolation=cv2.INTER_AREA)
+            fx, fy = W / src.shape[1], H / src.shape[0]
+            M = M @ np.array([[fx, 0.0, 0.5 * fx - 0.5], [0.0, fy, 0.5 * fy - 0.5], [0, 0, 1.0]])
+    # edge pixels replicate (a centre within half a pixel of the image edge is still
+    # inside the view); what lies outside the view (contain's borders) is black
+    out = cv2.warpAffine(src, M, (sensor_w, sensor_h), flags=cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_REPLICATE)
+    if fit == "contain":
+        u = (np.arange(sensor_w) + 0.5 - ox) / s
+        v = (np.arange(sensor_h) + 0.5 - oy) / s
+        out[(v < 0) | (v > H)] = 0.0
+        out[:, (u < 0) | (u > W)] = 0.0
+    return out
+
+
+def sensor_table() -> list[dict]:
+    """Every built-in sensor with each value's source (``gs2e events-presets``)."""
+    return [s.to_dict() for s in SENSORS.values()]
