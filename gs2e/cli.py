@@ -53,6 +53,17 @@ def add_config_args(p: argparse.ArgumentParser) -> None:
                    help="a full gs2e config file; its section for this stage is used")
 
 
+def size_arg(text: str) -> tuple[int, int]:
+    """argparse type for a pixel array 'WxH' (e.g. 346x260)."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WxH (e.g. 346x260), got {text!r}") from None
+    if w < 1 or h < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive WxH, got {text!r}")
+    return w, h
+
+
 def _register_config(sub) -> None:
     p = sub.add_parser("config", help="validate a config file or print the config reference",
                        description="Validate a config (and its scenes table) or print "

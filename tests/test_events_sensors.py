@@ -129,6 +129,8 @@ def test_frames_simulated_at_the_sensor_size(tmp_path):
     out = tmp_path / "o"
     assert main(["events", str(tmp_path / "f.npy"), "--fps", "1000", "-o", str(out),
                  "--set", "sensor=davis346", "--set", "model=ideal", "--set", "preview=false"]) == 0
+    import hdf5plugin  # noqa: F401  (blosc, the default compression)
+
     with h5py.File(out / "events.h5") as h:
         assert (h.attrs["width"], h.attrs["height"]) == (346, 260)
         x, y = h["events/x"][:], h["events/y"][:]
@@ -212,3 +214,28 @@ def test_sampling_signal_is_the_models_own():
     assert sampling_log_eps(_events_cfg(model="voltmeter")) == pytest.approx(20.0 / 255.0)
     assert sampling_log_eps(_events_cfg(model="voltmeter", k2=51.0)) == pytest.approx(0.2)
     assert sampling_log_eps(_events_cfg(model="voltmeter", preset="gs2e_paper")) == pytest.approx(1e-3)
+
+
+def test_frames_and_events_share_the_sensor_camera(tmp_path):
+    """gs2e render --sensor-size renders the dataset frames through the camera
+    the event stage uses for the same sensor: same array, same intrinsics."""
+    import cv2
+    import pandas as pd
+    from test_render import _plane_model, _straight_trajectory
+
+    from gs2e.cli import main
+    from gs2e.events.rendered import RenderedSource
+
+    model, traj = _plane_model(tmp_path), _straight_trajectory(tmp_path, 0.2)
+    f = tmp_path / "s.yaml"
+    f.write_text("width: 96\nheight: 90\n")
+    out = tmp_path / "frames"
+    assert main(["render", "--model", str(model), "--trajectory", str(traj), "--out", str(out),
+                 "--sensor-size", "96x90", "--config-json",
+                 '{"fps": 50, "exposure_us": 2000, "write_depth": false, "scale": 0.5}']) == 0
+    fr = pd.read_parquet(out / "frames.parquet")
+    assert set(fr["width"]) == {96} and set(fr["height"]) == {90}  # scale does not apply
+    ev = RenderedSource(model, traj, _events_cfg(sensor="custom", sensor_file=str(f)))
+    K = np.array([[fr["fx"][0], 0, fr["cx"][0]], [0, fr["fy"][0], fr["cy"][0]], [0, 0, 1]])
+    assert np.allclose(K, ev.K)
+    assert cv2.imread(str(sorted((out / "rgb").iterdir())[0])).shape == (90, 96, 3)

@@ -90,6 +90,7 @@ def test_events_outside_the_repository(installed, tmp_path):
                 "--set", "model=ideal", "--set", "preview=false"], tmp_path, env)
     assert proc.returncode == 0, proc.stderr[-3000:]
     import h5py
+    import hdf5plugin  # noqa: F401  (blosc, the default compression)
 
     with h5py.File(tmp_path / "out" / "events.h5") as f:
         n = len(f["events/t"])

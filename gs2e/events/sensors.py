@@ -22,9 +22,9 @@ camera scaled uniformly about the image centre so that
 * ``contain``: the whole scene-camera view is inside the sensor image
   (aspect mismatch leaves borders that see past the views' framing).
 
-Pixel coordinates are continuous with the image corner at (0, 0), the
-convention of the trajectory's K: a scene-camera point x maps to
-``s * x + (W_sensor - s * W) / 2``.
+The geometry is :mod:`gs2e.common.camera`'s; the render stage renders the
+dataset frames through the same fitted camera, so frames and events share
+one camera.
 """
 
 from __future__ import annotations
@@ -34,12 +34,12 @@ from pathlib import Path
 
 import numpy as np
 
+from gs2e.common.camera import FITS, fit_camera, fit_scale  # noqa: F401 (the sensor's camera)
 from gs2e.common.errors import ConfigError, InputError
 
 # The pixel non-idealities a sensor sets, and their value without a sensor.
 NOISE_KEYS = {"theta_mismatch_sigma": 0.0, "refractory_us": 0.0, "leak_rate_hz": 0.0,
               "shot_noise_rate_hz": 0.0, "shot_noise_on_fraction": 0.5}
-FITS = ("cover", "contain")
 
 _V2E = "assumed: v2e's default (REFERENCE.md section 9); not published for this sensor"
 _MISMATCH = ("assumed: 15 % of the threshold, as DVS128's 2.1 % contrast mismatch at a ~15 % "
@@ -204,26 +204,6 @@ def resolve_noise(events_cfg: dict, theta_nominal: float) -> tuple[dict, dict]:
         else:
             values[key], sources[key] = default, "default (no sensor)"
     return values, sources
-
-
-def fit_scale(width: int, height: int, sensor_w: int, sensor_h: int, fit: str = "cover") -> float:
-    """Uniform scale from a (width, height) camera image to the sensor's."""
-    if fit not in FITS:
-        raise ConfigError(f"events.sensor_fit must be one of {FITS}, got {fit!r}")
-    sx, sy = sensor_w / width, sensor_h / height
-    return max(sx, sy) if fit == "cover" else min(sx, sy)
-
-
-def fit_camera(K: np.ndarray, width: int, height: int, sensor_w: int, sensor_h: int,
-               fit: str = "cover") -> np.ndarray:
-    """Intrinsics (3, 3) of the sensor camera fitted to a scene camera K of a
-    (width, height) image: same centre of view, uniform scale (square pixels
-    stay square), the sensor's pixel array. See the module docstring."""
-    s = fit_scale(width, height, sensor_w, sensor_h, fit)
-    K = np.asarray(K, np.float64)
-    return np.array([[K[0, 0] * s, 0.0, K[0, 2] * s + (sensor_w - s * width) / 2],
-                     [0.0, K[1, 1] * s, K[1, 2] * s + (sensor_h - s * height) / 2],
-                     [0.0, 0.0, 1.0]])
 
 
 def fit_frame(frame: np.ndarray, sensor_w: int, sensor_h: int, fit: str = "cover") -> np.ndarray:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 
-from gs2e.cli import add_config_args
+from gs2e.cli import add_config_args, size_arg
 
 LAYOUT_HELP = """layouts:
   demo, internal  a gs2e scene folder (scene.json + images/ [+ points3d.npz])
@@ -35,7 +35,7 @@ def register(subparsers) -> None:
     p.add_argument("--layout", required=True, choices=LAYOUTS, help="source layout (see below)")
     p.add_argument("--src", required=True, metavar="PATH", help="source scene folder (or json for nerf)")
     p.add_argument("--out", required=True, metavar="DIR", help="output scene folder")
-    p.add_argument("--target-size", type=_size, metavar="WxH",
+    p.add_argument("--target-size", type=size_arg, metavar="WxH",
                    help="the largest image the outputs need (the workflow passes the event "
                         "sensor's array): with ingest.max_side=auto the views are shrunk to the "
                         "smallest size that still covers it")
@@ -96,16 +96,6 @@ def run_scenes(args: argparse.Namespace) -> int:
     log.info("wrote %s: %d scenes (%s)%s", args.out, len(rows), ", ".join(summary),
              "; folders not checked" if args.no_check else "")
     return 0
-
-
-def _size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WxH (e.g. 346x260), got {text!r}") from None
-    if w < 1 or h < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive WxH, got {text!r}")
-    return w, h
 
 
 def run(args: argparse.Namespace) -> int:

@@ -6,7 +6,7 @@ import argparse
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from gs2e.cli import add_config_args
+    from gs2e.cli import add_config_args, size_arg
 
     p = sub.add_parser(
         "render", help="sharp and motion-blurred frames, depth and alpha along a trajectory",
@@ -19,6 +19,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scene-id", default=None)
     p.add_argument("--threads", type=int, default=None,
                    help="CPU threads (default or -1: the CPUs this process may use)")
+    p.add_argument("--sensor-size", type=size_arg, metavar="WxH",
+                   help="render through the event sensor's camera: this pixel array, fitted to "
+                        "the trajectory's camera (the workflow passes events.sensor's; "
+                        "render.scale does not apply)")
+    p.add_argument("--sensor-fit", default="cover", choices=["cover", "contain"],
+                   help="how the sensor's view is fitted (events.sensor_fit; default cover)")
     add_config_args(p)
     p.set_defaults(func=run)
 
@@ -30,5 +36,6 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = load_section("render", args.config_json, args.config)
     set_threads(args.threads)
-    render_dataset(args.model, args.trajectory, args.out, cfg, scene_id=args.scene_id)
+    render_dataset(args.model, args.trajectory, args.out, cfg, scene_id=args.scene_id,
+                   sensor=(args.sensor_size, args.sensor_fit) if args.sensor_size else None)
     return 0

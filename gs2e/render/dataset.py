@@ -36,8 +36,13 @@ def check_render_config(cfg: dict) -> None:
 
 
 def render_dataset(model_dir: str | Path, trajectory_path: str | Path, out_dir: str | Path,
-                   cfg: dict, scene_id: str | None = None) -> dict[str, Any]:
+                   cfg: dict, scene_id: str | None = None,
+                   sensor: tuple[tuple[int, int], str] | None = None) -> dict[str, Any]:
     """Render the dataset frames of one trajectory into ``out_dir`` (atomic).
+
+    ``sensor``: ((W, H), fit) of the event sensor's camera to render through
+    instead of the trajectory's (x render.scale), so frames and events share
+    one camera (see :mod:`gs2e.common.camera`).
 
     Layout: ``rgb/NNNNNN.png`` (sharp, at the frame time), ``blur/NNNNNN.png``
     (average over ``exposure_us`` centred on the same time, in linear light),
@@ -61,7 +66,7 @@ def render_dataset(model_dir: str | Path, trajectory_path: str | Path, out_dir: 
     check_render_config(cfg)
     t_start = time.perf_counter()
     r = TrajectoryRenderer(model_dir, trajectory_path, cfg["background"], cfg["scale"],
-                           cfg["backend"])
+                           cfg["backend"], sensor=sensor)
     if np.any(np.diff(r.traj.t_us) <= 0):
         raise InputError(f"{trajectory_path}: timestamps are not strictly increasing")
     times = fixed_times_us(r.t0_us, r.t1_us, cfg["fps"])

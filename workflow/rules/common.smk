@@ -74,17 +74,33 @@ def train_runtime_min(wc, attempt):
     return attempt * max(30, -(-steps * TRAIN_MIN_PER_1000_STEPS // 1000))
 
 
+def sensor_size(sid):
+    """The event sensor's pixel array 'WxH' of a scene (None: no sensor)."""
+    ev = SCENE_CFG[sid]["events"]
+    if ev["sensor"] is None:
+        return None
+    from gs2e.events.sensors import get_sensor
+
+    w, h = get_sensor(ev).size
+    return f"{w}x{h}"
+
+
 def ingest_target_arg(wc):
     """--target-size for ingest.max_side=auto: the event sensor's array, the
     largest image a scene's outputs need ('' when there is no sensor, or
     max_side is set: then the sensor does not change the ingest job)."""
-    c = SCENE_CFG[wc.scene]
-    if c["ingest"]["max_side"] != "auto" or c["events"]["sensor"] is None:
+    size = sensor_size(wc.scene)
+    if SCENE_CFG[wc.scene]["ingest"]["max_side"] != "auto" or size is None:
         return ""
-    from gs2e.events.sensors import get_sensor
+    return f"--target-size {size}"
 
-    w, h = get_sensor(c["events"]).size
-    return f"--target-size {w}x{h}"
+
+def render_sensor_arg(wc):
+    """Frames through the event sensor's camera, so frames and events share it."""
+    size = sensor_size(wc.scene)
+    if size is None:
+        return ""
+    return f"--sensor-size {size} --sensor-fit {SCENE_CFG[wc.scene]['events']['sensor_fit']}"
 
 
 def scene_layout(wc):

@@ -6,6 +6,8 @@ rule render:
         directory(res("{scene}", "frames", "{traj}")),
     params:
         cfg=stage_cfg("render"),
+        # the event sensor's camera (events.sensor), so frames and events share it
+        sensor=render_sensor_arg,
         code=code_version("render"),
         trajectory=lambda wc, input: str(Path(input.trajectories, f"{wc.traj}.npz")),
     conda:
@@ -20,5 +22,5 @@ rule render:
         runtime=lambda wc, attempt: 120 * attempt,
     shell:
         "python -m gs2e render --model {input.model:q} --trajectory {params.trajectory:q}"
-        " --out {output:q} --threads {threads} --scene-id {wildcards.scene}"
+        " --out {output:q} --threads {threads} --scene-id {wildcards.scene} {params.sensor}"
         " --config-json {params.cfg:q} 2> {log:q}"

@@ -1,0 +1,37 @@
+"""Fitting one pinhole camera to another's image: uniform scale about the
+image centre, so that a target pixel array is filled (``cover``: an aspect
+mismatch crops) or holds the whole view (``contain``: it leaves borders).
+
+Pixel coordinates are continuous with the image corner at (0, 0), the
+convention of gs2e's intrinsics: a point x of the (width, height) image maps
+to ``s * x + (W_target - s * width) / 2``. Used by the event stage (a
+sensor's array) and the render stage (frames from the same camera).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gs2e.common.errors import ConfigError
+
+FITS = ("cover", "contain")
+
+
+def fit_scale(width: float, height: float, target_w: int, target_h: int, fit: str = "cover") -> float:
+    """Uniform scale from a (width, height) camera image to a target array."""
+    if fit not in FITS:
+        raise ConfigError(f"sensor fit must be one of {FITS}, got {fit!r}")
+    sx, sy = target_w / width, target_h / height
+    return max(sx, sy) if fit == "cover" else min(sx, sy)
+
+
+def fit_camera(K: np.ndarray, width: int, height: int, target_w: int, target_h: int,
+               fit: str = "cover") -> np.ndarray:
+    """Intrinsics (3, 3) of a camera with a (target_w, target_h) array fitted
+    to the camera K of a (width, height) image: same centre of view, uniform
+    scale (square pixels stay square)."""
+    s = fit_scale(width, height, target_w, target_h, fit)
+    K = np.asarray(K, np.float64)
+    return np.array([[K[0, 0] * s, 0.0, K[0, 2] * s + (target_w - s * width) / 2],
+                     [0.0, K[1, 1] * s, K[1, 2] * s + (target_h - s * height) / 2],
+                     [0.0, 0.0, 1.0]])
