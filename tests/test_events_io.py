@@ -10,7 +10,7 @@ import pytest
 
 from gs2e.cli import main
 from gs2e.common.errors import InputError
-from gs2e.events.io import (H5EventSlicer, H5EventWriter, read_aedat4, read_h5, read_npz, read_text,
+from gs2e.events.io import (H5EventSlicer, H5EventWriter, read_events, read_h5, read_npz, read_text,
                             write_npz, write_text)
 from gs2e.events.models import Events
 from gs2e.events.represent import event_frame, voxel_grid, write_preview
@@ -158,7 +158,7 @@ def test_stats_and_accumulator_agree():
 
 @pytest.mark.skipif(not AEDAT.exists(), reason="../shared/data/events/dvxplorer_sample.aedat4 absent")
 def test_real_recording_stats_and_calibration():
-    ev, shape = read_aedat4(AEDAT)
+    ev, shape = read_events(AEDAT)
     assert shape == (240, 320) and len(ev) == 111_954
     assert np.all(np.diff(ev.t) >= 0)
     s = event_stats(ev, shape)
