@@ -14,7 +14,8 @@ def register(subparsers) -> None:
         description="Simulate events (DVS-Voltmeter or ideal model) from a folder of images "
                     "(+ timestamps file or --fps), a video, or a .npy/.npz array. Writes OUT/ "
                     "with events.h5 (DSEC layout), stats.json and optional preview.mp4, "
-                    "events.txt, events.npz.")
+                    "events.txt, events.npz and, with --set containers=[aedat4,evt2,dat], "
+                    "events.aedat4 / events.raw (EVT2) / events.dat.")
     p.add_argument("input", nargs="?", help="folder of images, video file, or .npy/.npz frames "
                    "(omit with --model/--trajectory)")
     p.add_argument("--model", help="gs2e train output: render the frames on demand (workflow mode)")

@@ -73,8 +73,9 @@ class ContainerWriter:
     """Streaming writer of one container file (use as a context manager).
 
     ``append(events)`` takes time-sorted :class:`Events` batches (absolute us,
-    t >= 0, x < width, y < height); the file appears at ``path`` only when the
-    context exits without error (a temporary beside it is removed otherwise).
+    t >= 0, x < width, y < height; unsorted input is a ValueError, data the
+    format cannot hold an InputError); the file appears at ``path`` only when
+    the context exits without error (a temporary beside it is removed otherwise).
 
     Parameters
     ----------
@@ -127,15 +128,17 @@ class ContainerWriter:
         # first time as unsigned, so an earlier event would wrap to ~2^64 us
         if (self.t_last is not None and t[0] < self.t_last) or np.any(t[1:] < t[:-1]):
             raise ValueError(f"{self.path}: events must be appended in time order")
+        # what the data asks of the format: InputError, like any input that does not fit
         if t[0] < 0:
-            raise ValueError(f"{self.path}: {self.kind} cannot store negative times (t = {t[0]} us)")
+            raise InputError(f"{self.path}: {self.kind} cannot store negative times (t = {t[0]} us)")
         if self.t_first is None:
             self.t_first = int(t[0])
         if self.kind == "dat" and t[-1] - self.t_first >= DAT_MAX_SPAN_US:
-            raise ValueError(f"{self.path}: DAT times span at most 2^32 us from the first event, "
+            raise InputError(f"{self.path}: DAT times span at most 2^32 us from the first event, "
                              f"got {t[-1] - self.t_first} us")
         if int(ev.x.max()) >= self.width or int(ev.y.max()) >= self.height:
-            raise ValueError(f"{self.path}: event outside the {self.width}x{self.height} sensor")
+            raise InputError(f"{self.path}: event at x={int(ev.x.max())} or y={int(ev.y.max())} "
+                             f"outside the {self.width}x{self.height} sensor")
         a = np.empty(n, _DAT_DTYPE if self.kind == "dat" else _FAERY_DTYPE)
         a["t"], a["x"], a["y"] = t, ev.x, ev.y
         a["payload" if self.kind == "dat" else "on"] = ev.p != 0
