@@ -10,7 +10,7 @@ import faery
 import numpy as np
 import pytest
 
-from conftest import shared_data
+from tests.conftest import shared_data
 from gs2e.cli import main
 from gs2e.common.errors import InputError
 from gs2e.events.containers import (CONTAINERS, ContainerWriter, read_container,

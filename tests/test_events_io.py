@@ -8,7 +8,7 @@ import h5py
 import numpy as np
 import pytest
 
-from conftest import shared_data
+from tests.conftest import shared_data
 from gs2e.cli import main
 from gs2e.common.errors import InputError
 from gs2e.events.io import (H5EventSlicer, H5EventWriter, read_events, read_h5, read_npz, read_text,
