@@ -337,6 +337,8 @@ def main() -> None:
               f"{r['sensor_size']:>9}  {r['identical']}{'  (' + r['note'] + ')' if r['note'] else ''}")
 
     plt = pyplot()
+    from matplotlib.ticker import FormatStrFormatter, NullFormatter
+
     timed = [r for r in rows if r["meps"] and r["op"] in ("read", "write") and r["data"] == "synthetic"]
     fig, axes = plt.subplots(1, 2, figsize=(12, 5), sharey=False)
     for ax, op in zip(axes, ("read", "write")):
@@ -345,9 +347,13 @@ def main() -> None:
         colors = ["tab:green" if r["identical"] == "yes" else "tab:red" for r in rs]
         ax.barh(labels, [r["meps"] for r in rs], color=colors)
         ax.set_xscale("log")
+        ax.xaxis.set_major_formatter(FormatStrFormatter("%g"))
+        ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_xlabel("M events / s (log)")
-        ax.set_title(f"{op} ({n / 1e6:g} M synthetic events; green = identical events back)")
+        ax.set_title(op)
         ax.invert_yaxis()
+    fig.suptitle(f"{n / 1e6:g} M synthetic events, 1280x720; green = identical events back, "
+                 "red = not (see the CSV's 'identical' column)")
     fig.tight_layout()
     fig.savefig(RESULTS / "bench_event_io.png", dpi=120)
 
