@@ -223,12 +223,19 @@ def _refractory(ev: Events, W: int, q: float, n_boot: int, rng) -> tuple[float, 
     iei_sorted = iei[srt]
     # each pixel's IEIs enter a resample as often as the pixel is drawn
     pixels, owner_idx = np.unique(owner[srt], return_inverse=True)
+    n_per_pixel = np.bincount(owner_idx, minlength=pixels.size)
     value = float(np.quantile(iei_sorted, q, method="inverted_cdf"))
+    # a low quantile lies among the shortest intervals: cumulate those only
+    # (all of them where a resample's quantile falls further out)
+    m = min(iei.size, max(1000, int(50 * q * iei.size)))
     boot = np.empty(n_boot)
     for b in range(n_boot):
         draws = np.bincount(rng.integers(0, pixels.size, pixels.size), minlength=pixels.size)
-        cw = np.cumsum(draws[owner_idx])
-        boot[b] = iei_sorted[np.searchsorted(cw, q * cw[-1], side="left")]
+        target = q * float(draws @ n_per_pixel)
+        cw = np.cumsum(draws[owner_idx[:m]])
+        if cw[-1] < target:
+            cw = np.cumsum(draws[owner_idx])
+        boot[b] = iei_sorted[np.searchsorted(cw, target, side="left")]
     return value, [float(v) for v in np.percentile(boot, [2.5, 97.5])], float(iei_sorted[0]), int(iei.size)
 
 
