@@ -151,15 +151,13 @@ def run(args) -> int:
 
 def run_stats(args) -> int:
     import json
+    from pathlib import Path
 
     import numpy as np
 
-    from gs2e.common.atomic import json_safe, write_json_atomic
+    from gs2e.common.atomic import check_writable, json_safe, write_json_atomic
     from gs2e.common.errors import InputError
     from gs2e.events.io import read_events
-    from pathlib import Path
-
-    from gs2e.common.atomic import check_writable
     from gs2e.events.stats import calibrate_noise, event_stats, sensor_preset, write_sensor_preset
 
     for path in (args.out, args.write_preset):
@@ -195,7 +193,7 @@ def run_convert(args) -> int:
 
     from gs2e.common.atomic import check_writable
     from gs2e.common.errors import InputError
-    from gs2e.events.containers import SUFFIX_CONTAINER, write_container
+    from gs2e.events.containers import SUFFIX_CONTAINER, container_limits, write_container
     from gs2e.events.io import H5EventWriter, read_events, write_npz, write_text
 
     out = Path(args.output)
@@ -214,6 +212,9 @@ def run_convert(args) -> int:
         raise InputError(f"{args.input}: timestamps are not sorted")
     H, W = shape
     if suf in SUFFIX_CONTAINER:
+        why = container_limits(SUFFIX_CONTAINER[suf], W, H)
+        if why:
+            raise InputError(f"{out}: {why}")
         write_container(out, SUFFIX_CONTAINER[suf], ev, W, H)
     elif suf in (".h5", ".hdf5"):
         with H5EventWriter(out, W, H, int(ev.t[0]) if len(ev) else 0) as w:
