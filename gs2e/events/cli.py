@@ -160,9 +160,8 @@ def run_stats(args) -> int:
     from gs2e.events.io import read_events
     from gs2e.events.stats import calibrate_noise, event_stats, sensor_preset, write_sensor_preset
 
-    for path in (args.out, args.write_preset):
-        if path:
-            check_writable(path)  # before the work, not after it
+    if args.write_preset:
+        check_writable(args.write_preset)  # before the work (gs2e.cli checks --out)
     ev, shape = read_events(args.events_file)
     if args.width and args.height:
         shape = (args.height, args.width)
