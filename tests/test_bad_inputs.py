@@ -111,6 +111,14 @@ def _write(p: Path, data: bytes | str) -> Path:
     return p
 
 
+def _empty_recording(p: Path) -> Path:
+    from gs2e.events.containers import write_container
+    from gs2e.events.models import Events
+
+    write_container(p, "aedat4", Events.empty(), 64, 48)
+    return p
+
+
 def _truncate(p: Path, keep: float = 0.5) -> Path:
     b = p.read_bytes()
     p.write_bytes(b[: int(len(b) * keep)])
@@ -348,6 +356,24 @@ PROBES = [
           ("ev.h5",), None),
     Probe("events-stats-columns", "a text event file with 3 columns",
           lambda t: ["events-stats", _write(t / "ev.txt", "1 2 3\n4 5 6\n")], ("ev.txt",), None),
+    Probe("events-stats-raw", "a Prophesee .raw whose header gives no version",
+          lambda t: ["events-stats", _write(t / "ev.raw", "% geometry 640x480\n" + "\0" * 8)],
+          ("ev.raw", "no version"), None),
+    Probe("events-stats-preset-empty", "a sensor preset from a recording with no events",
+          lambda t: ["events-stats", _empty_recording(t / "ev.aedat4"), "--write-preset", t / "p.yaml"],
+          ("ev.aedat4", "too few events"), "p.yaml"),
+    Probe("events-convert-suffix", "converting to a container gs2e does not write",
+          lambda t: ["events-convert", _write(t / "ev.txt", "1 2 3 1\n"), t / "out.evt3"],
+          ("out.evt3", "unknown output container"), "out.evt3"),
+    Probe("events-convert-no-size", "text events to AEDAT4 without a sensor size",
+          lambda t: ["events-convert", _write(t / "ev.txt", "1 2 3 1\n"), t / "out.aedat4"],
+          ("ev.txt", "--width"), "out.aedat4"),
+    Probe("events-convert-size", "a 4000x3000 recording to EVT2 (at most 2048x2048)",
+          lambda t: ["events-convert", _write(t / "ev.txt", "1 2 3 1\n"), t / "out.raw",
+                     "--width", "4000", "--height", "3000"], ("out.raw", "2048x2048"), "out.raw"),
+    Probe("events-convert-corrupt", "converting a DAT file whose header has no version line",
+          lambda t: ["events-convert", _write(t / "ev.dat", b"% Width 64\n% Height 48\n\x0c"),
+                     t / "out.h5"], ("ev.dat",), "out.h5"),
     # ---- tables, report, clean
     Probe("summary-corrupt", "a corrupt scene table in the summary",
           lambda t: ["summary", _write(t / "m.parquet", b"PAR1 not really"), "--out",

@@ -8,16 +8,15 @@ import h5py
 import numpy as np
 import pytest
 
+from tests.conftest import shared_data
 from gs2e.cli import main
 from gs2e.common.errors import InputError
-from gs2e.events.io import (H5EventSlicer, H5EventWriter, read_aedat4, read_h5, read_npz, read_text,
+from gs2e.events.io import (H5EventSlicer, H5EventWriter, read_events, read_h5, read_npz, read_text,
                             write_npz, write_text)
 from gs2e.events.models import Events
 from gs2e.events.represent import event_frame, voxel_grid, write_preview
 from gs2e.events.stats import StatsAccumulator, calibrate_noise, event_stats
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-AEDAT = DATA / "events" / "dvxplorer_sample.aedat4"
 
 
 def _random_events(n=50_000, W=64, H=48, t0=(1 << 33) + 17, span=2_345_678, seed=0):
@@ -156,9 +155,8 @@ def test_stats_and_accumulator_agree():
         assert r[k] == pytest.approx(e[k], rel=0.01)
 
 
-@pytest.mark.skipif(not AEDAT.exists(), reason="../shared/data/events/dvxplorer_sample.aedat4 absent")
 def test_real_recording_stats_and_calibration():
-    ev, shape = read_aedat4(AEDAT)
+    ev, shape = read_events(shared_data("events", "dvxplorer_sample.aedat4"))
     assert shape == (240, 320) and len(ev) == 111_954
     assert np.all(np.diff(ev.t) >= 0)
     s = event_stats(ev, shape)

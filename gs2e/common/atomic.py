@@ -36,7 +36,6 @@ import re
 import secrets
 import shutil
 import socket
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
@@ -199,10 +198,15 @@ def check_writable(path: str | os.PathLike, what: str = "output") -> None:
         anc = anc.parent
     if not anc.is_dir():
         raise InputError(f"{what} {p}: {anc} is not a folder")
+    # named first, created and removed inside the try: SIGTERM raises at the next
+    # bytecode, and must not land between creating the probe and removing it
+    probe = _temp_name(anc / (p.name or "gs2e"))
     try:
-        fd, probe = tempfile.mkstemp(prefix=f".{p.name or 'gs2e'}.tmp-{owner_tag()}-", dir=anc)
-        os.close(fd)
-        os.unlink(probe)
+        try:
+            os.close(os.open(probe, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600))
+        finally:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(probe)
     except OSError as exc:
         raise InputError(f"{what} {p}: cannot write in {anc} ({exc.strerror or exc})") from exc
 

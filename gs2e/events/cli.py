@@ -1,5 +1,6 @@
 """``gs2e events``: simulate events from any frame sequence;
-``gs2e events-stats``: statistics / noise calibration of an event file."""
+``gs2e events-stats``: statistics / noise calibration of an event file (and a
+sensor preset from it); ``gs2e events-convert``: one container to another."""
 
 from __future__ import annotations
 
@@ -14,7 +15,8 @@ def register(subparsers) -> None:
         description="Simulate events (DVS-Voltmeter or ideal model) from a folder of images "
                     "(+ timestamps file or --fps), a video, or a .npy/.npz array. Writes OUT/ "
                     "with events.h5 (DSEC layout), stats.json and optional preview.mp4, "
-                    "events.txt, events.npz.")
+                    "events.txt, events.npz and, with --set containers=[aedat4,evt2,dat], "
+                    "events.aedat4 / events.raw (EVT2) / events.dat.")
     p.add_argument("input", nargs="?", help="folder of images, video file, or .npy/.npz frames "
                    "(omit with --model/--trajectory)")
     p.add_argument("--model", help="gs2e train output: render the frames on demand (workflow mode)")
@@ -44,15 +46,39 @@ def register(subparsers) -> None:
     q = subparsers.add_parser(
         "events-stats", help="statistics and noise calibration of an event file",
         description="Event statistics (count, rate, ON fraction, per-pixel density, "
-                    "inter-event intervals) and background-activity calibration of an "
-                    ".h5 / .npz / .txt / .aedat4 event file; prints JSON.")
+                    "inter-event intervals) and a noise calibration of a recording: "
+                    "background-activity rate (Hz per pixel), ON/OFF balance and refractory "
+                    "period, each with a 95 %% interval (methods: gs2e.events.stats."
+                    "calibrate_noise). Reads .aedat4, .raw (Prophesee EVT2/EVT3), .dat, "
+                    ".h5 (DSEC), .npz and 't x y p' text; prints JSON. --write-preset saves "
+                    "the fitted values as a custom sensor preset (YAML).")
     q.add_argument("events_file")
-    q.add_argument("--width", type=int, help="sensor width (text files)")
-    q.add_argument("--height", type=int, help="sensor height (text files)")
+    q.add_argument("--width", type=int, help="sensor width (files without a size: text, DSEC)")
+    q.add_argument("--height", type=int, help="sensor height (files without a size: text, DSEC)")
     q.add_argument("--ba-window-us", type=int, default=10000,
-                   help="support window of the background-activity criterion (us)")
+                   help="support window of the background-activity criterion (us, default 10000)")
     q.add_argument("-o", "--out", help="write the JSON here instead of stdout")
+    q.add_argument("--write-preset", metavar="FILE.yaml",
+                   help="also write the fitted values (size, shot_noise_rate_hz = the "
+                        "background-activity rate, shot_noise_on_fraction, refractory_us; each "
+                        "with its interval, method and source) as a sensor file for "
+                        "events.sensor=custom")
+    q.add_argument("--preset-name", help="the preset's name (default: the recording's file stem)")
     q.set_defaults(func=run_stats)
+
+    c = subparsers.add_parser(
+        "events-convert", help="copy an event file into another container",
+        description="Read any event file gs2e reads (.aedat4, .raw EVT2/EVT3, .dat, .h5 DSEC, "
+                    ".npz, 't x y p' text) and write it as OUT, whose suffix picks the "
+                    "container: .aedat4, .raw (Prophesee EVT2), .dat (Prophesee DAT), .h5 (DSEC "
+                    "layout, t_offset = the first event's time), .npz or .txt. The sensor size "
+                    "comes from the input's header (or --width/--height) and goes into OUT's; "
+                    "OUT appears only when complete.")
+    c.add_argument("input", help="event file to read")
+    c.add_argument("output", help="event file to write (suffix picks the container)")
+    c.add_argument("--width", type=int, help="sensor width, for inputs without a size (text, DSEC)")
+    c.add_argument("--height", type=int, help="sensor height, for inputs without a size (text, DSEC)")
+    c.set_defaults(func=run_convert)
 
     r = subparsers.add_parser(
         "events-presets", help="list the target sensors and DVS-Voltmeter presets, with sources",
@@ -134,12 +160,17 @@ def run(args) -> int:
 
 def run_stats(args) -> int:
     import json
+    from pathlib import Path
 
-    from gs2e.common.atomic import json_safe, write_json_atomic
+    import numpy as np
+
+    from gs2e.common.atomic import check_writable, json_safe, write_json_atomic
     from gs2e.common.errors import InputError
     from gs2e.events.io import read_events
-    from gs2e.events.stats import calibrate_noise, event_stats
+    from gs2e.events.stats import calibrate_noise, event_stats, sensor_preset, write_sensor_preset
 
+    if args.write_preset:
+        check_writable(args.write_preset)  # before the work (gs2e.cli checks --out)
     ev, shape = read_events(args.events_file)
     if args.width and args.height:
         shape = (args.height, args.width)
@@ -147,12 +178,59 @@ def run_stats(args) -> int:
         if len(ev) == 0:
             raise InputError(f"{args.events_file}: no events and no sensor size")
         shape = (int(ev.y.max()) + 1, int(ev.x.max()) + 1)
-    out = {"stats": event_stats(ev, shape, name=str(args.events_file)),
-           "noise_calibration": calibrate_noise(ev, shape, args.ba_window_us)}
+    if np.any(ev.t[1:] < ev.t[:-1]):
+        raise InputError(f"{args.events_file}: timestamps are not sorted")
+    cal = calibrate_noise(ev, shape, args.ba_window_us)
+    out = {"stats": event_stats(ev, shape, name=str(args.events_file)), "noise_calibration": cal}
+    if args.write_preset:
+        if not len(ev) > 1 or not np.isfinite(cal["ba_rate_hz"]):
+            raise InputError(f"{args.events_file}: too few events to fit a sensor preset")
+        name = args.preset_name or Path(args.events_file).stem
+        write_sensor_preset(args.write_preset, sensor_preset(cal, name, shape, str(args.events_file)))
     if args.out:
         write_json_atomic(args.out, out)
     else:
         print(json.dumps(json_safe(out), indent=2))  # NaN -> null: valid JSON
+    return 0
+
+
+def run_convert(args) -> int:
+    from pathlib import Path
+
+    import numpy as np
+
+    from gs2e.common.atomic import check_writable
+    from gs2e.common.errors import InputError
+    from gs2e.events.containers import SUFFIX_CONTAINER, container_limits, write_container
+    from gs2e.events.io import H5EventWriter, read_events, write_npz, write_text
+
+    out = Path(args.output)
+    suf = out.suffix.lower()
+    writable = (*SUFFIX_CONTAINER, ".h5", ".hdf5", ".npz", ".txt")
+    if suf not in writable:
+        raise InputError(f"{out}: unknown output container '{suf or 'no suffix'}' "
+                         f"(one of {', '.join(writable)})")
+    check_writable(out)
+    ev, shape = read_events(args.input)
+    if args.width and args.height:
+        shape = (args.height, args.width)
+    if not shape or not all(shape):
+        raise InputError(f"{args.input}: the file gives no sensor size: pass --width and --height")
+    if np.any(ev.t[1:] < ev.t[:-1]):
+        raise InputError(f"{args.input}: timestamps are not sorted")
+    H, W = shape
+    if suf in SUFFIX_CONTAINER:
+        why = container_limits(SUFFIX_CONTAINER[suf], W, H)
+        if why:
+            raise InputError(f"{out}: {why}")
+        write_container(out, SUFFIX_CONTAINER[suf], ev, W, H)
+    elif suf in (".h5", ".hdf5"):
+        with H5EventWriter(out, W, H, int(ev.t[0]) if len(ev) else 0) as w:
+            w.append(ev)
+    elif suf == ".npz":
+        write_npz(out, ev, W, H)
+    else:
+        write_text(out, ev)
     return 0
 
 

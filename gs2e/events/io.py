@@ -1,4 +1,6 @@
-"""Event file I/O: DSEC-layout HDF5 (streaming, atomic), text, npz, AEDAT4.
+"""Event file I/O: DSEC-layout HDF5 (streaming, atomic), text, npz; AEDAT4 and
+Prophesee RAW/DAT live in :mod:`gs2e.events.containers`, and :func:`read_events`
+reads all of them.
 
 DSEC layout (what :class:`H5EventWriter` writes)::
 
@@ -282,45 +284,34 @@ def read_npz(path: str | os.PathLike) -> tuple[Events, tuple[int, int]]:
 
 
 def read_events(path: str | os.PathLike) -> tuple[Events, tuple[int, int] | None]:
-    """Any supported event file by suffix: .h5/.hdf5, .txt, .npz, .aedat4.
-    Returns (events, (height, width) or None if the format does not say)."""
+    """Any supported event file, by suffix.
+
+    ``.aedat4`` (iniVation), ``.raw`` (Prophesee EVT2/EVT3, version from the
+    header), ``.dat`` (Prophesee DAT) through :mod:`gs2e.events.containers`
+    (faery); ``.h5``/``.hdf5`` (DSEC layout), ``.npz`` (gs2e), anything else as
+    ``t x y p`` text.
+
+    Returns
+    -------
+    events : Events
+        t absolute int64 us, x/y uint16, p uint8 (1 = ON).
+    shape : (height, width) or None
+        The sensor size from the file's header; None where the format does not
+        say (text; a DSEC file without width/height attributes).
+    """
+    from gs2e.events.containers import READ_SUFFIXES, read_container
+
     path = Path(path)
     suf = path.suffix.lower()
     if not path.exists():
         raise InputError(f"{path}: no such event file")
+    if suf in READ_SUFFIXES:
+        return read_container(path)
     if suf in (".h5", ".hdf5"):
         ev, attrs = read_h5(path)
-        return ev, (int(attrs.get("height", 0)), int(attrs.get("width", 0)))
+        if attrs.get("width") and attrs.get("height"):
+            return ev, (int(attrs["height"]), int(attrs["width"]))
+        return ev, None  # DSEC's own files carry no sensor size
     if suf == ".npz":
         return read_npz(path)
-    if suf == ".aedat4":
-        return read_aedat4(path)
     return read_text(path), None
-
-
-def read_aedat4(path: str | os.PathLike) -> tuple[Events, tuple[int, int]]:
-    """Events of the first event stream of an AEDAT4 file (iniVation), read
-    with the maintained ``aedat`` package. Returns (events, (height, width))."""
-    import aedat
-
-    path = Path(path)
-    try:
-        dec = aedat.Decoder(str(path))
-        streams = dec.id_to_stream()
-        ev_ids = [i for i, s in streams.items() if s.get("type") == "events"]
-        if not ev_ids:
-            raise InputError(f"{path}: AEDAT4 file has no event stream")
-        sid = sorted(ev_ids)[0]
-        W, H = int(streams[sid]["width"]), int(streams[sid]["height"])
-        parts = [p["events"] for p in dec if p["stream_id"] == sid and "events" in p]
-    except InputError:
-        raise
-    except Exception as exc:  # the decoder raises plain Exceptions on corrupt data
-        raise InputError(f"{path}: cannot decode AEDAT4 ({exc})") from exc
-    if not parts:
-        return Events.empty(), (H, W)
-    a = np.concatenate(parts)
-    t = a["t"].astype(np.int64)
-    order = np.argsort(t, kind="stable")
-    return Events(t[order], a["x"][order].astype(np.uint16), a["y"][order].astype(np.uint16),
-                  a["on"][order].astype(np.uint8)), (H, W)

@@ -90,24 +90,29 @@ class Sensor:
         return out
 
 
-def _sensor(name, description, w, h, size_source, ba=None, ba_on=None, **extra) -> Sensor:
+def _sensor(name, description, w, h, size_source, ba=None, ba_on=None, refractory=None,
+            **extra) -> Sensor:
     return Sensor(
         name, description, Sourced(w, size_source), Sourced(h, size_source),
-        Sourced(0.15, _MISMATCH), Sourced(100.0, _REFRACTORY),
+        Sourced(0.15, _MISMATCH), refractory or Sourced(100.0, _REFRACTORY),
         Sourced(0.01, _V2E + " (leak 0.01 Hz)"),
         ba or Sourced(0.001, _V2E + " (shot noise 0.001 Hz)"),
         ba_on or Sourced(0.5, "assumed: balanced ON/OFF background activity"), dict(extra))
 
 
 _RES = "datasheet resolution (REFERENCE.md section 9)"
+_DVX = "the DVXplorer recording ../shared/data/events/dvxplorer_sample.aedat4 (320x240 readout)"
 SENSORS: dict[str, Sensor] = {
     "davis346": _sensor("davis346", "iniVation DAVIS346 (DVS + APS)", 346, 260, _RES),
     "dvxplorer": _sensor(
         "dvxplorer", "iniVation DVXplorer", 640, 480, _RES,
-        ba=Sourced(0.56, "measured: background activity of ../shared/data/events/"
-                         "dvxplorer_sample.aedat4 (a DVXplorer recording, 320x240 readout; "
-                         "scene-dependent; gs2e events-stats)"),
-        ba_on=Sourced(0.54, "measured: ON fraction of the isolated events of the same recording")),
+        ba=Sourced(0.557, f"measured: background-activity rate of {_DVX} (95 % 0.531-0.581 Hz; "
+                          "scene-dependent; gs2e events-stats)"),
+        ba_on=Sourced(0.542, f"measured: ON fraction of the background events of {_DVX} "
+                             "(95 % 0.536-0.548)"),
+        refractory=Sourced(197.0, f"measured: smallest per-pixel inter-event interval of {_DVX} "
+                                  "(the sensor's readout period; an upper bound of the refractory "
+                                  "period)")),
     "prophesee_gen3": _sensor("prophesee_gen3", "Prophesee Gen3 VGA (CD)", 640, 480, _RES),
     "imx636": _sensor("imx636", "Sony IMX636 / Prophesee Gen4 HD", 1280, 720, _RES),
 }

@@ -9,6 +9,9 @@ Output folder (written as a whole, atomically)::
                    ``preview_window_ms`` of simulated time (optional)
     events.txt     't x y p' text (optional)
     events.npz     arrays (optional)
+    events.aedat4, events.raw (EVT2), events.dat
+                   the same events in the containers of ``events.containers``
+                   (gs2e.events.containers; the sensor's size in each header)
 
 Sources: a frame source (``(t_us, frame)`` pairs, :mod:`gs2e.events.frames`)
 or a rendered source (:class:`gs2e.events.rendered.RenderedSource`: whole
@@ -31,8 +34,9 @@ import numpy as np
 
 from gs2e import __version__
 from gs2e.common.atomic import atomic_dir, write_json_atomic
-from gs2e.common.errors import InputError
+from gs2e.common.errors import ConfigError, InputError
 from gs2e.common.progress import progress
+from gs2e.events.containers import CONTAINERS, ContainerWriter, container_limits
 from gs2e.events.io import H5EventWriter, TextEventWriter, read_h5, write_npz
 from gs2e.events.models import Events, TileBatch, make_model
 from gs2e.events.presets import effective_threshold
@@ -122,6 +126,13 @@ def simulate_to_folder(source, cfg: dict, out_dir: str | Path, seed: int,
     f_first = np.asarray(f_first)
     shape = tuple(f_first.shape)
     H, W = shape
+    for kind in cfg["containers"]:  # before any simulation: a size no container holds
+        why = container_limits(kind, W, H)
+        if why:
+            raise ConfigError(f"events.containers: {why}")
+    if cfg["containers"] and int(t_first) < 0:
+        raise InputError(f"{name}: events.containers {cfg['containers']} cannot store negative "
+                         f"times (first frame at {int(t_first)} us)")
     threads = numba.get_num_threads()  # set by the caller (gs2e.common.threads); recorded only
     model_seed = int(seed) + int(cfg["seed_offset"])
     model, info = make_model(cfg, shape, model_seed, source=name)
@@ -142,6 +153,8 @@ def simulate_to_folder(source, cfg: dict, out_dir: str | Path, seed: int,
                                                    cfg["compression"]))
             tw = (stack.enter_context(TextEventWriter(tmp / "events.txt", cfg["text_polarity"]))
                   if cfg["write_text"] else None)
+            cws = [stack.enter_context(ContainerWriter(tmp / f"events{CONTAINERS[kind]}", kind, W, H))
+                   for kind in cfg["containers"]]
             pv = None
             if cfg["preview"]:
                 pw = stack.enter_context(PreviewWriter(tmp / "preview.mp4", shape,
@@ -160,6 +173,8 @@ def simulate_to_folder(source, cfg: dict, out_dir: str | Path, seed: int,
                 hw.append(ev)
                 if tw:
                     tw.append(ev)
+                for cw in cws:
+                    cw.append(ev)
                 if pv:
                     pv.add(ev, horizon, source.luminance)
                 clock["stats_s"] += b - a

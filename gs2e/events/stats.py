@@ -88,32 +88,213 @@ def _isolated(t, x, y, H, W, window_us):
     return iso
 
 
-def calibrate_noise(ev: Events, shape: tuple[int, int], window_us: int = 10000) -> dict:
-    """Background-activity rate and ON/OFF balance of a real recording.
+def calibrate_noise(ev: Events, shape: tuple[int, int], window_us: int = 10000,
+                    n_blocks: int = 20, n_boot: int = 1000, refractory_quantile: float = 1e-4,
+                    seed: int = 0) -> dict:
+    """Background-activity rate, ON/OFF balance and refractory period of a real
+    recording, each with a 95 % interval.
 
-    Events without support in their 8-neighbourhood within +-``window_us`` are
-    counted as background activity (the usual BA filter criterion). Returns
-    ba_rate_hz (isolated events per pixel per second), ba_on_fraction,
-    on_fraction (all events), isolated_fraction, window_us, and the config
-    values suggested for gs2e (shot_noise_rate_hz, shot_noise_on_fraction).
-    The estimate is an upper bound on sensor noise if the scene itself has
-    sparse isolated activity.
+    Parameters
+    ----------
+    ev : Events
+        Time-sorted events (t in us).
+    shape : (height, width)
+        Sensor size in pixels.
+    window_us : int
+        Support window of the background-activity (BA) criterion, us.
+    n_blocks : int
+        Equal time blocks of the BA-rate bootstrap.
+    n_boot : int
+        Bootstrap resamples (BA rate over blocks, refractory period over pixels).
+    refractory_quantile : float
+        Quantile of the inter-event intervals taken as their low-side cutoff.
+    seed : int
+        Seed of the bootstraps (the result is deterministic).
+
+    Returns
+    -------
+    dict
+        ``ba_rate_hz`` (isolated events per pixel per second) with
+        ``ba_rate_ci95_hz`` (block bootstrap) and ``ba_rate_poisson_ci95_hz``
+        (counting noise only); ``ba_on_fraction`` / ``on_fraction`` (BA / all
+        events) with Wilson intervals ``*_ci95``; ``refractory_us`` with
+        ``refractory_ci95_us``, ``iei_min_us``, ``n_iei``; ``isolated_fraction``,
+        ``window_us``, ``duration_s``, the method parameters, and ``suggested``
+        gs2e config values (shot_noise_rate_hz, shot_noise_on_fraction,
+        refractory_us). Values that cannot be computed are NaN.
+
+    Notes
+    -----
+    Background activity: events with no event in their 8-neighbourhood within
+    +-``window_us`` (the usual BA-filter criterion), counted over all pixels
+    and the recording's span. It is an upper bound on sensor noise when the
+    scene itself has sparse isolated activity. Its interval comes from a
+    bootstrap over ``n_blocks`` equal time blocks (resampling blocks with
+    replacement, 2.5 / 97.5 percentiles of the mean rate): scene activity
+    varies in time, so it is wider than the Poisson interval of the count.
+
+    ON/OFF balance: the fraction of ON events with a Wilson score interval,
+    which treats events as independent (right for BA events; too narrow for
+    all events, where edges fire in correlated bursts).
+
+    Refractory period: the low-side cutoff of the per-pixel inter-event-interval
+    (IEI) distribution, i.e. the ``refractory_quantile`` quantile of the
+    intervals between consecutive events of the same pixel (either polarity),
+    pooled over pixels: no pixel fires again sooner than its refractory period,
+    and a low quantile rather than the minimum ignores a few stray intervals
+    (it lies ~q / rate above the cutoff: ~4 us for q = 1e-4 at 40 Hz per pixel).
+    Its interval comes from a bootstrap over pixels (resampling pixels with
+    replacement with all their intervals). It is an upper bound on the
+    refractory period: a sensor with frame-like readout (DVXplorer's ~200 us
+    scan) shows its readout period instead.
     """
     H, W = shape
     n = len(ev)
+    nan = float("nan")
     dur_s = float(ev.t[-1] - ev.t[0]) * 1e-6 if n > 1 else 0.0
+    out = {"ba_rate_hz": nan, "ba_rate_ci95_hz": [nan, nan], "ba_rate_poisson_ci95_hz": [nan, nan],
+           "ba_on_fraction": nan, "ba_on_fraction_ci95": [nan, nan],
+           "on_fraction": nan, "on_fraction_ci95": [nan, nan],
+           "refractory_us": nan, "refractory_ci95_us": [nan, nan], "iei_min_us": nan, "n_iei": 0,
+           "isolated_fraction": nan, "n_isolated": 0, "window_us": int(window_us),
+           "duration_s": dur_s, "n_blocks": int(n_blocks), "n_boot": int(n_boot),
+           "refractory_quantile": float(refractory_quantile)}
     if n == 0 or dur_s <= 0:
-        return {"ba_rate_hz": float("nan"), "ba_on_fraction": float("nan"),
-                "on_fraction": float("nan"), "isolated_fraction": float("nan"),
-                "window_us": window_us}
-    iso = _isolated(ev.t.astype(np.int64), ev.x, ev.y, H, W, int(window_us))
+        out["suggested"] = {}
+        return out
+    rng = np.random.default_rng(seed)
+    t = ev.t.astype(np.int64)
+    iso = _isolated(t, ev.x, ev.y, H, W, int(window_us))
     n_iso = int(iso.sum())
-    ba_rate = float(n_iso / (H * W) / dur_s)
-    ba_on = float(ev.p[iso].mean()) if n_iso else float("nan")
-    return {"ba_rate_hz": ba_rate, "ba_on_fraction": ba_on, "on_fraction": float(ev.p.mean()),
-            "isolated_fraction": n_iso / n, "window_us": int(window_us), "duration_s": dur_s,
-            "suggested": {"shot_noise_rate_hz": ba_rate,
-                          "shot_noise_on_fraction": ba_on if n_iso else 0.5}}
+    ba_rate = n_iso / (H * W) / dur_s
+    # BA rate per time block -> bootstrap of the mean over blocks
+    block = np.minimum(((t[iso] - t[0]) * n_blocks) // max(int(t[-1] - t[0]), 1), n_blocks - 1)
+    rates = np.bincount(block, minlength=n_blocks) / (H * W) / (dur_s / n_blocks)
+    boot = rates[rng.integers(0, n_blocks, (n_boot, n_blocks))].mean(axis=1)
+    n_on = int(ev.p.sum())
+    n_ba_on = int(ev.p[iso].sum())
+    ref, ref_ci, iei_min, n_iei = _refractory(ev, W, refractory_quantile, n_boot, rng)
+    out.update(
+        ba_rate_hz=float(ba_rate),
+        ba_rate_ci95_hz=[float(v) for v in np.percentile(boot, [2.5, 97.5])],
+        ba_rate_poisson_ci95_hz=[v / (H * W) / dur_s for v in _poisson_ci95(n_iso)],
+        ba_on_fraction=n_ba_on / n_iso if n_iso else nan,
+        ba_on_fraction_ci95=_wilson95(n_ba_on, n_iso),
+        on_fraction=n_on / n, on_fraction_ci95=_wilson95(n_on, n),
+        refractory_us=ref, refractory_ci95_us=ref_ci, iei_min_us=iei_min, n_iei=n_iei,
+        isolated_fraction=n_iso / n, n_isolated=n_iso)
+    out["suggested"] = {"shot_noise_rate_hz": out["ba_rate_hz"],
+                        "shot_noise_on_fraction": out["ba_on_fraction"] if n_iso else 0.5,
+                        "refractory_us": ref}
+    return out
+
+
+def _wilson95(k: int, n: int) -> list[float]:
+    """Wilson score 95 % interval of a binomial fraction k / n."""
+    if n == 0:
+        return [float("nan"), float("nan")]
+    z = 1.959963984540054
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return [float(centre - half), float(centre + half)]
+
+
+def _poisson_ci95(k: int) -> list[float]:
+    """Exact (Garwood) 95 % interval of a Poisson mean given the count k."""
+    from scipy.stats import chi2
+
+    lo = 0.0 if k == 0 else chi2.ppf(0.025, 2 * k) / 2
+    return [float(lo), float(chi2.ppf(0.975, 2 * k + 2) / 2)]
+
+
+def _refractory(ev: Events, W: int, q: float, n_boot: int, rng) -> tuple[float, list[float], float, int]:
+    """(quantile-q IEI in us, its 95 % pixel-bootstrap interval, minimum IEI, number of IEIs)."""
+    nan = float("nan")
+    pix = ev.y.astype(np.int64) * W + ev.x.astype(np.int64)
+    order = np.argsort(pix, kind="stable")  # time-sorted input: stable keeps time order per pixel
+    ps, ts = pix[order], ev.t.astype(np.int64)[order]
+    same = ps[1:] == ps[:-1]
+    iei = np.diff(ts)[same]
+    if iei.size == 0:
+        return nan, [nan, nan], nan, 0
+    owner = ps[1:][same]
+    srt = np.argsort(iei, kind="stable")
+    iei_sorted = iei[srt]
+    # each pixel's IEIs enter a resample as often as the pixel is drawn
+    pixels, owner_idx = np.unique(owner[srt], return_inverse=True)
+    n_per_pixel = np.bincount(owner_idx, minlength=pixels.size)
+    value = float(np.quantile(iei_sorted, q, method="inverted_cdf"))
+    # a low quantile lies among the shortest intervals: cumulate those only
+    # (all of them where a resample's quantile falls further out)
+    m = min(iei.size, max(1000, int(50 * q * iei.size)))
+    boot = np.empty(n_boot)
+    for b in range(n_boot):
+        draws = np.bincount(rng.integers(0, pixels.size, pixels.size), minlength=pixels.size)
+        target = q * float(draws @ n_per_pixel)
+        cw = np.cumsum(draws[owner_idx[:m]])
+        if cw[-1] < target:
+            cw = np.cumsum(draws[owner_idx])
+        boot[b] = iei_sorted[np.searchsorted(cw, target, side="left")]
+    return value, [float(v) for v in np.percentile(boot, [2.5, 97.5])], float(iei_sorted[0]), int(iei.size)
+
+
+def sensor_preset(cal: dict, name: str, shape: tuple[int, int], source: str) -> dict:
+    """A custom sensor preset from :func:`calibrate_noise`'s result.
+
+    Layout (what :func:`write_sensor_preset` writes, one mapping per value)::
+
+        name: <name>
+        width:  {value: <pixels>, source: header of <file>}
+        height: {value: <pixels>, source: header of <file>}
+        shot_noise_rate_hz:     {value, ci95: [low, high], method, source: measured from <file>}
+        shot_noise_on_fraction: {value, ci95, method, source}   # of background-activity events
+        refractory_us:          {value, ci95, method, source}
+
+    The keys are the ``events`` config keys they set: the file is a sensor for
+    ``events.sensor: custom`` / ``events.sensor_file``
+    (:func:`gs2e.events.sensors.load_sensor_file`); the background-activity
+    rate is what the shot-noise model emits.
+    """
+    H, W = shape
+    measured = f"measured from {source}"
+
+    def sig(v: float) -> float:  # 4 significant digits: the intervals are wider
+        return float(f"{v:.4g}")
+
+    return {
+        "name": name,
+        "width": {"value": int(W), "source": f"header of {source}"},
+        "height": {"value": int(H), "source": f"header of {source}"},
+        "shot_noise_rate_hz": {
+            "value": sig(cal["ba_rate_hz"]), "ci95": [sig(v) for v in cal["ba_rate_ci95_hz"]],
+            "method": f"events without an 8-neighbour event within +-{cal['window_us']} us, per pixel "
+                      f"per second; 95 % interval: bootstrap over {cal['n_blocks']} time blocks",
+            "source": measured},
+        "shot_noise_on_fraction": {
+            "value": sig(cal["ba_on_fraction"]), "ci95": [sig(v) for v in cal["ba_on_fraction_ci95"]],
+            "method": "ON fraction of the background-activity events; 95 % interval: Wilson",
+            "source": measured},
+        "refractory_us": {
+            "value": sig(cal["refractory_us"]), "ci95": [sig(v) for v in cal["refractory_ci95_us"]],
+            "method": f"{cal['refractory_quantile']:g} quantile of the per-pixel inter-event "
+                      "intervals (their low-side cutoff; an upper bound); 95 % interval: bootstrap "
+                      "over pixels",
+            "source": measured},
+    }
+
+
+def write_sensor_preset(path, preset: dict) -> None:
+    """Write :func:`sensor_preset`'s dict as YAML, atomically (any NaN -> null)."""
+    import yaml
+
+    from gs2e.common.atomic import atomic_file, json_safe
+
+    head = ("# gs2e sensor preset measured from a real recording (gs2e events-stats --write-preset).\n"
+            "# Each value: value, ci95 = [low, high] (95 % interval), method, source.\n")
+    with atomic_file(path, "w") as fh:
+        fh.write(head + yaml.safe_dump(json_safe(preset), sort_keys=False, width=100,
+                                          default_flow_style=None))  # [low, high] on one line
 
 
 # "no event yet" in StatsAccumulator.last: times may be negative (any t_offset)

@@ -19,7 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default=None, help="HTML file (default: RESULTS_DIR/report.html; "
                    "written atomically)")
     p.add_argument("--real-events", default=None, metavar="PATH",
-                   help="real recording (.aedat4/.h5/.npz) to compare with "
+                   help="real recording (.aedat4/.raw/.dat/.h5/.npz) to compare with "
                         "(overrides metrics.real_events)")
     p.add_argument("--no-real-events", action="store_true",
                    help="no real comparison even if metrics.real_events is set")

@@ -133,7 +133,7 @@ def aedat4_source(path: Path) -> str | None:
 
 
 def read_real_events(path: str | Path) -> tuple[Events, tuple[int, int], str]:
-    """A real recording (.aedat4, .h5, .npz; text needs a size so is refused)
+    """A real recording (.aedat4, .raw, .dat, .h5, .npz; text needs a size so is refused)
     -> (events, (H, W), label naming the sensor, resolution and file)."""
     from gs2e.events.io import read_events
 
@@ -143,7 +143,7 @@ def read_real_events(path: str | Path) -> tuple[Events, tuple[int, int], str]:
                          "(metrics.real_events / --real-events)")
     ev, shape = read_events(path)
     if not shape or not all(shape):
-        raise InputError(f"{path}: the sensor size is unknown (use an .aedat4, .h5 or .npz recording)")
+        raise InputError(f"{path}: the sensor size is unknown (use an .aedat4, .raw, .dat, .h5 or .npz recording)")
     if len(ev) < 2:
         raise InputError(f"{path}: fewer than 2 events")
     if np.any(np.diff(ev.t) < 0):
