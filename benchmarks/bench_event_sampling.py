@@ -350,13 +350,18 @@ def report(df, extra: dict, footer: str = "") -> None:
             ok = t[(t["ideal_count_err"] <= base["ideal_count_err"]) & (t["ideal_t_err_us"] <= base["ideal_t_err_us"])]
             need = float(ok["pixel_samples_per_s"].min()) if len(ok) else float("nan")
         ratio = base["pixel_samples_per_s"] / need
-        # DVS-Voltmeter: the cheapest tile run whose count error is no worse than fixed 2400's
-        okv = t[t["voltmeter_count_err"] <= base["voltmeter_count_err"]]
+        # count error alone (timestamps aside): the cheapest tile run no worse than fixed 2400
+        okc = t[t["ideal_count_err"] <= base["ideal_count_err"]]
+        rc = base["pixel_samples_per_s"] / okc["pixel_samples_per_s"].min() if len(okc) else float("nan")
+        # DVS-Voltmeter: the cheapest tile run within 1.5x its noise floor (or fixed 2400's error)
+        lim = max(base["voltmeter_count_err"], 1.5 * base["voltmeter_floor"])
+        okv = t[t["voltmeter_count_err"] <= lim]
         rv = (base["voltmeter_pixel_samples_per_s"] / okv["voltmeter_pixel_samples_per_s"].min()
               if len(okv) else float("nan"))
-        heads.append(f"{name}: tile sampling needs {ratio:.1f}x (ideal) / {rv:.1f}x (DVS-Voltmeter) "
-                     f"fewer rendered pixels than fixed 2400 fps at its errors "
-                     f"(target >= 5x: {'met' if min(ratio, rv) >= 5 else 'not met'})")
+        heads.append(f"{name}: tile needs {ratio:.1f}x fewer rendered pixels than fixed 2400 fps at its "
+                     f"ideal count and timestamp errors (nan: no tile bound reaches them), {rc:.1f}x "
+                     f"at its count error, {rv:.1f}x for DVS-Voltmeter within 1.5x its noise floor "
+                     f"(target >= 5x: {'met' if ratio >= 5 else 'not met'})")
     for name, w in extra.get("whole", {}).items():
         sps = w["wall_s"] / w["simulated_s"]
         heads.append(f"{name} whole `gs2e events` (default, full {w['simulated_s']:.2f} s trajectory): "
