@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from gs2e.io.scene import read_scene
-from gs2e.sfm import alignment_errors
+from gs2e.sfm.align import alignment_errors
 from tests.conftest import run_snakemake
 
 # COLMAP on all 36 demo views plus the rerun audit: minutes; the default tier covers the path with the tiny pipeline

@@ -12,7 +12,8 @@ import pytest
 from gs2e.common.errors import InputError
 from gs2e.config import load_config
 from gs2e.io.scene import Camera, Frame, Scene, read_scene, write_scene_json
-from gs2e.sfm import alignment_errors, choose_matcher, run_sfm
+from gs2e.sfm.align import alignment_errors
+from gs2e.sfm.colmap_sfm import choose_matcher, run_sfm
 from tests.conftest import run_cli, shared_data
 
 

@@ -5,12 +5,8 @@ Models (streaming, seeded, numba-compiled): :class:`VoltmeterModel`
 sources yield ``(t_us int, float32 (H, W) linear luminance in [0, 1])``.
 Outputs: DSEC-layout HDF5 (:class:`H5EventWriter`), text, npz; event frames,
 voxel grids, preview video; statistics. See ``gs2e events --help``.
+
+The package imports nothing (numba is loaded by the commands that simulate);
+import from the modules: :mod:`gs2e.events.models`, :mod:`gs2e.events.presets`,
+:mod:`gs2e.events.stats`.
 """
-
-from gs2e.events.models import Events, IdealModel, VoltmeterModel, make_model
-from gs2e.events.presets import PRESETS, Preset, effective_threshold, get_preset
-from gs2e.events.stats import StatsAccumulator, calibrate_noise, event_stats
-
-__all__ = ["Events", "IdealModel", "VoltmeterModel", "make_model", "PRESETS", "Preset",
-           "effective_threshold", "get_preset", "event_stats", "calibrate_noise",
-           "StatsAccumulator"]

@@ -1,7 +1,7 @@
 """Metrics: per-stage tables written as parquet (pyarrow), aggregated per scene
 and per dataset. A metric that cannot be computed is stored as null (missing),
-never as a made-up number."""
+never as a made-up number.
 
-from gs2e.metrics.table import read_metrics, write_metrics
-
-__all__ = ["write_metrics", "read_metrics"]
+The package imports nothing (pandas is loaded where tables are written):
+see :mod:`gs2e.metrics.table`.
+"""

@@ -25,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from gs2e.config import load_section
-    from gs2e.sfm import run_sfm
+    from gs2e.sfm.colmap_sfm import run_sfm
 
     cfg = load_section("sfm", args.config_json, args.config)
     run_sfm(args.scene, args.out, cfg, seed=args.seed, threads=args.threads,
