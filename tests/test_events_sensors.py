@@ -14,8 +14,8 @@ import pytest
 
 from gs2e.common.errors import ConfigError, InputError
 from gs2e.config import load_config
-from gs2e.events.sensors import (SENSORS, fit_camera, fit_frame, get_sensor, load_sensor_file,
-                                 resolve_noise)
+from gs2e.common.camera import fit_camera
+from gs2e.events.sensors import SENSORS, fit_frame, get_sensor, load_sensor_file, resolve_noise
 
 sys.path.insert(0, str(Path(__file__).parent))
 

@@ -29,7 +29,8 @@ import numpy as np
 from gs2e.common.errors import InputError
 from gs2e.common.color import REC709 as _REC709, srgb_to_linear
 from gs2e.io.images import list_images
-from gs2e.events.sensors import fit_frame, fit_scale, get_sensor
+from gs2e.common.camera import fit_scale
+from gs2e.events.sensors import fit_frame, get_sensor
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".exr", ".pgm", ".ppm")
 VIDEO_EXTS = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v")

@@ -20,10 +20,11 @@ from typing import Iterator
 import numpy as np
 import torch
 
+from gs2e.common.camera import fit_camera
 from gs2e.common.errors import ConfigError, InputError
 from gs2e.events.models import TileBatch
 from gs2e.events.presets import get_preset
-from gs2e.events.sensors import fit_camera, get_sensor
+from gs2e.events.sensors import get_sensor
 from gs2e.events.sampling import (MODES, SamplerStats, TileSampler, adaptive_samples,
                                   image_luminance)
 from gs2e.splat.backend import resolve_backend

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gs2e.common.camera import FITS, fit_camera, fit_scale  # noqa: F401 (the sensor's camera)
+from gs2e.common.camera import fit_scale
 from gs2e.common.errors import ConfigError, InputError
 
 # The pixel non-idealities a sensor sets, and their value without a sensor.
