@@ -270,5 +270,5 @@ class SensorFrames:
             if self.camera["input_shape"] is None and f.ndim == 2:
                 self.camera["input_shape"] = list(f.shape)
                 self.camera["scale"] = fit_scale(f.shape[1], f.shape[0], self.width,
-                                                       self.height, self.fit)
+                                                 self.height, self.fit)
             yield t, (fit_frame(f, self.width, self.height, self.fit) if f.ndim == 2 else f)
