@@ -327,8 +327,8 @@ def test_workflow_over_real_scenes(tmp_path):
     bench = read_benchmarks(tmp_path / "results")
     jobs = {j for _, j in bench}
     assert {"ingest", "sfm", "train", "trajectory", "render_mini00_medium",
-            "events_mini00_medium", "metrics"} <= jobs
-    assert len(bench) == 2 * 7
+            "events_mini00_medium", "windows_mini00_medium", "metrics"} <= jobs
+    assert len(bench) == 2 * 8
     rss = {k: v["max_rss"] for k, v in bench.items()}
     assert max(rss.values()) < JOB_MEM_BOUND_MB, rss
     print(f"\nreal scenes: wall {wall:.0f} s")
