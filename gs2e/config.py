@@ -271,6 +271,12 @@ def _check_trajectory(cfg: dict) -> None:
                    "trajectory.velocity")
 
 
+def _missing(key: str, path: str) -> ConfigError:
+    """A config key naming a file that is not there."""
+    return ConfigError(f"{key}: {path} does not exist (relative paths start at the working "
+                       f"directory {Path.cwd()})")
+
+
 def _check_splat(cfg: dict) -> None:
     s = cfg["splat"]
     if s["budget_min"] > s["budget_max"]:
@@ -280,8 +286,7 @@ def _check_splat(cfg: dict) -> None:
         if not s["ply_path"]:
             raise ConfigError("splat.ply_path: must be set when splat.model_source is 'ply'")
         if not Path(s["ply_path"]).exists():
-            raise ConfigError(f"splat.ply_path: {s['ply_path']} does not exist (relative paths "
-                              f"start at the working directory {Path.cwd()})")
+            raise _missing("splat.ply_path", s["ply_path"])
 
 
 def _check_events(cfg: dict) -> None:
@@ -293,8 +298,7 @@ def _check_events(cfg: dict) -> None:
         if not e["sensor_file"]:
             raise ConfigError("events.sensor=custom needs events.sensor_file (a sensor YAML)")
         if not Path(e["sensor_file"]).is_file():
-            raise ConfigError(f"events.sensor_file: {e['sensor_file']} does not exist (relative "
-                              f"paths start at the working directory {Path.cwd()})")
+            raise _missing("events.sensor_file", e["sensor_file"])
     elif e["sensor_file"]:
         raise ConfigError(f"events.sensor_file is set but events.sensor is {e['sensor']!r} "
                           "(set events.sensor: custom to use it)")
@@ -303,8 +307,7 @@ def _check_events(cfg: dict) -> None:
 def _check_metrics(cfg: dict) -> None:
     real = cfg["metrics"]["real_events"]
     if real and not Path(real).is_file():
-        raise ConfigError(f"metrics.real_events: {real} does not exist (relative paths start "
-                          f"at the working directory {Path.cwd()})")
+        raise _missing("metrics.real_events", real)
 
 
 def trajectory_names(traj_cfg: dict) -> list[str]:

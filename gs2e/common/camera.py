@@ -25,6 +25,24 @@ def fit_scale(width: float, height: float, target_w: int, target_h: int, fit: st
     return max(sx, sy) if fit == "cover" else min(sx, sy)
 
 
+def render_camera(K: np.ndarray, width: int, height: int, scale: float = 1.0,
+                  sensor: tuple[tuple[int, int], str] | None = None) -> tuple[np.ndarray, int, int]:
+    """The camera a trajectory is rendered through: (K (3, 3), W, H).
+
+    With ``sensor`` = ((W, H), fit), the sensor's array fitted to the (width,
+    height) camera K (:func:`fit_camera`; ``scale`` does not apply); else K
+    scaled to ``scale`` x its size (rounded to whole pixels, at least 1)."""
+    K = np.asarray(K, np.float64)
+    if sensor is not None:
+        (W, H), fit = sensor
+        return fit_camera(K, width, height, W, H, fit), int(W), int(H)
+    W = max(1, int(round(width * scale)))
+    H = max(1, int(round(height * scale)))
+    sx, sy = W / width, H / height
+    return np.array([[K[0, 0] * sx, 0, K[0, 2] * sx], [0, K[1, 1] * sy, K[1, 2] * sy],
+                     [0, 0, 1.0]]), W, H
+
+
 def fit_camera(K: np.ndarray, width: int, height: int, target_w: int, target_h: int,
                fit: str = "cover") -> np.ndarray:
     """Intrinsics (3, 3) of a camera with a (target_w, target_h) array fitted

@@ -20,7 +20,7 @@ from typing import Iterator
 import numpy as np
 import torch
 
-from gs2e.common.camera import fit_camera
+from gs2e.common.camera import render_camera
 from gs2e.common.errors import ConfigError, InputError
 from gs2e.events.models import TileBatch
 from gs2e.events.presets import get_preset
@@ -111,17 +111,9 @@ class RenderedSource:
         self.traj = load_trajectory(trajectory_path)
         self.name = Path(trajectory_path).stem
         K = np.asarray(self.traj.K, np.float64)
-        sensor = get_sensor(events_cfg)
-        if sensor is not None:  # the sensor's pixel array; render.scale does not apply
-            W, H = sensor.size
-            self.K = fit_camera(K, self.traj.width, self.traj.height, W, H,
-                                events_cfg["sensor_fit"])
-        else:
-            W = max(1, int(round(self.traj.width * scale)))
-            H = max(1, int(round(self.traj.height * scale)))
-            sx, sy = W / self.traj.width, H / self.traj.height
-            self.K = np.array([[K[0, 0] * sx, 0, K[0, 2] * sx], [0, K[1, 1] * sy, K[1, 2] * sy],
-                               [0, 0, 1.0]])
+        sensor = get_sensor(events_cfg)  # its pixel array; render.scale does not apply then
+        self.K, W, H = render_camera(K, self.traj.width, self.traj.height, scale,
+                                     (sensor.size, events_cfg["sensor_fit"]) if sensor else None)
         self.shape = (H, W)
         self.camera = {"K": self.K.tolist(), "width": W, "height": H,
                        "sensor": sensor.name if sensor else None,

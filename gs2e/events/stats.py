@@ -36,10 +36,7 @@ def event_stats(ev: Events, shape: tuple[int, int], duration_us: float | None = 
     pix = ev.y.astype(np.int64) * W + ev.x.astype(np.int64)
     counts = np.bincount(pix, minlength=H * W)
     active = counts[counts > 0] / dur_s
-    order = np.argsort(pix, kind="stable")  # events are time-sorted: stable keeps time order
-    ps, ts = pix[order], ev.t[order]
-    same = ps[1:] == ps[:-1]
-    iei = np.diff(ts)[same] * 1e-3
+    iei = per_pixel_intervals(ev, W, pix)[1] * 1e-3
     row.update(
         rate_meps=n / dur_s * 1e-6,
         on_fraction=float(ev.p.mean()),
@@ -54,6 +51,22 @@ def event_stats(ev: Events, shape: tuple[int, int], duration_us: float | None = 
         n_iei=int(iei.size),
     )
     return row
+
+
+def per_pixel_intervals(ev: Events, W: int, pix: np.ndarray | None = None
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """Intervals between consecutive events of the same pixel (either polarity).
+
+    Returns (pixel, iei_us): int64 arrays, the pixel index y * W + x of each
+    interval and its length in us, grouped by pixel in time order. ``ev`` is
+    time-sorted; ``pix`` (its pixel indices) may be passed when already computed.
+    """
+    if pix is None:
+        pix = ev.y.astype(np.int64) * W + ev.x.astype(np.int64)
+    order = np.argsort(pix, kind="stable")  # time-sorted input: stable keeps time order per pixel
+    ps, ts = pix[order], ev.t.astype(np.int64)[order]
+    same = ps[1:] == ps[:-1]
+    return ps[1:][same], np.diff(ts)[same]
 
 
 @njit(cache=True)
@@ -211,14 +224,9 @@ def _poisson_ci95(k: int) -> list[float]:
 def _refractory(ev: Events, W: int, q: float, n_boot: int, rng) -> tuple[float, list[float], float, int]:
     """(quantile-q IEI in us, its 95 % pixel-bootstrap interval, minimum IEI, number of IEIs)."""
     nan = float("nan")
-    pix = ev.y.astype(np.int64) * W + ev.x.astype(np.int64)
-    order = np.argsort(pix, kind="stable")  # time-sorted input: stable keeps time order per pixel
-    ps, ts = pix[order], ev.t.astype(np.int64)[order]
-    same = ps[1:] == ps[:-1]
-    iei = np.diff(ts)[same]
+    owner, iei = per_pixel_intervals(ev, W)
     if iei.size == 0:
         return nan, [nan, nan], nan, 0
-    owner = ps[1:][same]
     srt = np.argsort(iei, kind="stable")
     iei_sorted = iei[srt]
     # each pixel's IEIs enter a resample as often as the pixel is drawn

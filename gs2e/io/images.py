@@ -15,6 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from gs2e.common.camera import fit_scale
 from gs2e.common.errors import InputError
 from gs2e.io.scene import Camera
 
@@ -132,8 +133,7 @@ def cover_max_side(width: int, height: int, target: tuple[int, int] | None) -> i
     or there is no target."""
     if target is None:
         return None
-    tw, th = target
-    side = int(math.ceil(max(tw / width, th / height) * max(width, height)))
+    side = int(math.ceil(fit_scale(width, height, *target, "cover") * max(width, height)))
     return None if side >= max(width, height) else max(16, side)
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from gs2e.common.camera import fit_camera
+from gs2e.common.camera import render_camera
 from gs2e.common.color import luminance, srgb_to_linear
 from gs2e.common.errors import InputError
 from gs2e.splat.backend import resolve_backend
@@ -30,17 +30,11 @@ class TrajectoryRenderer:
         self.backend = resolve_backend(backend, "render.backend")
         self.traj = load_trajectory(trajectory_path)
         self.name = Path(trajectory_path).stem
-        K = np.asarray(self.traj.K, np.float64)
-        if sensor is not None:  # the event sensor's camera ((W, H), fit); scale does not apply
-            (self.width, self.height), fit = sensor
-            K = fit_camera(K, self.traj.width, self.traj.height, self.width, self.height, fit)
-            sx = sy = 1.0
-        else:
-            self.width = max(1, int(round(self.traj.width * scale)))
-            self.height = max(1, int(round(self.traj.height * scale)))
-            sx, sy = self.width / self.traj.width, self.height / self.traj.height
-        self.fx, self.fy, self.cx, self.cy = K[0, 0] * sx, K[1, 1] * sy, K[0, 2] * sx, K[1, 2] * sy
-        self.K = np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1.0]])
+        # the event sensor's camera ((W, H), fit) when given; then scale does not apply
+        self.K, self.width, self.height = render_camera(self.traj.K, self.traj.width,
+                                                        self.traj.height, scale, sensor)
+        self.fx, self.fy, self.cx, self.cy = (self.K[0, 0], self.K[1, 1], self.K[0, 2],
+                                              self.K[1, 2])
         self.bg = torch.tensor(background, dtype=self.params["means"].dtype)
         self.sh_degree = int(self.info["sh_degree"])
         self.t0_us, self.t1_us = int(self.traj.t_us[0]), int(self.traj.t_us[-1])
