@@ -2,11 +2,19 @@
 
 Times forward and forward+backward of :func:`gs2e.splat.rasterize.rasterize`
 at 256x256 / 50k Gaussians and 512x384 / 200k (float32, random Gaussians in
-front of the camera, a few pixels wide like a trained scene), and in the same
-run the dense pure-torch reference on the largest scene it can hold, on which
-both are timed for the speed ratio. It also times the compositing kernel alone
-against the same algorithm compiled from C with gcc -O3 -fopenmp (the
-numba-vs-extension measurement behind the choice of numba).
+front of the camera, a few pixels wide), and in the same run the dense
+pure-torch reference on the largest scene it can hold, on which both are
+timed for the speed ratio. It also times the compositing kernel alone against
+the pixel-major algorithm compiled from C with gcc -O3 -fopenmp.
+
+Trained models (the yardstick that matters: larger, overlapping Gaussians):
+the demo, temple_ring and llff_fern models of bench_event_sampling.py
+(trained 2000 steps at 320 px; built and cached by that script's workflow),
+rendered at their training size and at twice it (640 px), float32 like
+training: forward and forward+backward with today's kernels and with the
+baseline pixel-major kernels (benchmarks/_raster_v0.py, the kernels before
+the SIMD rewrite), swapped in within the same run; the images and gradients
+of both are compared.
 
 Usage: PYTHONPATH=$PWD python benchmarks/bench_rasterizer.py [--quick]
 Writes benchmarks/results/bench_rasterizer.csv and .png; the last printed line
@@ -62,14 +70,20 @@ def make_scene(n, width, height, seed=0, dtype=torch.float32):
 def time_render(fn, p, cam, reps):
     """Wall seconds of forward and forward+backward (loss = sum of outputs):
     dict of median and min over ``reps``, plus median process CPU seconds."""
+    return time_call(lambda: fn(*(p[k] for k in KEYS), cam, p["background"]), p.values(), reps)
+
+
+def time_call(render_once, params, reps):
+    """As :func:`time_render`, for a closure returning (image, alpha, depth, meta)."""
     t_f, t_fb, c_fb = [], [], []
     meta = None
+    params = list(params)
     for _ in range(reps):
-        for x in p.values():
+        for x in params:
             x.grad = None
         c0 = time.process_time()
         t0 = time.perf_counter()
-        img, alpha, depth, meta = fn(*(p[k] for k in KEYS), cam, p["background"])
+        img, alpha, depth, meta = render_once()
         t1 = time.perf_counter()
         (img.sum() + alpha.sum()).backward()
         t2 = time.perf_counter()
@@ -128,6 +142,48 @@ def c_vs_numba(reps, quick):
                 same_ncontrib=bool(np.array_equal(nc_c, nc_n)))
 
 
+def trained_models(reps: int, quick: bool) -> list[dict]:
+    """fwd and fwd+bwd on trained models, today's kernels vs the baseline."""
+    import _raster_v0 as v0
+    from bench_event_sampling import build_scenes
+    from gs2e.splat.model import load_model, render
+    from gs2e.trajectory import load_trajectory
+
+    kernels = {"simd": (R.raster_forward_kernel, R.raster_backward_kernel),
+               "pixel-major (baseline)": (v0.raster_forward_kernel, v0.raster_backward_kernel)}
+    rows = []
+    for name, d in build_scenes(["demo"] if quick else ["demo", "temple_ring", "llff_fern"]).items():
+        p, info = load_model(d / "splat")
+        for x in p.values():
+            x.requires_grad_(True)
+        tr = load_trajectory(d / "trajectories" / "base_medium.npz")
+        c2w = tr.pose_at(np.array([tr.duration_us // 3]))[0]
+        bg = torch.zeros(3)
+        for scale in (1, 2):
+            K = tr.K * scale
+            cam = SplatCamera.from_c2w(c2w, K[0, 0], K[1, 1], K[0, 2], K[1, 2],
+                                       tr.width * scale, tr.height * scale)
+            outs = {}
+            for impl, (fwd, bwd) in kernels.items():
+                R.raster_forward_kernel, R.raster_backward_kernel = fwd, bwd
+                try:
+                    t, meta = time_call(lambda: render(p, cam, bg, int(info["sh_degree"])),
+                                        p.values(), reps)
+                    img = render(p, cam, bg, int(info["sh_degree"]))[0]
+                    g = torch.autograd.grad(img.sum(), [p["means"], p["opacity_logits"]])
+                    outs[impl] = (img.detach(), *g)
+                finally:
+                    R.raster_forward_kernel, R.raster_backward_kernel = kernels["simd"]
+                rows.append(dict(scene=f"{name} trained {cam.width}x{cam.height}", width=cam.width,
+                                 height=cam.height, n=int(p["means"].shape[0]), backend=impl, **t,
+                                 n_pairs=meta["n_pairs"]))
+            a, b = outs["simd"], outs["pixel-major (baseline)"]
+            rows[-2]["max_abs_img_diff"] = float((a[0] - b[0]).abs().max())
+            rows[-2]["grad_rel_diff"] = max(float((x - y).abs().max() / y.abs().max().clamp_min(1e-30))
+                                            for x, y in zip(a[1:], b[1:]))
+    return rows
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer repetitions (< 60 s)")
@@ -174,6 +230,9 @@ def main(argv=None):
     import resource
     peak_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # kB -> GB
 
+    trained = trained_models(reps, args.quick)
+    rows += trained
+
     cmp = c_vs_numba(reps if args.quick else 9, args.quick)
     if cmp is not None:
         rows.append(dict(scene="256x256/50k composite-fwd-kernel", width=256, height=256, n=50_000,
@@ -206,20 +265,29 @@ def main(argv=None):
     for sc, (r_med, r_min) in ratio.items():
         print(f"dense torch reference {sc}: {r_med:.0f}x (median) / {r_min:.0f}x (min) slower "
               "than gs2e, forward+backward")
+    speedups = []
+    for i in range(0, len(trained), 2):
+        a, b = trained[i], trained[i + 1]
+        speedups.append((a["scene"], b["fwd_min_s"] / a["fwd_min_s"], b["fwd_bwd_min_s"] / a["fwd_bwd_min_s"]))
+        print(f"{a['scene']} ({a['n']} Gaussians): forward {b['fwd_min_s'] * 1e3:.1f} -> "
+              f"{a['fwd_min_s'] * 1e3:.1f} ms ({speedups[-1][1]:.2f}x), forward+backward "
+              f"{b['fwd_bwd_min_s'] * 1e3:.1f} -> {a['fwd_bwd_min_s'] * 1e3:.1f} ms "
+              f"({speedups[-1][2]:.2f}x) vs the pixel-major baseline (min of {reps}); "
+              f"max |image diff| {a['max_abs_img_diff']:.1e}, gradient rel. diff {a['grad_rel_diff']:.1e}")
     print(f"load average during the run: {os.getloadavg()} (shared machine: min is the "
           "least-disturbed repetition)")
 
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(8, 4))
-    sub = df[df.backend.isin(["gs2e-numba", "dense-torch"])]
+    fig, ax = plt.subplots(figsize=(12, 4.5))
+    sub = df[df.backend.isin(["gs2e-numba", "dense-torch", "simd", "pixel-major (baseline)"])]
     labels = [f"{r.scene}\n{r.backend}" for r in sub.itertuples()]
     x = np.arange(len(sub))
     ax.bar(x - 0.2, sub.fwd_s, 0.4, label="forward")
     ax.bar(x + 0.2, sub.fwd_bwd_s, 0.4, label="forward+backward")
     ax.set_yscale("log")
-    ax.set_xticks(x, labels, fontsize=7)
+    ax.set_xticks(x, labels, fontsize=6, rotation=60, ha="right")
     ax.set_ylabel("seconds (median)")
     ax.axhline(0.5, color="k", ls=":", lw=1, label="target 0.5 s (256x256/50k)")
     ax.set_title(f"gs2e CPU rasterizer, {threads} threads")
@@ -229,7 +297,11 @@ def main(argv=None):
 
     r0, r1 = rows[0], rows[1]
     big = list(ratio)[-1]
-    print(f"HEADLINE: forward+backward 256x256/50k {r0['fwd_bwd_min_s']:.3f} s min / "
+    fb = [sp[2] for sp in speedups]
+    print(f"HEADLINE: trained models, forward+backward {min(fb):.2f}-{max(fb):.2f}x faster than the "
+          f"pixel-major baseline (forward {min(sp[1] for sp in speedups):.2f}-"
+          f"{max(sp[1] for sp in speedups):.2f}x) over {len(speedups)} scene/size pairs; "
+          f"random 256x256/50k {r0['fwd_bwd_min_s']:.3f} s min / "
           f"{r0['fwd_bwd_s']:.3f} s median (target <= 0.5), 512x384/200k {r1['fwd_bwd_min_s']:.3f} / "
           f"{r1['fwd_bwd_s']:.3f} s, {ratio[big][1]:.0f}x (min) / {ratio[big][0]:.0f}x (median) faster "
           f"than the dense torch reference ({big}), {threads} threads")

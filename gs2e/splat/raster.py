@@ -12,23 +12,37 @@ Rules (3DGS, REFERENCE.md section 5):
 - compositing stops before the Gaussian that would bring the transmittance
   below 1e-4 (that Gaussian is not applied).
 
-Per tile, each pixel row and each CHUNK-pixel segment of it first compacts
-(branch-free) the candidates whose ellipse (3 sigma, or smaller where a low
-opacity keeps alpha under 1/255) reaches it; the exact per-pixel tests then
-decide, so these pre-filters never change the result (tested).
+Work order (Gaussian-major, SIMD): a tile keeps the state of its pixels
+(transmittance, accumulated features, where each pixel stopped) and walks its
+list once, front to back (the backward: back to front). For each Gaussian and
+each pixel row of the tile, the span of columns its ellipse (3 sigma, or
+smaller where a low opacity keeps alpha under 1/255) can reach is solved in
+closed form; the row's 8-pixel segments that the span touches are then
+evaluated branch-free, 8 lanes at a time, which LLVM compiles to vector code
+(AVX-512: one register per segment). Per pixel the operations and their order
+are those of a pixel-by-pixel loop, and the exact per-pixel tests (power in
+[max(-4.5, log(1/255/opacity)), 0], alpha >= 1/255, pixel still open) still
+decide, so the spans only pre-filter and never change a result (tested).
 
-Channels: any number C of per-Gaussian features are composited together
-(RGB plus camera depth, so expected depth comes for free).
+exp: :func:`_exp_neg`, a table of exp(-i/64) (correctly rounded, built from
+exact decimal arithmetic, so the same on every machine) times a degree-6
+polynomial; within 1.4 ulp of exp on [-4.5, 0] (tests), and vectorisable
+(libm's exp is a call per pixel).
+
+Channels: up to 4 per-Gaussian features are composited together (RGB plus
+camera depth, so expected depth comes for free).
 
 Determinism: each tile is handled by one thread, which writes the gradients
-of its (tile, Gaussian) pairs into its own rows of a pair buffer; the buffer is
-then reduced per Gaussian serially in pair order. No atomics, same bits every
-run, whatever the thread count.
+of its (tile, Gaussian) pairs into its own rows of a pair buffer (per pair:
+lane sums in row order, then the 8 lanes in order); the buffer is then
+reduced per Gaussian serially in pair order. No atomics, no fast-math, same
+bits every run, whatever the thread count or vector width.
 """
 
 from __future__ import annotations
 
 import math
+from decimal import Decimal, localcontext
 
 import numpy as np
 from numba import njit, prange
@@ -37,6 +51,31 @@ ALPHA_MAX = 0.99
 ALPHA_MIN = 1.0 / 255.0
 T_MIN = 1.0e-4
 POWER_MIN = -4.5  # 3 sigma: -0.5 * 3^2
+MAX_CHANNELS = 4
+LANES = 8  # pixels per segment: one AVX-512 register of float64
+
+
+def _exp_table() -> np.ndarray:
+    """exp(-i/64), i = 0..291, correctly rounded to float64."""
+    with localcontext() as ctx:
+        ctx.prec = 40
+        return np.array([float((-Decimal(i) / 64).exp()) for i in range(292)])
+
+
+EXP_TAB = _exp_table()
+
+
+@njit(inline="always", fastmath=False)
+def _exp_neg(x):
+    """exp(x) for x in [-4.5 - 1e-5, 0] (the compositing range; others: do not
+    call). exp(-i/64) from the table times exp(r), |r| <= 1/128, by its
+    Taylor polynomial to degree 6 (truncation < 4e-19)."""
+    i = int(x * -64.0 + 0.5)
+    r = x + i * 0.015625  # exact: i / 64 and x share their last bits
+    q = r * (1.0 + r * (0.5 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0
+                                                                       + r * (1.0 / 720.0))))))
+    e = EXP_TAB[i]
+    return e + e * q
 
 
 @njit(cache=True, fastmath=False)
@@ -90,130 +129,194 @@ def bin_kernel(order, means2d, radii, width, height, tile):
     return counts, gids
 
 
-CHUNK = 4  # pixels per row segment sharing one candidate list
+@njit(inline="always", fastmath=False)
+def _footprint(o, a, b, c):
+    """lpm, the power below which a Gaussian of opacity ``o`` and conic
+    (a, b, c) cannot pass (the 3-sigma cut or alpha < 1/255, whichever is
+    tighter, minus a margin), and m2 = -2 lpm, the squared Mahalanobis radius
+    of that ellipse; lpm = 1 (never passes) for alpha < 1/255 everywhere or a
+    degenerate conic."""
+    det = a * c - b * b
+    if o < ALPHA_MIN or not det > 0.0:
+        return 1.0, 0.0, det
+    lpm = max(POWER_MIN, math.log(ALPHA_MIN / o)) - 1e-6
+    return lpm, -2.0 * lpm, det
 
 
-@njit(cache=True, fastmath=False)
-def _extents(la, lb, lc, lo, rx, ry, lpm):
-    """Per Gaussian: lpm, the power below which it cannot pass (the 3-sigma cut
-    or alpha < 1/255, whichever is tighter, minus a margin), and the half width
-    / height (px) of the ellipse power >= lpm, slightly enlarged.
-
-    These only pre-filter; the exact tests still run per pixel, so results do
-    not depend on them. Low-opacity Gaussians get much smaller footprints.
-    """
-    for k in range(la.shape[0]):
-        det = la[k] * lc[k] - lb[k] * lb[k]
-        if lo[k] < ALPHA_MIN or not det > 0.0:
-            lpm[k] = 1.0  # alpha < 1/255 everywhere (or degenerate): never used
-            rx[k] = -1.0
-            ry[k] = -1.0
-            continue
-        lpm[k] = max(POWER_MIN, math.log(ALPHA_MIN / lo[k])) - 1e-6
-        m2 = -2.0 * lpm[k]  # squared Mahalanobis radius
-        # covariance = inverse conic: var_x = c / det, var_y = a / det
-        rx[k] = math.sqrt(m2 * lc[k] / det) * (1.0 + 1e-6) + 1e-3
-        ry[k] = math.sqrt(m2 * la[k] / det) * (1.0 + 1e-6) + 1e-3
+@njit(inline="always", fastmath=False)
+def _row_range(v, a, det, m2, y0, th):
+    """Rows (tile-local, inclusive) whose centre the ellipse power >= lpm
+    around centre row v can reach, slightly enlarged."""
+    ry = math.sqrt(m2 * a / det) * (1.0 + 1e-6) + 1e-3  # var_y = a / det
+    return (max(0, int(math.ceil(v - ry - 0.5)) - y0),
+            min(th - 1, int(math.floor(v + ry - 0.5)) - y0))
 
 
-@njit(cache=True, fastmath=False)
-def _row_list(lv, lry, py, rl):
-    """Indices (in depth order) of tile Gaussians whose ellipse spans row py.
-    Branch-free compaction: the test outcome is unpredictable."""
-    mr = 0
-    for k in range(lv.shape[0]):
-        rl[mr] = k
-        mr += abs(lv[k] - py) <= lry[k]
-    return mr
+@njit(inline="always", fastmath=False)
+def _col_span(u, dy, a, b, det, m2, x0, tw):
+    """Columns (tile-local, inclusive; empty if lo > hi) of the row at offset
+    dy = v - py from the centre that the ellipse reaches: a dx^2 + 2 b dx dy +
+    c dy^2 <= m2 solved for dx, widened (slack, relative and absolute) so
+    that rounding never drops a pixel the exact test would keep."""
+    D = a * m2 - det * dy * dy + 1e-6 * a * m2
+    if D < 0.0:
+        return 0, -1
+    hw = math.sqrt(D) / a * (1.0 + 1e-6) + 1e-3
+    cx = u + b * dy / a
+    return (max(0, int(math.ceil(cx - hw - 0.5)) - x0),
+            min(tw - 1, int(math.floor(cx + hw - 0.5)) - x0))
 
 
-@njit(cache=True, fastmath=False)
-def _seg_list(lu, lrx, rl, mr, x0, x1, sl):
-    """Entries of the row list whose ellipse reaches pixel centres in [x0, x1]."""
-    ms = 0
-    for r in range(mr):
-        k = rl[r]
-        sl[ms] = k
-        ms += (lu[k] + lrx[k] >= x0) and (lu[k] - lrx[k] <= x1)
-    return ms
+# forward segment block (float64): 6 fields x LANES
+_FT, _F0, _F1, _F2, _F3, _FL = 0, 8, 16, 24, 32, 40
+_FBLK = 48
+
+
+@njit(inline="always", fastmath=False)
+def _segment_forward(s, jx, u, a, b, c, dy, lpm, o, f0, f1, f2, f3, kf, mf):
+    """Composite Gaussian k (kf = float(k)) over the 8 pixels of one segment
+    block ``s`` (columns jx .. jx + 7 at offset dy from the centre row).
+    Branch-free: every lane computes, masks decide what is stored. A pixel is
+    open while its stop index equals mf = float(list length)."""
+    for lane in range(LANES):
+        dx = u - (jx + lane + 0.5)
+        power = -0.5 * (a * dx * dx + c * dy * dy) - b * dx * dy
+        ok = (power <= 0.0) & (power >= lpm) & (power >= POWER_MIN) & (s[_FL + lane] == mf)
+        alpha = min(ALPHA_MAX, o * _exp_neg(power if ok else 0.0))
+        ok = ok & (alpha >= ALPHA_MIN)
+        T = s[_FT + lane]
+        t_next = T * (1.0 - alpha)
+        upd = ok & (t_next >= T_MIN)
+        w = alpha * T
+        s[_F0 + lane] = s[_F0 + lane] + f0 * w if upd else s[_F0 + lane]
+        s[_F1 + lane] = s[_F1 + lane] + f1 * w if upd else s[_F1 + lane]
+        s[_F2 + lane] = s[_F2 + lane] + f2 * w if upd else s[_F2 + lane]
+        s[_F3 + lane] = s[_F3 + lane] + f3 * w if upd else s[_F3 + lane]
+        s[_FT + lane] = t_next if upd else T
+        s[_FL + lane] = kf if ok & (t_next < T_MIN) else s[_FL + lane]
 
 
 @njit(parallel=True, cache=True, fastmath=False)
 def raster_forward_kernel(tile_ids, offsets, gids, means2d, conics, opac, feats, bg,
                           width, height, tile, out, out_T, n_contrib):
     """Composite the tiles ``tile_ids`` (row-major tile numbers); the list of
-    tile_ids[s] is gids[offsets[s]:offsets[s + 1]]. out (H,W,C), out_T (H,W)
-    final transmittance, n_contrib (H,W) = number of list entries processed
-    (the backward walks [0, n_contrib)); pixels of other tiles are untouched."""
+    tile_ids[s] is gids[offsets[s]:offsets[s + 1]]. out (H,W,C), C <= 4,
+    out_T (H,W) final transmittance, n_contrib (H,W) = number of list entries
+    processed (the backward walks [0, n_contrib)); pixels of other tiles are
+    untouched."""
     tiles_x = (width + tile - 1) // tile
     C = feats.shape[1]
-    for s in prange(tile_ids.shape[0]):
-        t = tile_ids[s]
+    nseg = (tile + LANES - 1) // LANES
+    for si in prange(tile_ids.shape[0]):
+        t = tile_ids[si]
         ty = t // tiles_x
         tx = t - ty * tiles_x
-        start = offsets[s]
-        m = offsets[s + 1] - start
-        # gather this tile's Gaussians contiguously (cache friendly)
-        lu = np.empty(m)
-        lv = np.empty(m)
-        la = np.empty(m)
-        lb = np.empty(m)
-        lc = np.empty(m)
-        lo = np.empty(m)
-        lf = np.empty((m, C))
+        start = offsets[si]
+        m = offsets[si + 1] - start
+        mf = float(m)
+        x0 = tx * tile
+        y0 = ty * tile
+        tw = min(width, x0 + tile) - x0
+        th = min(height, y0 + tile) - y0
+        # one block per (row, segment): lanes past the tile's width start closed
+        st = np.zeros(th * nseg * _FBLK)
+        for ii in range(th):
+            for jj in range(nseg * LANES):
+                blk = (ii * nseg + jj // LANES) * _FBLK
+                st[blk + _FT + jj % LANES] = 1.0
+                st[blk + _FL + jj % LANES] = mf if jj < tw else -1.0
         for k in range(m):
             g = gids[start + k]
-            lu[k] = means2d[g, 0]
-            lv[k] = means2d[g, 1]
-            la[k] = conics[g, 0]
-            lb[k] = conics[g, 1]
-            lc[k] = conics[g, 2]
-            lo[k] = opac[g]
-            for c in range(C):
-                lf[k, c] = feats[g, c]
-        lrx = np.empty(m)
-        lry = np.empty(m)
-        lpm = np.empty(m)
-        _extents(la, lb, lc, lo, lrx, lry, lpm)
-        rl = np.empty(m + 1, dtype=np.int64)
-        sl = np.empty(m + 1, dtype=np.int64)
-        acc = np.empty(C)
-        jend = min(width, (tx + 1) * tile)
-        for i in range(ty * tile, min(height, (ty + 1) * tile)):
-            py = i + 0.5
-            mr = _row_list(lv, lry, py, rl)
-            for j in range(tx * tile, jend):
-                if (j - tx * tile) % CHUNK == 0:
-                    ms = _seg_list(lu, lrx, rl, mr, j + 0.5, min(j + CHUNK, jend) - 0.5, sl)
-                px = j + 0.5
-                T = 1.0
-                for c in range(C):
-                    acc[c] = 0.0
-                last = m
-                for r in range(ms):
-                    k = sl[r]
-                    dx = lu[k] - px
-                    dy = lv[k] - py
-                    power = -0.5 * (la[k] * dx * dx + lc[k] * dy * dy) - lb[k] * dx * dy
-                    if power > 0.0 or power < lpm[k]:
-                        continue  # cheap pre-test; the exact tests follow
-                    if power < POWER_MIN:
-                        continue
-                    alpha = min(ALPHA_MAX, lo[k] * math.exp(power))
-                    if alpha < ALPHA_MIN:
-                        continue
-                    t_next = T * (1.0 - alpha)
-                    if t_next < T_MIN:
-                        last = k
-                        break
-                    w = alpha * T
-                    for c in range(C):
-                        acc[c] += lf[k, c] * w
-                    T = t_next
-                for c in range(C):
-                    out[i, j, c] = acc[c] + T * bg[c]
-                out_T[i, j] = T
-                n_contrib[i, j] = last
+            o = float(opac[g])
+            a = float(conics[g, 0])
+            b = float(conics[g, 1])
+            c = float(conics[g, 2])
+            lpm, m2, det = _footprint(o, a, b, c)
+            if lpm > 0.0:
+                continue
+            u = float(means2d[g, 0])
+            v = float(means2d[g, 1])
+            f0 = float(feats[g, 0])
+            f1 = float(feats[g, 1]) if C > 1 else 0.0
+            f2 = float(feats[g, 2]) if C > 2 else 0.0
+            f3 = float(feats[g, 3]) if C > 3 else 0.0
+            kf = float(k)
+            i_lo, i_hi = _row_range(v, a, det, m2, y0, th)
+            for ii in range(i_lo, i_hi + 1):
+                dy = v - (y0 + ii + 0.5)
+                j_lo, j_hi = _col_span(u, dy, a, b, det, m2, x0, tw)
+                if j_lo > j_hi:
+                    continue
+                for h in range(j_lo // LANES, j_hi // LANES + 1):
+                    blk = (ii * nseg + h) * _FBLK
+                    _segment_forward(st[blk:blk + _FBLK], x0 + h * LANES, u, a, b, c, dy, lpm,
+                                     o, f0, f1, f2, f3, kf, mf)
+        for ii in range(th):
+            for jj in range(tw):
+                blk = (ii * nseg + jj // LANES) * _FBLK
+                lane = jj % LANES
+                T = st[blk + _FT + lane]
+                for ch in range(C):
+                    out[y0 + ii, x0 + jj, ch] = st[blk + _F0 + LANES * ch + lane] + T * bg[ch]
+                out_T[y0 + ii, x0 + jj] = T
+                n_contrib[y0 + ii, x0 + jj] = int(st[blk + _FL + lane])
+
+
+# backward segment block (float64), LANES each: pixel state T, T_final, g_T,
+# S (sum behind of w f.g), g_out[0..4), stop index; then the pair's gradient
+# partial sums d u, d v, d conic a, b, c, d opacity, d feats[0..4)
+_BT, _BTF, _BGT, _BS, _BG, _BL, _BACC = 0, 8, 16, 24, 32, 64, 72
+_NGRAD = 6 + MAX_CHANNELS
+_BBLK = _BACC + _NGRAD * LANES
+
+
+@njit(inline="always", fastmath=False)
+def _segment_backward(s, jx, u, a, b, c, dy, lpm, o, f0, f1, f2, f3, kf):
+    """Undo Gaussian k over one segment block (back to front) and add its
+    per-lane gradient partial sums into the block's accumulators."""
+    for lane in range(LANES):
+        dx = u - (jx + lane + 0.5)
+        power = -0.5 * (a * dx * dx + c * dy * dy) - b * dx * dy
+        ok = (power <= 0.0) & (power >= lpm) & (power >= POWER_MIN) & (kf < s[_BL + lane])
+        G = _exp_neg(power if ok else 0.0)
+        a_raw = o * G
+        alpha = min(ALPHA_MAX, a_raw)
+        ok = ok & (alpha >= ALPHA_MIN)
+        inv_om = 1.0 / (1.0 - alpha)
+        T = s[_BT + lane] * inv_om  # transmittance in front of this Gaussian
+        w = alpha * T
+        g0 = s[_BG + lane]
+        g1 = s[_BG + 8 + lane]
+        g2 = s[_BG + 16 + lane]
+        g3 = s[_BG + 24 + lane]
+        dotf = g0 * f0 + g1 * f1 + g2 * f2 + g3 * f3
+        # dL/dalpha = T f.g - (sum_{behind} w_j f_j.g + gT T_final) / (1 - alpha)
+        g_alpha = T * dotf - (s[_BS + lane] + s[_BGT + lane] * s[_BTF + lane]) * inv_om
+        s[_BT + lane] = T if ok else s[_BT + lane]
+        s[_BS + lane] = s[_BS + lane] + w * dotf if ok else s[_BS + lane]
+        s[_BACC + 48 + lane] = s[_BACC + 48 + lane] + w * g0 if ok else s[_BACC + 48 + lane]
+        s[_BACC + 56 + lane] = s[_BACC + 56 + lane] + w * g1 if ok else s[_BACC + 56 + lane]
+        s[_BACC + 64 + lane] = s[_BACC + 64 + lane] + w * g2 if ok else s[_BACC + 64 + lane]
+        s[_BACC + 72 + lane] = s[_BACC + 72 + lane] + w * g3 if ok else s[_BACC + 72 + lane]
+        ok = ok & (a_raw <= ALPHA_MAX)  # clamped: no gradient to opacity or shape
+        gp = alpha * g_alpha  # dL/dpower
+        s[_BACC + 40 + lane] = s[_BACC + 40 + lane] + G * g_alpha if ok else s[_BACC + 40 + lane]
+        s[_BACC + lane] = s[_BACC + lane] - gp * (a * dx + b * dy) if ok else s[_BACC + lane]
+        s[_BACC + 8 + lane] = (s[_BACC + 8 + lane] - gp * (b * dx + c * dy) if ok
+                               else s[_BACC + 8 + lane])
+        s[_BACC + 16 + lane] = (s[_BACC + 16 + lane] - 0.5 * gp * dx * dx if ok
+                                else s[_BACC + 16 + lane])
+        s[_BACC + 24 + lane] = s[_BACC + 24 + lane] - gp * dx * dy if ok else s[_BACC + 24 + lane]
+        s[_BACC + 32 + lane] = (s[_BACC + 32 + lane] - 0.5 * gp * dy * dy if ok
+                                else s[_BACC + 32 + lane])
+
+
+@njit(inline="always", fastmath=False)
+def _take_partials(s, acc):
+    """acc += the block's gradient partial sums, which are reset to 0."""
+    for q in range(_NGRAD * LANES):
+        acc[q] += s[_BACC + q]
+        s[_BACC + q] = 0.0
 
 
 @njit(parallel=True, cache=True, fastmath=False)
@@ -224,89 +327,75 @@ def raster_backward_kernel(offsets, gids, means2d, conics, opac, feats,
     tiles_x = (width + tile - 1) // tile
     tiles_y = (height + tile - 1) // tile
     C = feats.shape[1]
+    nseg = (tile + LANES - 1) // LANES
     for t in prange(tiles_x * tiles_y):
         ty = t // tiles_x
         tx = t - ty * tiles_x
         start = offsets[t]
         m = offsets[t + 1] - start
-        lu = np.empty(m)
-        lv = np.empty(m)
-        la = np.empty(m)
-        lb = np.empty(m)
-        lc = np.empty(m)
-        lo = np.empty(m)
-        lf = np.empty((m, C))
-        lg = np.zeros((m, 6 + C))
-        for k in range(m):
+        x0 = tx * tile
+        y0 = ty * tile
+        tw = min(width, x0 + tile) - x0
+        th = min(height, y0 + tile) - y0
+        st = np.zeros(th * nseg * _BBLK)
+        for ii in range(th):
+            for jj in range(nseg * LANES):
+                blk = (ii * nseg + jj // LANES) * _BBLK
+                lane = jj % LANES
+                if jj < tw:
+                    st[blk + _BT + lane] = out_T[y0 + ii, x0 + jj]
+                    st[blk + _BTF + lane] = out_T[y0 + ii, x0 + jj]
+                    st[blk + _BGT + lane] = g_T[y0 + ii, x0 + jj]
+                    for ch in range(C):
+                        st[blk + _BG + LANES * ch + lane] = g_out[y0 + ii, x0 + jj, ch]
+                    st[blk + _BL + lane] = n_contrib[y0 + ii, x0 + jj]
+                else:
+                    st[blk + _BT + lane] = 1.0
+                    st[blk + _BTF + lane] = 1.0
+                    st[blk + _BL + lane] = -1.0  # closed
+        acc = np.empty(_NGRAD * LANES)
+        touched = np.empty(th * nseg, dtype=np.int64)
+        for k in range(m - 1, -1, -1):
             g = gids[start + k]
-            lu[k] = means2d[g, 0]
-            lv[k] = means2d[g, 1]
-            la[k] = conics[g, 0]
-            lb[k] = conics[g, 1]
-            lc[k] = conics[g, 2]
-            lo[k] = opac[g]
-            for c in range(C):
-                lf[k, c] = feats[g, c]
-        lrx = np.empty(m)
-        lry = np.empty(m)
-        lpm = np.empty(m)
-        _extents(la, lb, lc, lo, lrx, lry, lpm)
-        rl = np.empty(m + 1, dtype=np.int64)
-        sl = np.empty(m + 1, dtype=np.int64)
-        go = np.empty(C)
-        jend = min(width, (tx + 1) * tile)
-        for i in range(ty * tile, min(height, (ty + 1) * tile)):
-            py = i + 0.5
-            mr = _row_list(lv, lry, py, rl)
-            for j in range(tx * tile, jend):
-                if (j - tx * tile) % CHUNK == 0:
-                    ms = _seg_list(lu, lrx, rl, mr, j + 0.5, min(j + CHUNK, jend) - 0.5, sl)
-                px = j + 0.5
-                T_final = float(out_T[i, j])
-                T = T_final
-                gT = float(g_T[i, j])
-                Sg = 0.0  # sum over Gaussians behind of w_j * (f_j . g_out)
-                for c in range(C):
-                    go[c] = g_out[i, j, c]
-                last = n_contrib[i, j]
-                for r in range(ms - 1, -1, -1):
-                    k = sl[r]
-                    if k >= last:
-                        continue
-                    dx = lu[k] - px
-                    dy = lv[k] - py
-                    power = -0.5 * (la[k] * dx * dx + lc[k] * dy * dy) - lb[k] * dx * dy
-                    if power > 0.0 or power < lpm[k]:
-                        continue  # cheap pre-test; the exact tests follow
-                    if power < POWER_MIN:
-                        continue
-                    G = math.exp(power)
-                    a_raw = lo[k] * G
-                    alpha = min(ALPHA_MAX, a_raw)
-                    if alpha < ALPHA_MIN:
-                        continue
-                    inv_om = 1.0 / (1.0 - alpha)
-                    T = T * inv_om  # transmittance in front of this Gaussian
-                    w = alpha * T
-                    dotf = 0.0
-                    for c in range(C):
-                        dotf += go[c] * lf[k, c]
-                        lg[k, 6 + c] += w * go[c]
-                    # dL/dalpha = T f.g - (sum_{behind} w_j f_j.g + gT T_final) / (1 - alpha)
-                    g_alpha = T * dotf - (Sg + gT * T_final) * inv_om
-                    Sg += w * dotf
-                    if a_raw > ALPHA_MAX:
-                        continue  # clamped: no gradient to opacity or shape
-                    lg[k, 5] += G * g_alpha
-                    gp = alpha * g_alpha  # dL/dpower
-                    lg[k, 0] += -gp * (la[k] * dx + lb[k] * dy)
-                    lg[k, 1] += -gp * (lb[k] * dx + lc[k] * dy)
-                    lg[k, 2] += -0.5 * gp * dx * dx
-                    lg[k, 3] += -gp * dx * dy
-                    lg[k, 4] += -0.5 * gp * dy * dy
-        for k in range(m):
-            for c in range(6 + C):
-                pair_grad[start + k, c] = lg[k, c]
+            for ch in range(6 + C):
+                pair_grad[start + k, ch] = 0.0
+            o = float(opac[g])
+            a = float(conics[g, 0])
+            b = float(conics[g, 1])
+            c = float(conics[g, 2])
+            lpm, m2, det = _footprint(o, a, b, c)
+            if lpm > 0.0:
+                continue
+            u = float(means2d[g, 0])
+            v = float(means2d[g, 1])
+            f0 = float(feats[g, 0])
+            f1 = float(feats[g, 1]) if C > 1 else 0.0
+            f2 = float(feats[g, 2]) if C > 2 else 0.0
+            f3 = float(feats[g, 3]) if C > 3 else 0.0
+            kf = float(k)
+            n_touched = 0
+            i_lo, i_hi = _row_range(v, a, det, m2, y0, th)
+            for ii in range(i_lo, i_hi + 1):
+                dy = v - (y0 + ii + 0.5)
+                j_lo, j_hi = _col_span(u, dy, a, b, det, m2, x0, tw)
+                if j_lo > j_hi:
+                    continue
+                for h in range(j_lo // LANES, j_hi // LANES + 1):
+                    blk = (ii * nseg + h) * _BBLK
+                    _segment_backward(st[blk:blk + _BBLK], x0 + h * LANES, u, a, b, c, dy, lpm,
+                                      o, f0, f1, f2, f3, kf)
+                    touched[n_touched] = blk
+                    n_touched += 1
+            if n_touched == 0:
+                continue
+            acc[:] = 0.0
+            for q in range(n_touched):
+                _take_partials(st[touched[q]:touched[q] + _BBLK], acc)
+            for f in range(6 + C):
+                total = 0.0
+                for lane in range(LANES):
+                    total += acc[f * LANES + lane]
+                pair_grad[start + k, f] = total
 
 
 @njit(cache=True, fastmath=False)
@@ -337,13 +426,20 @@ def bin_gaussians(means2d, depths, radii, width, height, tile=16, opac=None):
     return bin_kernel(order, means2d, r, int(width), int(height), int(tile))
 
 
+def _channels(feats) -> int:
+    C = int(feats.shape[1])
+    if not 1 <= C <= MAX_CHANNELS:
+        raise ValueError(f"the compositing kernels take 1 to {MAX_CHANNELS} feature channels, got {C}")
+    return C
+
+
 def rasterize_forward(means2d, conics, opac, feats, bg, width, height, offsets, gids, tile=16):
     """Composite features front to back.
 
     Parameters
     ----------
-    means2d (N,2) px; conics (N,3); opac (N,) in [0,1]; feats (N,C); bg (C,);
-    all of one float dtype (float32 or float64), which the outputs take.
+    means2d (N,2) px; conics (N,3); opac (N,) in [0,1]; feats (N,C), 1 <= C <= 4;
+    bg (C,); all of one float dtype (float32 or float64), which the outputs take.
 
     Returns
     -------
@@ -351,7 +447,7 @@ def rasterize_forward(means2d, conics, opac, feats, bg, width, height, offsets, 
     transmittance, n_contrib (H,W) int32.
     """
     dt = feats.dtype
-    C = feats.shape[1]
+    C = _channels(feats)
     out = np.empty((height, width, C), dtype=dt)
     out_T = np.empty((height, width), dtype=dt)
     n_contrib = np.empty((height, width), dtype=np.int32)
@@ -371,7 +467,7 @@ def rasterize_backward(means2d, conics, opac, feats, width, height, offsets, gid
     Returns float64 (N, 6 + C): d u, d v, d conic a, b, c, d opacity, d feats.
     """
     n = means2d.shape[0]
-    C = feats.shape[1]
+    C = _channels(feats)
     pair_grad = np.empty((gids.shape[0], 6 + C), dtype=np.float64)
     raster_backward_kernel(offsets, gids, means2d, conics, opac, feats,
                            int(width), int(height), int(tile), out_T, n_contrib,
