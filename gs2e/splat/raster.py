@@ -144,6 +144,24 @@ def _footprint(o, a, b, c):
 
 
 @njit(inline="always", fastmath=False)
+def _gaussian(g, means2d, conics, opac, feats):
+    """Gaussian g as float64 scalars: opacity, conic (a, b, c), its footprint
+    (lpm, m2, det: :func:`_footprint`), centre (u, v) and features padded to
+    4 with zeros."""
+    C = feats.shape[1]
+    o = float(opac[g])
+    a = float(conics[g, 0])
+    b = float(conics[g, 1])
+    c = float(conics[g, 2])
+    lpm, m2, det = _footprint(o, a, b, c)
+    f1 = float(feats[g, 1]) if C > 1 else 0.0
+    f2 = float(feats[g, 2]) if C > 2 else 0.0
+    f3 = float(feats[g, 3]) if C > 3 else 0.0
+    return (o, a, b, c, lpm, m2, det, float(means2d[g, 0]), float(means2d[g, 1]),
+            float(feats[g, 0]), f1, f2, f3)
+
+
+@njit(inline="always", fastmath=False)
 def _row_range(v, a, det, m2, y0, th):
     """Rows (tile-local, inclusive) whose centre the ellipse power >= lpm
     around centre row v can reach, slightly enlarged."""
@@ -227,19 +245,10 @@ def raster_forward_kernel(tile_ids, offsets, gids, means2d, conics, opac, feats,
                 st[blk + _FL + jj % LANES] = mf if jj < tw else -1.0
         for k in range(m):
             g = gids[start + k]
-            o = float(opac[g])
-            a = float(conics[g, 0])
-            b = float(conics[g, 1])
-            c = float(conics[g, 2])
-            lpm, m2, det = _footprint(o, a, b, c)
+            o, a, b, c, lpm, m2, det, u, v, f0, f1, f2, f3 = _gaussian(g, means2d, conics, opac,
+                                                                       feats)
             if lpm > 0.0:
                 continue
-            u = float(means2d[g, 0])
-            v = float(means2d[g, 1])
-            f0 = float(feats[g, 0])
-            f1 = float(feats[g, 1]) if C > 1 else 0.0
-            f2 = float(feats[g, 2]) if C > 2 else 0.0
-            f3 = float(feats[g, 3]) if C > 3 else 0.0
             kf = float(k)
             i_lo, i_hi = _row_range(v, a, det, m2, y0, th)
             for ii in range(i_lo, i_hi + 1):
@@ -359,19 +368,10 @@ def raster_backward_kernel(offsets, gids, means2d, conics, opac, feats,
             g = gids[start + k]
             for ch in range(6 + C):
                 pair_grad[start + k, ch] = 0.0
-            o = float(opac[g])
-            a = float(conics[g, 0])
-            b = float(conics[g, 1])
-            c = float(conics[g, 2])
-            lpm, m2, det = _footprint(o, a, b, c)
+            o, a, b, c, lpm, m2, det, u, v, f0, f1, f2, f3 = _gaussian(g, means2d, conics, opac,
+                                                                       feats)
             if lpm > 0.0:
                 continue
-            u = float(means2d[g, 0])
-            v = float(means2d[g, 1])
-            f0 = float(feats[g, 0])
-            f1 = float(feats[g, 1]) if C > 1 else 0.0
-            f2 = float(feats[g, 2]) if C > 2 else 0.0
-            f3 = float(feats[g, 3]) if C > 3 else 0.0
             kf = float(k)
             n_touched = 0
             i_lo, i_hi = _row_range(v, a, det, m2, y0, th)
