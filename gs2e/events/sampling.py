@@ -142,6 +142,47 @@ def _tile_change(g_tile, g_last, t, H, W):
     return mx
 
 
+@njit(cache=True)
+def _commit_tiles(g_new, idx, tiles, g_last):
+    """g_last <- g_new[idx[i]] over the pixels of tile tiles[i] inside the image."""
+    H, W = g_last.shape
+    T = g_new.shape[1]
+    tiles_x = (W + T - 1) // T
+    for i in range(tiles.shape[0]):
+        ty = tiles[i] // tiles_x
+        tx = tiles[i] - ty * tiles_x
+        for a in range(min(T, H - ty * T)):
+            for b in range(min(T, W - tx * T)):
+                g_last[ty * T + a, tx * T + b] = g_new[idx[i], a, b]
+
+
+@njit(cache=True)
+def _next_levels(tiles, change, step_us, t_us, t0_us, t1_us, q, max_lvl, dt_max_us, bound,
+                 max_motion_px, speed_px_per_us, lvl, t_next):
+    """:meth:`TileSampler._next_time` for tiles accepted at ``t_us`` that hold
+    no pending trial and are not static with zero change (same arithmetic;
+    ``max_motion_px`` < 0 = off): sets lvl and t_next of each."""
+    rel = t_us - t0_us
+    for i in range(tiles.shape[0]):
+        k = tiles[i]
+        if t_us >= t1_us:
+            t_next[k] = t1_us
+            continue
+        old = lvl[k]
+        step = step_us[i]
+        cap = min(2.0 * max(q << old, step), float(dt_max_us))
+        if change[i] > 0.0:
+            cap = min(cap, 0.9 * bound / change[i] * step)
+        if max_motion_px >= 0.0 and speed_px_per_us[k] > 0.0:
+            cap = min(cap, max_motion_px / speed_px_per_us[k])
+        new = int(math.floor(math.log2(max(1.0, cap / q))))
+        new = max(0, min(new, max_lvl, old + 1))
+        while new > 0 and rel % (q << new):
+            new -= 1
+        lvl[k] = new
+        t_next[k] = min(t_us + (q << new), t1_us)
+
+
 def max_log_change(log_a: np.ndarray, log_b: np.ndarray, outlier_fraction: float = 0.0) -> float:
     """Largest per-pixel |log_b - log_a|; with ``outlier_fraction`` f > 0 the
     largest once the floor(f N) largest of the N pixels are set aside."""
@@ -368,7 +409,7 @@ class TileSampler:
         t_next = np.minimum(self.t0_us + (self.q << self.lvl), self.t1_us).astype(np.int64)
         for k in np.flatnonzero(self._window(self.t0_us).static):
             t_next[k] = self._static_until(int(k), self.t0_us)
-        out: dict[int, list] = {}
+        out: list[tuple] = []  # accepted intervals, chunks in time order
         n_out = 0
         lum = np.empty((self.n_tiles, TILE, TILE), np.float32)
         g_new = np.empty((self.n_tiles, TILE, TILE), np.float32)
@@ -391,14 +432,22 @@ class TileSampler:
                 st.renders += 1
                 st.tiles_rendered += n
                 st.pixel_samples += n * TILE * TILE
-                for i, k in enumerate(render):
-                    results[int(k)] = (lum[i].copy(), g_new[i].copy(), float(change[i]), False)
+                # the common case in bulk: accepted, no pending trial, not static at zero change
+                ch, step = change[:n], T - self.t_last[render]
+                fast = ~((ch > self.bound) & (step > self.q)) & ~((ch == 0.0) & w.static[render])
+                if self.pending:
+                    fast &= np.array([int(k) not in self.pending for k in render])
+                i_fast = np.flatnonzero(fast)
+                if len(i_fast):
+                    n_out += self._accept_bulk(T, w, render[i_fast], i_fast, ch[i_fast],
+                                               step[i_fast], lum, g_new, t_next, out)
+                for i in np.flatnonzero(~fast):
+                    results[int(render[i])] = (lum[i].copy(), g_new[i].copy(), float(change[i]),
+                                               False)
             for k in cached:
                 _, lm, gm = self.pending[k].pop(0)
                 results[int(k)] = (lm, gm, float(_tile_change(gm, self.g_last, k, self.H, self.W)), True)
-            for k in due:
-                k = int(k)
-                lm, gm, ch, reused = results[k]
+            for k, (lm, gm, ch, reused) in results.items():
                 step = T - int(self.t_last[k])
                 if ch > self.bound and step > self.q:
                     if not reused:
@@ -423,7 +472,8 @@ class TileSampler:
                 st.accepted += 1
                 st.step(step)
                 self.n_samples[k] += 1
-                out.setdefault(k, []).append((int(self.t_last[k]), T, int(self.n_samples[k]), lm))
+                out.append((np.array([k]), self.t_last[k:k + 1].copy(), np.array([T]),
+                            self.n_samples[k:k + 1].copy(), lm[None]))
                 n_out += 1
                 ty, tx = divmod(k, r.tiles_x)
                 y0, x0 = ty * TILE, tx * TILE
@@ -439,18 +489,39 @@ class TileSampler:
                 t_next[k] = self._next_time(k, ch, step)
             if n_out >= self.batch_intervals:
                 yield self._batch(out)
-                out, n_out = {}, 0
+                out, n_out = [], 0
                 self._drop_windows()
         if out:
             yield self._batch(out)
 
+    def _accept_bulk(self, T, w, tiles, idx, change, step, lum, g_new, t_next, out) -> int:
+        """Accept the samples at T of ``tiles`` (rows ``idx`` of lum/g_new),
+        none of which has a pending trial or is static at zero change."""
+        st = self.stats
+        over = change > self.bound
+        st.forced += int(over.sum())
+        if not over.all():
+            st.max_change = max(st.max_change, float(change[~over].max()))
+        st.accepted += len(tiles)
+        st.step(int(step.min()))
+        st.step(int(step.max()))
+        self.n_samples[tiles] += 1
+        out.append((tiles, self.t_last[tiles], np.full(len(tiles), T, np.int64),
+                    self.n_samples[tiles], lum[idx]))
+        _commit_tiles(g_new, idx, tiles, self.g_last)
+        self.t_last[tiles] = T
+        motion = -1.0 if self.max_motion_px is None else float(self.max_motion_px)
+        _next_levels(tiles, change, step, T, self.t0_us, self.t1_us, self.q, self.max_lvl,
+                     self.dt_max_us, self.bound, motion, w.speed_px_per_us, self.lvl, t_next)
+        return len(tiles)
+
     @staticmethod
-    def _batch(out: dict[int, list]) -> TileBatch:
-        tiles = np.array(sorted(out), np.int64)
-        ivs = [iv for k in tiles for iv in out[int(k)]]
-        offsets = np.zeros(len(tiles) + 1, np.int64)
-        offsets[1:] = np.cumsum([len(out[int(k)]) for k in tiles])
-        return TileBatch(tiles, offsets, np.array([iv[0] for iv in ivs], np.int64),
-                         np.array([iv[1] for iv in ivs], np.int64),
-                         np.array([iv[2] for iv in ivs], np.int64),
-                         np.stack([iv[3] for iv in ivs]))
+    def _batch(out: list[tuple]) -> TileBatch:
+        """One batch from chunks of accepted intervals (tiles, t0, t1, key_idx,
+        lum), in time order: per tile in time order, tiles ascending."""
+        tiles, t0, t1, key, lum = (np.concatenate(c) for c in zip(*out))
+        order = np.argsort(tiles, kind="stable")
+        uniq, counts = np.unique(tiles, return_counts=True)
+        offsets = np.zeros(len(uniq) + 1, np.int64)
+        np.cumsum(counts, out=offsets[1:])
+        return TileBatch(uniq, offsets, t0[order], t1[order], key[order], lum[order])

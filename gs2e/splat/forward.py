@@ -40,7 +40,9 @@ class TileCandidates:
     """Per tile, the Gaussians that may reach it at any pose of a span.
 
     ``offsets`` (n_tiles + 1,) int64 and ``gids`` (n,) int64: the candidates of
-    tile t are gids[offsets[t]:offsets[t + 1]], ascending. ``speed_px`` (n_tiles,)
+    tile t are gids[offsets[t]:offsets[t + 1]], in depth order at the span's
+    middle pose (ties by index), so that each render's depth sort starts
+    nearly sorted. ``speed_px`` (n_tiles,)
     float64: the largest displacement (px) of a candidate's centre between
     consecutive poses of the span, 0 for a tile without candidates;
     ``max_step_px`` the 99th percentile of that displacement over the Gaussians
@@ -129,66 +131,86 @@ def _union(tiles, offsets, gids, stamp, mark):
 
 
 @njit(cache=True, parallel=True)
-def _tile_lists(tiles, c_off, c_gids, means2d, radius_px, depths, width, height, tile):
-    """Per tile of ``tiles``: its candidates whose box (``radius_px``, as
-    :func:`gs2e.splat.raster.bin_gaussians` computes it) reaches it, sorted by
-    depth with ties by index. Returns (offsets (n + 1,), gids)."""
+def _sort_by_depth(offsets, gids, depths):
+    """Reorder each tile's ``gids`` by ``depths`` (stable: ties keep their order)."""
+    for t in prange(offsets.shape[0] - 1):
+        a, b = offsets[t], offsets[t + 1]
+        seg = gids[a:b].copy()
+        key = np.empty(b - a)
+        for i in range(b - a):
+            key[i] = depths[seg[i]]
+        order = np.argsort(key, kind="mergesort")
+        for i in range(b - a):
+            gids[a + i] = seg[order[i]]
+
+
+@njit(cache=True, parallel=True)
+def _tile_lists(tiles, c_off, c_gids, rect, depths, width, tile):
+    """Per tile of ``tiles``: its candidates whose tile range ``rect`` (x0, x1,
+    y0, y1: :func:`_finish_subset`) holds it, sorted by depth with ties by
+    index. Returns (offsets (n + 1,), gids).
+
+    Insertion sort by (depth, index): the candidates come in depth order at a
+    nearby pose (:meth:`ForwardRenderer.candidates`), so few moves are needed;
+    any candidate order gives the same lists."""
     n = tiles.shape[0]
     tiles_x = (width + tile - 1) // tile
-    tiles_y = (height + tile - 1) // tile
+    start = np.zeros(n + 1, np.int64)
+    for s in range(n):
+        t = tiles[s]
+        start[s + 1] = start[s] + c_off[t + 1] - c_off[t]
+    buf = np.empty(start[n], np.int64)
     counts = np.zeros(n + 1, np.int64)
     for s in prange(n):
         t = tiles[s]
         ty = t // tiles_x
         tx = t - ty * tiles_x
+        base = start[s]
         c = 0
         for k in range(c_off[t], c_off[t + 1]):
             g = c_gids[k]
-            r = radius_px[g]
-            if r <= 0.0:
-                continue
-            x0, x1, y0, y1 = _raster._tile_rect(means2d[g, 0], means2d[g, 1], r, width, height,
-                                                tile, tiles_x, tiles_y)
-            if x0 <= tx <= x1 and y0 <= ty <= y1:
+            if rect[g, 0] <= tx <= rect[g, 1] and rect[g, 2] <= ty <= rect[g, 3]:
+                d = depths[g]
+                i = base + c
+                while i > base:
+                    h = buf[i - 1]
+                    if depths[h] < d or (depths[h] == d and h < g):
+                        break
+                    buf[i] = h
+                    i -= 1
+                buf[i] = g
                 c += 1
         counts[s + 1] = c
     for s in range(n):
         counts[s + 1] += counts[s]
     out = np.empty(counts[n], np.int64)
     for s in prange(n):
-        t = tiles[s]
-        ty = t // tiles_x
-        tx = t - ty * tiles_x
-        m = counts[s + 1] - counts[s]
-        sel = np.empty(m, np.int64)
-        key = np.empty(m)
-        c = 0
-        for k in range(c_off[t], c_off[t + 1]):
-            g = c_gids[k]
-            r = radius_px[g]
-            if r <= 0.0:
-                continue
-            x0, x1, y0, y1 = _raster._tile_rect(means2d[g, 0], means2d[g, 1], r, width, height,
-                                                tile, tiles_x, tiles_y)
-            if x0 <= tx <= x1 and y0 <= ty <= y1:
-                sel[c] = g
-                key[c] = depths[g]
-                c += 1
-        order = np.argsort(key, kind="mergesort")  # stable: ties keep ascending index
-        for i in range(m):
-            out[counts[s] + i] = sel[order[i]]
+        base = start[s]
+        for i in range(counts[s + 1] - counts[s]):
+            out[counts[s] + i] = buf[base + i]
     return counts, out
 
 
 @njit(cache=True, parallel=True)
-def _finish_subset(idx, means2d, conics, radii, opac, radius_factor, m2_32, cn_32, radius_px):
-    """After projecting ``idx``: their opacity-shrunk bin radius and float32 copies."""
+def _finish_subset(idx, means2d, conics, radii, opac, radius_factor, width, height, tile, m2_32,
+                   cn_32, rect):
+    """After projecting ``idx``: the range of tiles their box reaches (x0, x1,
+    y0, y1 inclusive; empty if not visible: the opacity-shrunk bin radius of
+    :func:`gs2e.splat.raster.bin_gaussians`) and float32 copies."""
+    tiles_x = (width + tile - 1) // tile
+    tiles_y = (height + tile - 1) // tile
     for k in prange(idx.shape[0]):
         g = idx[k]
         r = float(radii[g])
-        o = opac[g]
-        radius_px[g] = (r * radius_factor[g] * (1.0 + 1e-6) + 1e-3
-                        if (o >= _raster.ALPHA_MIN and r > 0.0) else 0.0)
+        x0, x1, y0, y1 = 0, -1, 0, -1
+        if opac[g] >= _raster.ALPHA_MIN and r > 0.0:
+            x0, x1, y0, y1 = _raster._tile_rect(means2d[g, 0], means2d[g, 1],
+                                                r * radius_factor[g] * (1.0 + 1e-6) + 1e-3,
+                                                width, height, tile, tiles_x, tiles_y)
+        rect[g, 0] = x0
+        rect[g, 1] = x1
+        rect[g, 2] = y0
+        rect[g, 3] = y1
         m2_32[g, 0] = means2d[g, 0]
         m2_32[g, 1] = means2d[g, 1]
         cn_32[g, 0] = conics[g, 0]
@@ -245,7 +267,7 @@ class ForwardRenderer:
         self.conics = np.zeros((n, 3))
         self.depths = np.zeros(n)
         self.radii = np.zeros(n, np.int32)
-        self.radius_px = np.zeros(n)
+        self.rect = np.zeros((n, 4), np.int32)
         self.m2_dt = np.zeros((n, 2), self.dtype)
         self.cn_dt = np.zeros((n, 3), self.dtype)
         self.colors = np.zeros((n, 3), self.dtype)
@@ -275,7 +297,7 @@ class ForwardRenderer:
                           out=(self.means2d, self.conics, self.depths, self.radii))
         sel = np.arange(self.n_gaussians) if idx is None else idx
         _finish_subset(sel, self.means2d, self.conics, self.radii, self.opac, self.radius_factor,
-                       self.m2_dt, self.cn_dt, self.radius_px)
+                       self.width, self.height, TILE, self.m2_dt, self.cn_dt, self.rect)
         if self.sh_degree > 0 and len(sel):
             campos = -vm[:3, :3].T @ vm[:3, 3]
             dirs = self.means[sel] - campos[None, :]
@@ -347,6 +369,7 @@ class ForwardRenderer:
         gids = np.empty(int(offsets[-1]), np.int64)
         _cover_kernel(u, v, r, margin, everywhere, self.width, self.height, TILE, False, offsets,
                       gids)
+        _sort_by_depth(offsets, gids, z[P // 2])
         step_q99 = float(np.quantile(disp[seen], 0.99)) if P > 1 and seen.any() else 0.0
         return TileCandidates(offsets, gids, _tile_speed(offsets, gids, disp), step_q99)
 
@@ -358,8 +381,8 @@ class ForwardRenderer:
         self._mark += 1
         idx = _union(tiles, cand.offsets, cand.gids, self._stamp, self._mark)
         self._project(self._viewmat(c2w), idx)
-        offsets, gids = _tile_lists(tiles, cand.offsets, cand.gids, self.means2d, self.radius_px,
-                                    self.depths, self.width, self.height, TILE)
+        offsets, gids = _tile_lists(tiles, cand.offsets, cand.gids, self.rect, self.depths,
+                                    self.width, TILE)
         _raster.raster_forward_kernel(tiles, offsets, gids, self.m2_dt, self.cn_dt, self.opac_dt,
                                       self.colors, self.bg, self.width, self.height, TILE,
                                       self.image, self._T, self._nc)
