@@ -157,30 +157,37 @@ def _commit_tiles(g_new, idx, tiles, g_last):
 
 
 @njit(cache=True)
+def _next_level(old, step_us, change, rel_us, q, max_lvl, dt_max_us, bound, max_motion_px,
+                speed_px_per_us):
+    """Level of a tile's next step after an accepted step of ``step_us`` with
+    change ``change``, at ``rel_us`` from the start (a multiple of q << level):
+    aiming at 0.9 x bound, at most twice the step, at most one level up, at
+    most ``dt_max_us``, and (``max_motion_px`` >= 0) at most that motion."""
+    cap = min(2.0 * max(q << old, step_us), float(dt_max_us))
+    if change > 0.0:
+        cap = min(cap, 0.9 * bound / change * step_us)
+    if max_motion_px >= 0.0 and speed_px_per_us > 0.0:
+        cap = min(cap, max_motion_px / speed_px_per_us)
+    new = int(math.floor(math.log2(max(1.0, cap / q))))
+    new = max(0, min(new, max_lvl, old + 1))
+    while new > 0 and rel_us % (q << new):
+        new -= 1
+    return new
+
+
+@njit(cache=True)
 def _next_levels(tiles, change, step_us, t_us, t0_us, t1_us, q, max_lvl, dt_max_us, bound,
                  max_motion_px, speed_px_per_us, lvl, t_next):
     """:meth:`TileSampler._next_time` for tiles accepted at ``t_us`` that hold
-    no pending trial and are not static with zero change (same arithmetic;
-    ``max_motion_px`` < 0 = off): sets lvl and t_next of each."""
-    rel = t_us - t0_us
+    no pending trial and are not static with zero change: sets lvl and t_next."""
     for i in range(tiles.shape[0]):
         k = tiles[i]
         if t_us >= t1_us:
             t_next[k] = t1_us
             continue
-        old = lvl[k]
-        step = step_us[i]
-        cap = min(2.0 * max(q << old, step), float(dt_max_us))
-        if change[i] > 0.0:
-            cap = min(cap, 0.9 * bound / change[i] * step)
-        if max_motion_px >= 0.0 and speed_px_per_us[k] > 0.0:
-            cap = min(cap, max_motion_px / speed_px_per_us[k])
-        new = int(math.floor(math.log2(max(1.0, cap / q))))
-        new = max(0, min(new, max_lvl, old + 1))
-        while new > 0 and rel % (q << new):
-            new -= 1
-        lvl[k] = new
-        t_next[k] = min(t_us + (q << new), t1_us)
+        lvl[k] = _next_level(lvl[k], step_us[i], change[i], t_us - t0_us, q, max_lvl, dt_max_us,
+                             bound, max_motion_px, speed_px_per_us[k])
+        t_next[k] = min(t_us + (q << lvl[k]), t1_us)
 
 
 def max_log_change(log_a: np.ndarray, log_b: np.ndarray, outlier_fraction: float = 0.0) -> float:
@@ -325,6 +332,7 @@ class TileSampler:
         self._win_len_us = self.q << self.max_lvl  # dyadic, so window ends are aligned
         self.g_last = np.zeros((self.H, self.W), np.float32)
         self.lum0: np.ndarray | None = None
+        self._motion_px = -1.0 if self.max_motion_px is None else float(self.max_motion_px)
 
     # -- windows of candidate Gaussians
     def _window(self, t_us: int) -> _Window:
@@ -378,17 +386,8 @@ class TileSampler:
         w = self._window(t)
         if change == 0.0 and not pend and w.static[k]:
             return self._static_until(k, t)
-        lvl = int(self.lvl[k])
-        h = self.q << lvl
-        cap = min(2.0 * max(h, step), float(self.dt_max_us))
-        if change > 0.0:
-            cap = min(cap, 0.9 * self.bound / change * step)
-        if self.max_motion_px is not None and w.speed_px_per_us[k] > 0.0:
-            cap = min(cap, self.max_motion_px / w.speed_px_per_us[k])
-        new = int(math.floor(math.log2(max(1.0, cap / self.q))))
-        new = max(0, min(new, self.max_lvl, lvl + 1))
-        while new > 0 and rel % (self.q << new):
-            new -= 1
+        new = _next_level(int(self.lvl[k]), step, change, rel, self.q, self.max_lvl,
+                          self.dt_max_us, self.bound, self._motion_px, w.speed_px_per_us[k])
         if pend:
             while new > 0 and t + (self.q << new) > pend[0][0]:
                 new -= 1
@@ -510,9 +509,9 @@ class TileSampler:
                     self.n_samples[tiles], lum[idx]))
         _commit_tiles(g_new, idx, tiles, self.g_last)
         self.t_last[tiles] = T
-        motion = -1.0 if self.max_motion_px is None else float(self.max_motion_px)
         _next_levels(tiles, change, step, T, self.t0_us, self.t1_us, self.q, self.max_lvl,
-                     self.dt_max_us, self.bound, motion, w.speed_px_per_us, self.lvl, t_next)
+                     self.dt_max_us, self.bound, self._motion_px, w.speed_px_per_us, self.lvl,
+                     t_next)
         return len(tiles)
 
     @staticmethod
