@@ -414,3 +414,42 @@ def test_cli_train_and_render_views(tiny_scene, tmp_path):
     # bad input through the CLI: a clear message and a non-zero exit, no output
     p = run_cli("train", "--scene", str(tmp_path / "nope"), "--out", str(tmp_path / "x"))
     assert p.returncode != 0 and "scene.json" in p.stderr and not (tmp_path / "x").exists()
+
+
+def test_growing_budget_rules():
+    """Grows when the count reaches it, keeps growing while each growth pays
+    min_gain_db by the next evaluation at the same resolution, then freezes at
+    the count (never below the floor); a resolution change restarts the test."""
+    from gs2e.splat.strategy import GrowingBudget
+
+    b = GrowingBudget(1000, budget_max=5000, growth=1.5, min_gain_db=0.1, floor=800)
+    assert b.update(100, 20.0, 2, 500) == 1000          # below the budget: nothing to decide
+    assert b.update(200, 20.5, 2, 990) == 1500          # reached it: grows
+    assert b.update(300, 21.5, 1, 1490) == 1500         # resolution changed: no verdict yet
+    assert b.update(400, 21.8, 1, 1495) == 2250         # +0.3 dB at this resolution: pays, grows
+    assert b.update(500, 21.85, 1, 2000) == 2000        # +0.05 dB: frozen at the count
+    assert b.frozen and b.update(600, 30.0, 1, 2000) == 2000
+    assert [h[3] for h in b.history] == ["grown", "grown", "frozen"]
+    c = GrowingBudget(4000, budget_max=5000, growth=2.0, min_gain_db=0.1, floor=800)
+    assert c.update(100, 20.0, 1, 3990) == 5000         # capped at budget_max
+    assert c.update(200, 20.0, 1, 700) == 800           # no gain: frozen, but not below the floor
+    d = GrowingBudget(5000, budget_max=5000)
+    assert d.update(100, 20.0, 1, 5000) == 5000 and not d.history  # at the maximum: stays
+
+
+def test_adaptive_budget_grows_past_a_small_start_and_resumes_exactly(tiny_scene, tmp_path):
+    """budget=adaptive from a start below what the scene uses: the count
+    passes the start, the curve records the budget, and an interrupted run
+    resumes to the same bytes (the budget's state is in the checkpoint)."""
+    c = cfg(max_iterations=150, budget="adaptive", budget_min=10, budget_max=20000,
+            budget_per_edge_pixel=1e-6, budget_growth=1.3, budget_min_gain_db=0.0,
+            eval_every=25, densify_every=10)
+    st = train(tiny_scene, tmp_path / "a", c, seed=2)
+    n0 = len(np.load(tiny_scene / "points3d.npz")["xyz"])
+    assert st["budget_growths"] >= 1 and st["budget"] > n0 and st["n_gaussians"] > n0
+    curve = pd.read_parquet(tmp_path / "a" / "curve.parquet")
+    assert curve["budget"].iloc[0] >= n0 and curve["budget"].is_monotonic_increasing
+    train(tiny_scene, tmp_path / "b", c, seed=2, interrupt_after=60)
+    st_b = train(tiny_scene, tmp_path / "b", c, seed=2)
+    assert model_digest(tmp_path / "a") == model_digest(tmp_path / "b")
+    assert st_b["budget"] == st["budget"]

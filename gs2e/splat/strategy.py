@@ -254,3 +254,53 @@ class DensifyStrategy:
             reset_opacity(params, opt)
             return True
         return False
+
+
+@dataclass
+class GrowingBudget:
+    """A Gaussian budget that grows while held-out quality pays for it.
+
+    Starts at ``budget`` (the caller floors it at the initial Gaussian count,
+    the SfM points). At each held-out evaluation while densification runs
+    (:meth:`update`): if the count has reached the budget, the budget grows by
+    ``growth`` (at most ``budget_max``); at the next evaluation at the same
+    resolution the held-out PSNR must have risen by at least ``min_gain_db``
+    since that growth, or the budget is frozen at the count reached (no more
+    growth for the rest of the run). A resolution change in between restarts
+    the comparison from the new resolution's first evaluation (its jump is not
+    the Gaussians' doing). The gain is measured with training continuing, so it
+    credits the added Gaussians with what more steps alone would also give: a
+    generous test, which ``min_gain_db`` offsets. ``history`` lists (step,
+    budget, held-out PSNR, event) for the statistics.
+    """
+
+    budget: int
+    budget_max: int
+    growth: float = 1.5
+    min_gain_db: float = 0.1
+    floor: int = 1  # never frozen below this count (the SfM points)
+    frozen: bool = False
+    since: tuple[float, int] | None = None  # (PSNR dB, downscale) at the last growth
+    history: list = field(default_factory=list)
+
+    def update(self, step: int, psnr: float, downscale: int, n_gaussians: int) -> int:
+        """The budget after a held-out evaluation at ``step`` (call only while
+        densification runs)."""
+        if self.frozen:
+            return self.budget
+        if self.since is not None:
+            psnr0, ds0 = self.since
+            if ds0 != downscale:
+                self.since = (psnr, downscale)
+                return self.budget
+            if psnr - psnr0 < self.min_gain_db:
+                self.frozen = True
+                self.budget = max(n_gaussians, self.floor)
+                self.history.append((step, self.budget, psnr, "frozen"))
+                return self.budget
+            self.since = None
+        if n_gaussians >= 0.95 * self.budget and self.budget < self.budget_max:
+            self.budget = min(self.budget_max, int(math.ceil(self.budget * self.growth)))
+            self.since = (psnr, downscale)
+            self.history.append((step, self.budget, psnr, "grown"))
+        return self.budget

@@ -4,7 +4,8 @@ Follows the official recipe (Adam with per-parameter learning rates, position
 lr decaying log-linearly, 0.8 L1 + 0.2 (1 - SSIM), clone/split/prune, opacity
 reset, SH degree schedule, every ``test_every``-th view held out) and adds what
 makes it cheap on a CPU: a coarse-to-fine resolution schedule, a Gaussian
-budget measured from image detail, an SH degree chosen from the view
+budget measured from image detail (or, with ``budget: adaptive``, grown from
+there while held-out PSNR pays for it), an SH degree chosen from the view
 dependence the SfM tracks show, and early stopping when held-out PSNR
 plateaus. Checkpoints allow resuming an interrupted run.
 """
@@ -34,7 +35,7 @@ from gs2e.splat.model import from_params, render, to_params
 from gs2e.splat.output import write_train_output
 from gs2e.splat.rasterize import NonFiniteError
 from gs2e.splat.scene_stats import choose_sh_degree, detail_budget, view_dependence
-from gs2e.splat.strategy import PARAMS, Adam, DensifyStrategy
+from gs2e.splat.strategy import PARAMS, Adam, DensifyStrategy, GrowingBudget
 from gs2e.splat.views import View, load_views, scene_extent, split_views
 
 log = get_logger("gs2e.splat")
@@ -60,13 +61,14 @@ def position_lr(it: int, cfg: dict, extent: float) -> float:
 
 def scene_needs(scene_dir: Path, train_v: list[View], cfg: dict, seed: int) -> dict[str, Any]:
     """SH degree and Gaussian budget of the scene (``auto``: measured from the
-    SfM tracks' view dependence and the training images' detail)."""
+    SfM tracks' view dependence and the training images' detail; ``adaptive``
+    starts from the same budget)."""
     if cfg["sh_degree"] == "auto":
         score = view_dependence(scene_dir / "sparse" / "0", scene_dir / IMAGES_DIR, seed=seed)
         sh_max = choose_sh_degree(score, cfg["sh_thresholds"])
     else:
         score, sh_max = None, int(cfg["sh_degree"])
-    if cfg["budget"] == "auto":
+    if cfg["budget"] in ("auto", "adaptive"):
         budget, edges = detail_budget([v.images[1].numpy() for v in train_v],
                                       cfg["budget_per_edge_pixel"], cfg["budget_min"], cfg["budget_max"])
     else:
@@ -151,6 +153,12 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     p = initial_params(scene, scene_dir, cfg, sh_max)
     opt = make_optimizer(cfg, extent)
     strategy = DensifyStrategy.from_config(cfg, needs["budget"], extent)
+    growing = None
+    if cfg["budget"] == "adaptive":  # from the detail budget, never below the SfM points
+        n0 = int(p["means"].shape[0])
+        growing = GrowingBudget(max(needs["budget"], n0), cfg["budget_max"], cfg["budget_growth"],
+                                cfg["budget_min_gain_db"], floor=n0)
+        strategy.ops.budget = growing.budget
     gen = torch.Generator().manual_seed(seed)  # split samples
     rng = np.random.default_rng(seed)  # view order
     order: list[int] = []  # views left in the current epoch (popped from the end)
@@ -166,6 +174,9 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
         rng.bit_generator.state = st["rng"]
         strategy.stats, order = st["gstats"], st["order"]
         cpu_time = st.get("cpu_time", 0.0)
+        if growing is not None:
+            growing = st["budget"]
+            strategy.ops.budget = growing.budget
         log.info("resumed from %s at iteration %d", ckpt.path, it0)
 
     def save_checkpoint(n_it: int) -> None:
@@ -173,7 +184,8 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
                    "bad_evals": bad_evals, "train_time": time.perf_counter() - t_loop,
                    "cpu_time": time.process_time() - c_loop,
                    "opt": opt.state_dict(), "gen": gen.get_state(),
-                   "rng": rng.bit_generator.state, "gstats": strategy.stats, "order": order})
+                   "rng": rng.bit_generator.state, "gstats": strategy.stats, "order": order,
+                   "budget": growing})
 
     it = it0
     stop_reason = "max_iterations"
@@ -214,9 +226,12 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
             curve.append({"iteration": n_it, "train_time_s": elapsed,
                           "cpu_time_s": time.process_time() - c_loop, "psnr": ev["psnr"],
                           "ssim": ev["ssim"], "n_gaussians": int(p["means"].shape[0]),
-                          "downscale": ds, "loss": float(loss.detach())})
+                          "budget": int(strategy.ops.budget), "downscale": ds,
+                          "loss": float(loss.detach())})
             log.info("it %d: held-out PSNR %.2f dB, SSIM %.4f, %d Gaussians, %.1f s", n_it,
                      ev["psnr"], ev["ssim"], p["means"].shape[0], elapsed)
+            if growing is not None and cfg["densify_from"] <= n_it < cfg["densify_until"]:
+                strategy.ops.budget = growing.update(n_it, ev["psnr"], ds, int(p["means"].shape[0]))
             full_res = downscale_at(schedule, n_it) == 1
             if ev["psnr"] > best + cfg["plateau_min_delta_db"]:
                 best, bad_evals = ev["psnr"], 0
@@ -240,6 +255,11 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     cpu_s = time.process_time() - c_loop
     sh_final = min(sh_max, max(0, n_iters - 1) // cfg["sh_increase_every"])
     final = evaluate(p, test_v, bg, sh_final, backend)
+    if growing is not None:
+        frozen = [h[0] for h in growing.history if h[3] == "frozen"]
+        stats.update({"budget": int(growing.budget),
+                      "budget_growths": sum(h[3] == "grown" for h in growing.history),
+                      "budget_frozen_at": frozen[0] if frozen else None})
     stats.update({"source": "trained", "iterations": n_iters, "stop_reason": stop_reason,
                   "n_gaussians": int(p["means"].shape[0]), "train_time_s": train_s, "train_cpu_s": cpu_s,
                   "test_psnr": final["psnr"], "test_ssim": final["ssim"], "test_lpips": None,
