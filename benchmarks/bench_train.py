@@ -63,8 +63,13 @@ def settings(base: dict) -> dict[str, dict]:
             "full-res": dict(base, resolution_schedule=[[0, 1]], sh_degree=3)}
 
 
-def prepare(work: Path, name: str, data: Path) -> Path:
-    """A trainable scene folder (cached in ``work``)."""
+# photo folders of the real scenes under ../shared/data
+PHOTOS = {"temple_ring": "temple_ring", "llff_fern": "llff_fern/images"}
+
+
+def prepare(work: Path, name: str, data: Path, max_side: int | None = None) -> Path:
+    """A trainable scene folder (cached in ``work``); real scenes ingested at
+    ``max_side`` px long side if given, then posed by SfM."""
     from gs2e.demo.io import generate_demo_scene
 
     if name == "demo-small":
@@ -90,7 +95,8 @@ def prepare(work: Path, name: str, data: Path) -> Path:
             gs2e_cli("demo-scene", "--out", raw)
         gs2e_cli("ingest", "--layout", "demo", "--src", raw, "--out", ing)
     else:
-        gs2e_cli("ingest", "--layout", "folder", "--src", data / "temple_ring", "--out", ing)
+        size = ["--config-json", json.dumps({"max_side": max_side})] if max_side else []
+        gs2e_cli("ingest", "--layout", "folder", "--src", data / PHOTOS[name], "--out", ing, *size)
     gs2e_cli("sfm", "--scene", ing, "--out", out)
     return out
 

@@ -34,28 +34,10 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "benchmarks"))
 
 from _results import RESULTS, pyplot  # noqa: E402
+from bench_train import DATA, PHOTOS, prepare  # noqa: E402
 
-DATA = REPO.parent / "shared" / "data"
-SCENES = {"temple_ring": "temple_ring", "llff_fern": "llff_fern/images"}
 SETTINGS = {"auto": {}, "adaptive": {"budget": "adaptive"}}
 MARKS_MIN = (5, 10, 20)
-
-
-def gs2e_cli(*args, repo: Path = REPO) -> None:
-    env = {**os.environ, "PYTHONPATH": str(repo), "GS2E_PROGRESS": "0"}
-    subprocess.run([sys.executable, "-m", "gs2e", *map(str, args)], check=True, env=env,
-                   capture_output=True)
-
-
-def prepare(work: Path, name: str, data: Path, max_side: int) -> Path:
-    """``name`` ingested at ``max_side`` px and posed by SfM (cached)."""
-    out = work / f"{name}_sfm"
-    if not (out / "scene.json").exists():
-        ing = work / f"{name}_ingest"
-        gs2e_cli("ingest", "--layout", "folder", "--src", data / SCENES[name], "--out", ing,
-                 "--config-json", json.dumps({"max_side": max_side}))
-        gs2e_cli("sfm", "--scene", ing, "--out", out)
-    return out
 
 
 def child(repo: str, scene_dir: str, out: str, overrides: str, threads: int) -> None:
@@ -146,8 +128,8 @@ def main() -> int:
         runs.append(("baseline", a.baseline_repo.resolve(), {}))
     points, table = [], []
     for scene in a.scenes.split(","):
-        if not (a.data / SCENES[scene]).exists():
-            print(f"skipping {scene}: {a.data / SCENES[scene]} is absent")
+        if not (a.data / PHOTOS[scene]).exists():
+            print(f"skipping {scene}: {a.data / PHOTOS[scene]} is absent")
             continue
         sdir = prepare(a.work, scene, a.data, a.max_side)
         for name, repo, over in runs:

@@ -49,6 +49,7 @@ import numpy as np
 from numba import njit, prange
 
 from gs2e.common.errors import ConfigError
+from gs2e.events._kernels import tile_box
 from gs2e.events.models import TILE, TileBatch
 
 MODES = ("fixed", "adaptive", "tile")
@@ -149,11 +150,10 @@ def _commit_tiles(g_new, idx, tiles, g_last):
     T = g_new.shape[1]
     tiles_x = (W + T - 1) // T
     for i in range(tiles.shape[0]):
-        ty = tiles[i] // tiles_x
-        tx = tiles[i] - ty * tiles_x
-        for a in range(min(T, H - ty * T)):
-            for b in range(min(T, W - tx * T)):
-                g_last[ty * T + a, tx * T + b] = g_new[idx[i], a, b]
+        y0, y1, x0, x1 = tile_box(tiles[i], tiles_x, T, H, W)
+        for y in range(y0, y1):
+            for x in range(x0, x1):
+                g_last[y, x] = g_new[idx[i], y - y0, x - x0]
 
 
 @njit(cache=True)
