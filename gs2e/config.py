@@ -50,9 +50,14 @@ def _with_defaults(cls):
 _DefaultingValidator = _with_defaults(Draft202012Validator)
 
 
+# libyaml's parser where PyYAML has it (same resolver and constructor): the
+# schema parses in ~10 ms instead of ~130 ms, a tenth of a short command
+_SCHEMA_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
 @functools.lru_cache(maxsize=8)
 def _schema_cached(path) -> dict:
-    return yaml.safe_load(path.read_text())
+    return yaml.load(path.read_text(), Loader=_SCHEMA_LOADER)
 
 
 def _as_file(path):

@@ -179,3 +179,35 @@ def test_code_version_tracks_stage_sources(tmp_path, monkeypatch):
     assert codeversion.code_version("sfm") != v_sfm      # sfm depends on gs2e/sfm
     assert codeversion.code_version("demo") == v_demo    # demo does not
     codeversion.code_version.cache_clear()
+
+
+def test_write_metrics_types_missing_values_and_no_pandas(tmp_path):
+    import subprocess
+    import sys
+
+    import pandas as pd
+    import pyarrow.parquet as pq
+
+    from gs2e.metrics.table import write_metrics
+
+    p = tmp_path / "m.parquet"
+    write_metrics(p, [{"psnr": np.float32("nan"), "n": np.int64(3), "ok": np.bool_(True),
+                       "hist": np.array([1.5, np.inf])},
+                      {"psnr": 31.25, "name": "a b", "n": None, "extra": 2}], scene_id="s")
+    t = pq.read_table(p)
+    assert t.column_names == ["scene_id", "psnr", "n", "ok", "hist", "name", "extra"]
+    assert str(t.schema.field("n").type) == "int64" and str(t.schema.field("ok").type) == "bool"
+    assert str(t.schema.field("psnr").type) == "double"  # 31.25 after a NaN: not an int column
+    d = t.to_pylist()
+    assert d[0]["psnr"] is None and d[1]["psnr"] == 31.25  # not computable -> null
+    assert d[0]["hist"] == [1.5, None] and d[1]["hist"] is None
+    assert d[1]["n"] is None and d[0]["extra"] is None and d[1]["name"] == "a b"
+    assert pd.read_parquet(p)["scene_id"].tolist() == ["s", "s"]
+    x = 0.1 + 0.2  # floats survive the JSON round trip bit for bit
+    write_metrics(p, {"x": x, "tiny": 5e-324})
+    assert pq.read_table(p).to_pylist() == [{"x": x, "tiny": 5e-324}]
+    # pyarrow imports pandas when it builds arrays from Python objects (~0.2 s)
+    code = ("import sys; from gs2e.metrics.table import write_metrics; "
+            f"write_metrics({str(p)!r}, {{'a': 1.0}}); print('pandas' in sys.modules)")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert r.stdout.strip() == "False"

@@ -417,3 +417,24 @@ def test_frame_splitting(exit_law):
     else:
         assert p_same < 1e-10
         assert np.median(short_ev.t) < 0.8 * np.median(long_ev.t)
+
+
+@pytest.mark.parametrize("n", [0, 1, 2, 17, 100_003])
+def test_sort_events_is_a_stable_time_row_column_sort_for_any_thread_count(n):
+    rng = np.random.default_rng(n)
+    H, W = 260, 346
+    # few distinct times: many exact ties on (t, y, x), which must keep input order
+    t = (rng.integers(0, 5, n) * 3_000_000_000 + 10**12).astype(np.int64)  # keys need 6 digits
+    x = rng.integers(0, 3, n).astype(np.uint16) + np.uint16(W - 3)
+    y = rng.integers(0, 2, n).astype(np.uint16) + np.uint16(H - 2)
+    p = np.arange(n, dtype=np.int64).astype(np.uint8)  # marks input order within ties
+    order = np.lexsort((np.arange(n), x, y, t))
+    want = (t[order], x[order], y[order], p[order])
+    for threads in (1, numba.config.NUMBA_NUM_THREADS):
+        numba.set_num_threads(threads)
+        try:
+            got = K.sort_events(t, x, y, p, H, W)
+        finally:
+            numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+        for g, w in zip(got, want):
+            assert g.dtype == w.dtype and np.array_equal(g, w)

@@ -521,7 +521,7 @@ def _voltmeter_slot(sl, btiles, boff, t0_us, t1_us, key_idx, lum, H, W, tile, sc
     return capped
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def voltmeter_tiles(btiles, boff, t0_us, t1_us, key_idx, lum, H, W, tile, scale, seed, k, tu_us,
                     th_on, th_off, prev_in, res_in, ready_in, prev_out, res_out, ready_out,
                     refractory_us, max_events_px, cap, ev_t, ev_x, ev_y, ev_p, fn,
@@ -583,7 +583,7 @@ def voltmeter_tiles(btiles, boff, t0_us, t1_us, key_idx, lum, H, W, tile, scale,
     return capped.sum()
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def ideal_tiles(btiles, boff, t0_us, t1_us, lum, H, W, tile, log_eps, th_on, th_off,
                 prev_in, ref_in, last_in, prev_out, ref_out, last_out, refractory_us,
                 max_events_px, cap, ev_t, ev_x, ev_y, ev_p, fn):
@@ -674,7 +674,7 @@ def ideal_tiles(btiles, boff, t0_us, t1_us, lum, H, W, tile, log_eps, th_on, th_
     return capped.sum()
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def noise_tiles(btiles, boff, t0_us, t1_us, key_idx, lum, H, W, tile, prev, seed, leak_rate_hz,
                 shot_rate_hz, shot_on_fraction, cap, slot0, ev_t, ev_x, ev_y, ev_p, fn):
     """Noise events over a batch of tile intervals (v2e-like, Poisson per pixel).
@@ -727,7 +727,7 @@ def noise_tiles(btiles, boff, t0_us, t1_us, key_idx, lum, H, W, tile, prev, seed
     return 0
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def commit_tiles(tiles, H, W, tile, src_a, dst_a, src_b, dst_b, src_c, dst_c):
     """dst[...] = src[...] on the pixels of ``tiles`` (three state arrays)."""
     tiles_x = (W + tile - 1) // tile
@@ -740,7 +740,7 @@ def commit_tiles(tiles, H, W, tile, src_a, dst_a, src_b, dst_b, src_c, dst_c):
                 dst_c[y, x] = src_c[y, x]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def gather_tiles(boff, t0_us, t1_us, cap, fn, fn_noise, ev_t, ev_x, ev_y, ev_p,
                  out_t, out_x, out_y, out_p):
     """Collect a batch's events from their slots, interval by interval (its
@@ -774,33 +774,69 @@ def gather_tiles(boff, t0_us, t1_us, cap, fn, fn_noise, ev_t, ev_x, ev_y, ev_p,
     return j
 
 
-@njit(cache=True)
-def radix_argsort(keys):
-    """Stable argsort of non-negative int64 keys (LSD radix, 8-bit digits,
-    only the bytes the largest key needs): O(n) per digit."""
-    n = keys.shape[0]
-    idx = np.arange(n)
-    if n < 2:
-        return idx
-    kmax = keys.max()
-    tmp = np.empty(n, np.int64)
+_SORT_BITS = 11  # radix digit: 2048 buckets, 3 passes for keys below 2^33
+_SORT_CHUNKS = 16  # histogram chunks (the result does not depend on them: the sort is stable)
+
+
+@njit(cache=True, parallel=True, nogil=True)
+def sort_events(t, x, y, p, H, W):
+    """Events in (time, row, column) order, ties in input order.
+
+    A stable LSD radix sort of the key (t - min t) * H * W + y * W + x
+    (int64; only the digits the largest key needs), chunks histogrammed and
+    scattered in parallel, the key moved with its index so every pass reads
+    sequentially. The order is unique, so it does not depend on the thread
+    count. Returns sorted copies of (t, x, y, p)."""
+    n = t.shape[0]
+    ot = np.empty_like(t)
+    ox = np.empty_like(x)
+    oy = np.empty_like(y)
+    op = np.empty_like(p)
+    if n == 0:
+        return ot, ox, oy, op
+    t_min = t.min()
+    key = np.empty(n, np.int64)
+    idx = np.empty(n, np.int64)
+    for i in prange(n):
+        key[i] = (t[i] - t_min) * (H * W) + np.int64(y[i]) * W + np.int64(x[i])
+        idx[i] = i
+    kmax = key.max()
+    key2 = np.empty(n, np.int64)
+    idx2 = np.empty(n, np.int64)
+    nch = min(_SORT_CHUNKS, n)
+    mask = (1 << _SORT_BITS) - 1
     shift = 0
     while (kmax >> shift) > 0:
-        counts = np.zeros(257, np.int64)
-        for i in range(n):
-            counts[((keys[idx[i]] >> shift) & 255) + 1] += 1
-        for b in range(256):
-            counts[b + 1] += counts[b]
-        for i in range(n):
-            d = (keys[idx[i]] >> shift) & 255
-            tmp[counts[d]] = idx[i]
-            counts[d] += 1
-        idx, tmp = tmp, idx
-        shift += 8
-    return idx
+        hist = np.zeros((nch, mask + 1), np.int64)
+        for c in prange(nch):
+            for i in range(c * n // nch, (c + 1) * n // nch):
+                hist[c, (key[i] >> shift) & mask] += 1
+        s = 0  # exclusive prefix: digit-major, chunk-minor (stability)
+        for d in range(mask + 1):
+            for c in range(nch):
+                v = hist[c, d]
+                hist[c, d] = s
+                s += v
+        for c in prange(nch):
+            for i in range(c * n // nch, (c + 1) * n // nch):
+                d = (key[i] >> shift) & mask
+                j = hist[c, d]
+                hist[c, d] = j + 1
+                key2[j] = key[i]
+                idx2[j] = idx[i]
+        key, key2 = key2, key
+        idx, idx2 = idx2, idx
+        shift += _SORT_BITS
+    for i in prange(n):
+        j = idx[i]
+        ot[i] = t[j]
+        ox[i] = x[j]
+        oy[i] = y[j]
+        op[i] = p[j]
+    return ot, ox, oy, op
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def frame_ranges(F):
     """Per-frame (min, max) of a (B, H, W) stack; NaN propagates into both."""
     B = F.shape[0]

@@ -21,8 +21,9 @@ reduced to luminance with Rec. 709 weights on linear RGB.
 
 from __future__ import annotations
 
+from collections import deque
 from pathlib import Path
-from typing import Iterable, Iterator
+from typing import Callable, Iterable, Iterator, TypeVar
 
 import numpy as np
 
@@ -31,6 +32,32 @@ from gs2e.common.color import REC709 as _REC709, srgb_to_linear
 from gs2e.io.images import list_images
 from gs2e.common.camera import fit_scale
 from gs2e.events.sensors import fit_frame, get_sensor
+
+_T = TypeVar("_T")
+_R = TypeVar("_R")
+
+
+def read_ahead(fn: Callable[[_T], _R], items: Iterable[_T], depth: int = 8) -> Iterator[_R]:
+    """``fn(item)`` for each item, in order, computed up to ``depth`` items
+    ahead in one background thread. For image decoding: OpenCV releases the
+    GIL while it decodes (and the event kernels release it while they run),
+    so reading overlaps the models. An exception from ``fn`` is raised when
+    its item's turn comes, as without read-ahead."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    it = iter(items)
+    ex = ThreadPoolExecutor(1, thread_name_prefix="gs2e-read-ahead")
+    try:
+        pending = deque(ex.submit(fn, x) for _, x in zip(range(depth), it))
+        while pending:
+            result = pending.popleft().result()
+            for x in it:
+                pending.append(ex.submit(fn, x))
+                break
+            yield result
+    finally:  # also when the consumer stops early: drop what was not started
+        ex.shutdown(wait=True, cancel_futures=True)
+
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".exr", ".pgm", ".ppm")
 VIDEO_EXTS = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v")
@@ -140,8 +167,9 @@ class ImageFolderSource:
         return to_linear_luminance(img, self.encoding, str(p))
 
     def __iter__(self) -> Iterator[tuple[int, np.ndarray]]:
-        for t, p in zip(self.t_us, self.files):
-            f = self._read(p)
+        # about two batches of frames ahead (the models take 32 at a time), at most ~64 MB
+        depth = int(np.clip(64e6 // (4 * self.shape[0] * self.shape[1]), 2, 64))
+        for t, p, f in zip(self.t_us, self.files, read_ahead(self._read, self.files, depth)):
             if f.shape != self.shape:
                 raise InputError(f"{p}: shape {f.shape} differs from the first image's {self.shape}")
             yield int(t), f

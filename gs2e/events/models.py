@@ -428,11 +428,7 @@ class _StreamingModel:
         if len(ev) == 0:
             self._carry = ev
             return ev
-        H, W = self.shape
-        t_min = int(ev.t.min())
-        keys = (ev.t - t_min) * (H * W) + ev.y.astype(np.int64) * W + ev.x.astype(np.int64)
-        o = K.radix_argsort(keys)
-        ev = Events(ev.t[o], ev.x[o], ev.y[o], ev.p[o])
+        ev = Events(*K.sort_events(ev.t, ev.x, ev.y, ev.p, *self.shape))
         cut = len(ev) if horizon is None else int(np.searchsorted(ev.t, horizon, side="left"))
         self._carry = Events(ev.t[cut:], ev.x[cut:], ev.y[cut:], ev.p[cut:])
         return Events(ev.t[:cut], ev.x[:cut], ev.y[:cut], ev.p[:cut])

@@ -309,7 +309,7 @@ def write_sensor_preset(path, preset: dict) -> None:
 NO_EVENT = np.iinfo(np.int64).min
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _acc_update(t, x, y, W, counts, last, hist, log_lo, inv_bw, nb, sums):
     for i in range(t.shape[0]):
         pix = np.int64(y[i]) * W + np.int64(x[i])
