@@ -417,22 +417,33 @@ def test_cli_train_and_render_views(tiny_scene, tmp_path):
 
 
 def test_growing_budget_rules():
-    """Grows when the count reaches it, keeps growing while each growth pays
-    min_gain_db by the next evaluation at the same resolution, then freezes at
-    the count (never below the floor); a resolution change restarts the test."""
+    """Grows when the count reaches it; judges a growth once the count has
+    filled the new room and one more evaluation has passed, on the better of
+    the two (a densification dip does not end growth); keeps growing while
+    each growth pays min_gain_db, then freezes at the count (never below the
+    floor); a resolution change restarts the test."""
     from gs2e.splat.strategy import GrowingBudget
 
     b = GrowingBudget(1000, budget_max=5000, growth=1.5, min_gain_db=0.1, floor=800)
     assert b.update(100, 20.0, 2, 500) == 1000          # below the budget: nothing to decide
     assert b.update(200, 20.5, 2, 990) == 1500          # reached it: grows
-    assert b.update(300, 21.5, 1, 1490) == 1500         # resolution changed: no verdict yet
-    assert b.update(400, 21.8, 1, 1495) == 2250         # +0.3 dB at this resolution: pays, grows
-    assert b.update(500, 21.85, 1, 2000) == 2000        # +0.05 dB: frozen at the count
-    assert b.frozen and b.update(600, 30.0, 1, 2000) == 2000
+    assert b.update(300, 20.3, 2, 1200) == 1500         # room still filling: no verdict
+    assert b.update(400, 19.0, 2, 1450) == 1500         # filled, in a dip: wait one more
+    assert b.update(500, 21.5, 1, 1480) == 1500         # resolution changed: restart from here
+    assert b.update(600, 21.6, 1, 1490) == 1500         # filled at this resolution
+    assert b.update(700, 21.7, 1, 1495) == 2250         # best +0.2 dB: pays, grows at once
+    assert b.update(800, 21.75, 1, 2200) == 2250        # filled
+    assert b.update(900, 21.78, 1, 2240) == 2240        # best +0.08 dB over 21.7: frozen at the count
+    assert b.frozen and b.update(1000, 30.0, 1, 2240) == 2240
     assert [h[3] for h in b.history] == ["grown", "grown", "frozen"]
+    dip = GrowingBudget(1000, budget_max=5000, growth=1.5, min_gain_db=0.1, floor=10)
+    assert dip.update(1, 30.0, 1, 1000) == 1500
+    assert dip.update(2, 28.0, 1, 1450) == 1500         # a densification dip right after filling
+    assert dip.update(3, 30.3, 1, 1460) == 2250 and not dip.frozen  # recovered: +0.3 dB
     c = GrowingBudget(4000, budget_max=5000, growth=2.0, min_gain_db=0.1, floor=800)
     assert c.update(100, 20.0, 1, 3990) == 5000         # capped at budget_max
-    assert c.update(200, 20.0, 1, 700) == 800           # no gain: frozen, but not below the floor
+    assert c.update(200, 20.0, 1, 4900) == 5000
+    assert c.update(300, 20.05, 1, 700) == 800          # no gain: frozen, but not below the floor
     d = GrowingBudget(5000, budget_max=5000)
     assert d.update(100, 20.0, 1, 5000) == 5000 and not d.history  # at the maximum: stays
 
