@@ -30,7 +30,8 @@ def test_active_degree_below_stored():
 
 
 def test_early_termination_and_alpha_clamp_exercised():
-    """Dense opaque scene: many pixels stop at T < 1e-4 and alphas hit 0.99."""
+    """Dense opaque scene: many pixels stop at T < 1e-4 and alphas hit 0.99;
+    whole 8-pixel blocks stop, which both kernels then skip."""
     p = random_scene(300, seed=11, extent=0.6, scale_range=(-2.5, -1.5))
     with torch.no_grad():
         p["opacity_logits"].fill_(6.0)
@@ -38,6 +39,9 @@ def test_early_termination_and_alpha_clamp_exercised():
     T = 1 - fast[1].detach()
     assert float(T.min()) >= 1e-4 - 1e-12  # never composited below the stop threshold
     assert float((T < 1e-3).float().mean()) > 0.1  # ... but many pixels got there
+    W = T.shape[1] // R.LANES * R.LANES
+    blocks = (T[:, :W] < 1e-3).reshape(T.shape[0], -1, R.LANES).all(dim=2)
+    assert int(blocks.sum()) >= 10  # blocks (tile-aligned: 16 = 2 x 8) with every pixel near stop
 
 
 def test_gradients_match_finite_differences():

@@ -214,6 +214,18 @@ def _segment_forward(s, jx, u, a, b, c, dy, lpm, o, f0, f1, f2, f3, kf, mf):
         s[_FL + lane] = kf if ok & (t_next < T_MIN) else s[_FL + lane]
 
 
+@njit(inline="always", fastmath=False)
+def _block_open(st, at, mf):
+    """Whether any of the LANES stop indices st[at:at + LANES] is still open
+    (== mf): a block whose pixels have all stopped is left alone, as the
+    branch-free segment would leave it (a quarter of the blocks a trained
+    model's Gaussians reach, behind opaque surfaces)."""
+    for lane in range(LANES):
+        if st[at + lane] == mf:
+            return True
+    return False
+
+
 @njit(parallel=True, cache=True, fastmath=False)
 def raster_forward_kernel(tile_ids, offsets, gids, means2d, conics, opac, feats, bg,
                           width, height, tile, out, out_T, n_contrib):
@@ -258,8 +270,9 @@ def raster_forward_kernel(tile_ids, offsets, gids, means2d, conics, opac, feats,
                     continue
                 for h in range(j_lo // LANES, j_hi // LANES + 1):
                     blk = (ii * nseg + h) * _FBLK
-                    _segment_forward(st[blk:blk + _FBLK], x0 + h * LANES, u, a, b, c, dy, lpm,
-                                     o, f0, f1, f2, f3, kf, mf)
+                    if _block_open(st, blk + _FL, mf):
+                        _segment_forward(st[blk:blk + _FBLK], x0 + h * LANES, u, a, b, c, dy,
+                                         lpm, o, f0, f1, f2, f3, kf, mf)
         for ii in range(th):
             for jj in range(tw):
                 blk = (ii * nseg + jj // LANES) * _FBLK
@@ -272,8 +285,8 @@ def raster_forward_kernel(tile_ids, offsets, gids, means2d, conics, opac, feats,
 
 
 # backward segment block (float64), LANES each: pixel state T, T_final, g_T,
-# S (sum behind of w f.g), g_out[0..4), stop index; then the pair's gradient
-# partial sums d u, d v, d conic a, b, c, d opacity, d feats[0..4)
+# S (sum behind of w f.g), g_out[0..4), stop index; then the current pair's
+# gradient terms d u, d v, d conic a, b, c, d opacity, d feats[0..4)
 _BT, _BTF, _BGT, _BS, _BG, _BL, _BACC = 0, 8, 16, 24, 32, 64, 72
 _NGRAD = 6 + MAX_CHANNELS
 _BBLK = _BACC + _NGRAD * LANES
@@ -303,29 +316,26 @@ def _segment_backward(s, jx, u, a, b, c, dy, lpm, o, f0, f1, f2, f3, kf):
         g_alpha = T * dotf - (s[_BS + lane] + s[_BGT + lane] * s[_BTF + lane]) * inv_om
         s[_BT + lane] = T if ok else s[_BT + lane]
         s[_BS + lane] = s[_BS + lane] + w * dotf if ok else s[_BS + lane]
-        s[_BACC + 48 + lane] = s[_BACC + 48 + lane] + w * g0 if ok else s[_BACC + 48 + lane]
-        s[_BACC + 56 + lane] = s[_BACC + 56 + lane] + w * g1 if ok else s[_BACC + 56 + lane]
-        s[_BACC + 64 + lane] = s[_BACC + 64 + lane] + w * g2 if ok else s[_BACC + 64 + lane]
-        s[_BACC + 72 + lane] = s[_BACC + 72 + lane] + w * g3 if ok else s[_BACC + 72 + lane]
+        # the pair's terms (one segment call per block and Gaussian: stored, not summed)
+        s[_BACC + 48 + lane] = w * g0 if ok else 0.0
+        s[_BACC + 56 + lane] = w * g1 if ok else 0.0
+        s[_BACC + 64 + lane] = w * g2 if ok else 0.0
+        s[_BACC + 72 + lane] = w * g3 if ok else 0.0
         ok = ok & (a_raw <= ALPHA_MAX)  # clamped: no gradient to opacity or shape
         gp = alpha * g_alpha  # dL/dpower
-        s[_BACC + 40 + lane] = s[_BACC + 40 + lane] + G * g_alpha if ok else s[_BACC + 40 + lane]
-        s[_BACC + lane] = s[_BACC + lane] - gp * (a * dx + b * dy) if ok else s[_BACC + lane]
-        s[_BACC + 8 + lane] = (s[_BACC + 8 + lane] - gp * (b * dx + c * dy) if ok
-                               else s[_BACC + 8 + lane])
-        s[_BACC + 16 + lane] = (s[_BACC + 16 + lane] - 0.5 * gp * dx * dx if ok
-                                else s[_BACC + 16 + lane])
-        s[_BACC + 24 + lane] = s[_BACC + 24 + lane] - gp * dx * dy if ok else s[_BACC + 24 + lane]
-        s[_BACC + 32 + lane] = (s[_BACC + 32 + lane] - 0.5 * gp * dy * dy if ok
-                                else s[_BACC + 32 + lane])
+        s[_BACC + 40 + lane] = G * g_alpha if ok else 0.0
+        s[_BACC + lane] = -(gp * (a * dx + b * dy)) if ok else 0.0
+        s[_BACC + 8 + lane] = -(gp * (b * dx + c * dy)) if ok else 0.0
+        s[_BACC + 16 + lane] = -(0.5 * gp * dx * dx) if ok else 0.0
+        s[_BACC + 24 + lane] = -(gp * dx * dy) if ok else 0.0
+        s[_BACC + 32 + lane] = -(0.5 * gp * dy * dy) if ok else 0.0
 
 
 @njit(inline="always", fastmath=False)
 def _take_partials(s, acc):
-    """acc += the block's gradient partial sums, which are reset to 0."""
+    """acc += the block's gradient terms for the current Gaussian."""
     for q in range(_NGRAD * LANES):
         acc[q] += s[_BACC + q]
-        s[_BACC + q] = 0.0
 
 
 @njit(parallel=True, cache=True, fastmath=False)
@@ -362,6 +372,13 @@ def raster_backward_kernel(offsets, gids, means2d, conics, opac, feats,
                     st[blk + _BT + lane] = 1.0
                     st[blk + _BTF + lane] = 1.0
                     st[blk + _BL + lane] = -1.0  # closed
+        # a block takes part in Gaussian k only if one of its pixels stops after k
+        last = np.empty(th * nseg)
+        for q in range(th * nseg):
+            mx = -1.0
+            for lane in range(LANES):
+                mx = max(mx, st[q * _BBLK + _BL + lane])
+            last[q] = mx
         acc = np.empty(_NGRAD * LANES)
         touched = np.empty(th * nseg, dtype=np.int64)
         for k in range(m - 1, -1, -1):
@@ -381,6 +398,8 @@ def raster_backward_kernel(offsets, gids, means2d, conics, opac, feats,
                 if j_lo > j_hi:
                     continue
                 for h in range(j_lo // LANES, j_hi // LANES + 1):
+                    if kf >= last[ii * nseg + h]:
+                        continue
                     blk = (ii * nseg + h) * _BBLK
                     _segment_backward(st[blk:blk + _BBLK], x0 + h * LANES, u, a, b, c, dy, lpm,
                                       o, f0, f1, f2, f3, kf)
