@@ -153,3 +153,16 @@ def test_non_finite_upstream_gradient_raises():
     img, alpha, depth, _ = _render(rasterize, p, look_at_camera())
     with pytest.raises(NonFiniteError, match="gradient"):
         (depth * float("inf")).sum().backward()
+
+
+def test_finite_check_survives_an_overflowing_sum():
+    """The check sums first; a sum that overflows (all values finite) or
+    cancels (inf and -inf) must fall back to the elementwise test."""
+    from gs2e.splat.rasterize import NonFiniteError, _all_finite, check_finite
+
+    big = torch.tensor([1e308, 1e308, -1.0], dtype=torch.float64)
+    check_finite("big", big)  # sum is inf, values are not
+    assert _all_finite(big.numpy()) and _all_finite(torch.zeros(0, 3))
+    with pytest.raises(NonFiniteError, match=r"pm holds 2 non-finite value\(s\)"):
+        check_finite("pm", torch.tensor([[np.inf, -np.inf], [0.0, 1.0]]))
+    assert not _all_finite(np.array([1.0, np.nan], np.float32))
