@@ -271,3 +271,26 @@ def test_video_source_and_presets_command(tmp_path, capsys):
             if isinstance(v, dict):
                 assert v["source"].split(":")[0] in ("datasheet resolution (REFERENCE.md section 9)",
                                                      "assumed", "measured"), (s["name"], k)
+
+
+def test_read_ahead_keeps_order_raises_in_turn_and_stops_early():
+    import threading
+    import time
+
+    from gs2e.events.frames import read_ahead
+
+    def slow_square(i):
+        time.sleep(0.002 * (i % 3))  # out-of-order completion times
+        if i == 7:
+            raise InputError(f"frame {i}: cannot read image")
+        return i * i
+
+    got = []
+    with pytest.raises(InputError, match="frame 7"):
+        for v in read_ahead(slow_square, range(20), depth=4):
+            got.append(v)
+    assert got == [i * i for i in range(7)]  # everything before the bad item, in order
+    gen = read_ahead(slow_square, range(100), depth=3)
+    assert [next(gen) for _ in range(3)] == [0, 1, 4]
+    gen.close()  # the consumer stops: the reader thread ends, nothing else is started
+    assert not any(t.name.startswith("gs2e-read-ahead") for t in threading.enumerate())

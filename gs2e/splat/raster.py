@@ -218,7 +218,7 @@ def _segment_forward(s, jx, u, a, b, c, dy, lpm, o, f0, f1, f2, f3, kf, mf):
 def _block_open(st, at, mf):
     """Whether any of the LANES stop indices st[at:at + LANES] is still open
     (== mf): a block whose pixels have all stopped is left alone, as the
-    branch-free segment would leave it (a quarter of the blocks a trained
+    branch-free segment would leave it (about a fifth of the blocks a trained
     model's Gaussians reach, behind opaque surfaces)."""
     for lane in range(LANES):
         if st[at + lane] == mf:
