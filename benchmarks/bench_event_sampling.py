@@ -78,7 +78,8 @@ def build_scenes(names: list[str]) -> dict[str, Path]:
     rows = ["scene_id\tlayout\tpath\toverrides"]
     for n in names:
         layout, path, over = SCENES[n]
-        if layout != "demo" and not Path(path).exists():
+        built = all((CACHE / "results" / n / d).exists() for d in ("splat", "trajectories"))
+        if layout != "demo" and not built and not Path(path).exists():
             raise SystemExit(f"{path} is missing (../shared/data): cannot benchmark {n}")
         rows.append(f"{n}\t{layout}\t{path}\t{over}")
     (CACHE / "scenes.tsv").write_text("\n".join(rows) + "\n")

@@ -3,6 +3,8 @@ selected by config, and refused with a clear error where it cannot run."""
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 
@@ -50,11 +52,7 @@ def test_gsplat_refused_where_it_cannot_run(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
-@pytest.mark.skipif(not GSPLAT_OK, reason=f"gsplat backend unavailable: {GSPLAT_WHY}")
-def test_gsplat_matches_cpu_backend():
-    """Same image, alpha, depth and gradients (float32, different summation order)."""
-    p = random_scene(n=400, seed=3, dtype=torch.float32)
-    cam = look_at_camera(96, 72)
+def _both_backends(p, cam):
     outs, grads = {}, {}
     for backend in ("cpu", "gsplat"):
         for v in p.values():
@@ -65,14 +63,37 @@ def test_gsplat_matches_cpu_backend():
         loss.backward()
         outs[backend] = (img.detach(), alpha.detach(), depth.detach(), meta)
         grads[backend] = {k: p[k].grad.clone() for k in ("means", "log_scales", "opacity_logits", "sh")}
+    return outs, grads
+
+
+@pytest.mark.skipif(not GSPLAT_OK, reason=f"gsplat backend unavailable: {GSPLAT_WHY}")
+def test_gsplat_matches_cpu_backend():
+    """Same image, alpha, depth and gradients (float32, different summation
+    order) where both composite the same alphas: opacity <= 0.3, so no alpha
+    reaches a clamp. gsplat clamps each Gaussian's alpha at 0.999, gs2e (like
+    the official 3DGS code) at 0.99, so with opaque Gaussians gsplat covers
+    more (measured on an H100 with gsplat 1.5.3: alpha 1.5e-3 higher on
+    average, never lower)."""
+    cam = look_at_camera(96, 72)
+    p = random_scene(n=400, seed=3, dtype=torch.float32)
+    with torch.no_grad():
+        p["opacity_logits"].clamp_(max=math.log(0.3 / 0.7))
+    outs, grads = _both_backends(p, cam)
     (ic, ac, dc, mc), (ig, ag, dg, mg) = outs["cpu"], outs["gsplat"]
-    assert float((ic - ig).abs().mean()) < 1e-3 and float((ic - ig).abs().max()) < 5e-2
-    assert float((ac - ag).abs().mean()) < 1e-3
-    covered = (ac > 0.5) & (ag > 0.5)
-    assert float(((dc - dg).abs()[covered]).mean()) < 1e-2 * float(dc[covered].mean())
-    assert torch.equal(mc["radii"] > 0, mg["radii"] > 0) or \
-        float(((mc["radii"] > 0) != (mg["radii"] > 0)).float().mean()) < 0.02
+    assert float((ic - ig).abs().mean()) < 1e-5 and float((ic - ig).abs().max()) < 1e-3
+    assert float((ac - ag).abs().mean()) < 1e-5 and float((ac - ag).abs().max()) < 1e-3
+    covered = (ac > 0.2) & (ag > 0.2)
+    assert float(((dc - dg).abs()[covered]).mean()) < 1e-4 * float(dc[covered].mean())
+    assert float(((mc["radii"] > 0) != (mg["radii"] > 0)).float().mean()) < 0.02
     assert float(mg["grad2d"].abs().sum()) > 0
+    for k, gc in grads["cpu"].items():
+        cos = torch.nn.functional.cosine_similarity(gc.flatten(), grads["gsplat"][k].flatten(), dim=0)
+        assert float(cos) > 0.999, k
+    # opaque Gaussians: gsplat's higher alpha clamp only adds coverage
+    outs, grads = _both_backends(random_scene(n=400, seed=3, dtype=torch.float32), cam)
+    (ic, ac, _, _), (ig, ag, _, _) = outs["cpu"], outs["gsplat"]
+    assert float((ac - ag).max()) < 1e-4 and float((ag - ac).mean()) < 3e-3
+    assert float((ic - ig).abs().mean()) < 2e-3
     for k, gc in grads["cpu"].items():
         cos = torch.nn.functional.cosine_similarity(gc.flatten(), grads["gsplat"][k].flatten(), dim=0)
         assert float(cos) > 0.98, k
