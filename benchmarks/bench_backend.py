@@ -32,27 +32,9 @@ import torch
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "benchmarks"))
 from _results import RESULTS, pyplot  # noqa: E402
+from bench_rasterizer import time_call  # noqa: E402
 
 KEYS = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
-
-
-def time_backend(render_once, params, reps: int) -> dict:
-    """Median and min wall milliseconds of forward and forward+backward (the
-    outputs and the parameters' gradients are CPU tensors: their copies wait
-    for the GPU)."""
-    t_f, t_fb = [], []
-    for _ in range(reps):
-        for x in params:
-            x.grad = None
-        t0 = time.perf_counter()
-        img, alpha, _, _ = render_once()
-        t1 = time.perf_counter()
-        (img.sum() + alpha.sum()).backward()
-        t2 = time.perf_counter()
-        t_f.append(t1 - t0)
-        t_fb.append(t2 - t0)
-    return dict(fwd_ms=1e3 * float(np.median(t_f)), fwd_min_ms=1e3 * float(np.min(t_f)),
-                fwd_bwd_ms=1e3 * float(np.median(t_fb)), fwd_bwd_min_ms=1e3 * float(np.min(t_fb)))
 
 
 def trained_models(names: list[str], reps: int) -> list[dict]:
@@ -81,7 +63,8 @@ def trained_models(names: list[str], reps: int) -> list[dict]:
                 once()  # warm-up: compiled kernels (gsplat builds its CUDA code on first use)
                 if not rows:
                     print(f"first {backend} call: {time.perf_counter() - t0:.1f} s", flush=True)
-                t = time_backend(once, list(p.values()), reps)
+                t, _ = time_call(once, p.values(), reps)  # seconds; the gradients land on
+                t = {k.replace("_s", "_ms"): 1e3 * v for k, v in t.items()}  # the CPU: GPU waited for
                 for x in p.values():
                     x.grad = None
                 img = once()[0]
