@@ -85,8 +85,8 @@ class _GsplatRenderer:
     def render_tiles(self, c2w, tiles, cand):
         return self.render(c2w)
 
-    def candidates(self, c2ws, margin_px=1.0):
-        return self.cpu.candidates(c2ws, margin_px)
+    def candidates(self, *args, **kwargs):
+        return self.cpu.candidates(*args, **kwargs)  # whatever the CPU renderer takes
 
 
 class RenderedSource:
