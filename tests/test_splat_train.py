@@ -141,13 +141,14 @@ def test_plateau_stop_on_converged_scene(tiny_scene, tmp_path):
     # min_iterations holds the stop back
     st = train(tiny_scene, tmp_path / "m2", {**c, "min_iterations": 80})
     assert st["stop_reason"] == "plateau" and st["iterations"] == 80
-    # an opacity reset (step 30) drops the PSNR: tracking restarts there instead of
-    # counting the dip as stalls (30 sets the new best, 40 and 50 stall)
+    # an opacity reset at step 30 (after that step's evaluation, which sees the
+    # model as trained) drops the PSNR at 40: tracking restarts there instead of
+    # counting the dip as stalls (40 sets the new best, 50 and 60 stall)
     st = train(tiny_scene, tmp_path / "m3", {**c, "opacity_reset_every": 30, "densify_until": 100,
                                               "densify_every": 1000})
-    assert st["stop_reason"] == "plateau" and st["iterations"] == 50
+    assert st["stop_reason"] == "plateau" and st["iterations"] == 60
     curve = pd.read_parquet(tmp_path / "m3" / "curve.parquet")
-    assert curve["psnr"].iloc[2] < curve["psnr"].iloc[1] - 1.0  # the reset's dip
+    assert curve["psnr"].iloc[3] < curve["psnr"].iloc[2] - 1.0  # the reset's dip, at 40
 
 
 def test_ply_import_renders_and_evaluates(tiny_scene, tmp_path):
@@ -464,3 +465,17 @@ def test_adaptive_budget_grows_past_a_small_start_and_resumes_exactly(tiny_scene
     st_b = train(tiny_scene, tmp_path / "b", c, seed=2)
     assert model_digest(tmp_path / "a") == model_digest(tmp_path / "b")
     assert st_b["budget"] == st["budget"]
+
+
+def test_evaluation_sees_the_model_before_that_steps_densification(tiny_scene, tmp_path):
+    """An evaluation on a densification step scores the model as trained, not
+    with the Gaussians that step has just split or cloned (they cost 1.5-2 dB
+    for one evaluation on temple_ring), and the last step does not densify."""
+    c = cfg(max_iterations=30, eval_every=10, densify_every=10, densify_from=10, densify_until=30,
+            densify_grad_threshold=1e-12)
+    st = train(tiny_scene, tmp_path / "m", c, seed=1)
+    curve = pd.read_parquet(tmp_path / "m" / "curve.parquet")
+    n0 = len(np.load(tiny_scene / "points3d.npz")["xyz"])
+    assert list(curve["iteration"]) == [10, 20, 30]
+    assert curve["n_gaussians"].iloc[0] == n0  # step 10's densification comes after its evaluation
+    assert curve["n_gaussians"].iloc[1] > n0 and st["n_gaussians"] == curve["n_gaussians"].iloc[-1]
