@@ -32,56 +32,44 @@ import torch
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "benchmarks"))
 from _results import RESULTS, pyplot  # noqa: E402
-from bench_rasterizer import time_call  # noqa: E402
+from bench_rasterizer import time_call, trained_cameras  # noqa: E402
 
 KEYS = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
 
 
 def trained_models(names: list[str], reps: int) -> list[dict]:
-    from bench_event_sampling import build_scenes
-    from gs2e.splat.model import load_model, render
-    from gs2e.splat.rasterize import SplatCamera
-    from gs2e.trajectory import load_trajectory
+    from gs2e.splat.model import render
 
     rows = []
-    for name, d in build_scenes(names).items():
-        p, info = load_model(d / "splat")
-        for x in p.values():
-            x.requires_grad_(True)
-        tr = load_trajectory(d / "trajectories" / "base_medium.npz")
-        c2w = tr.pose_at(np.array([tr.duration_us // 3]))[0]
-        bg = torch.zeros(3)
-        for scale in (1, 2):
-            K = tr.K * scale
-            cam = SplatCamera.from_c2w(c2w, K[0, 0], K[1, 1], K[0, 2], K[1, 2],
-                                       tr.width * scale, tr.height * scale)
-            out = {}
-            for backend in ("cpu", "gsplat"):
-                def once(backend=backend):
-                    return render(p, cam, bg, int(info["sh_degree"]), backend)
-                t0 = time.perf_counter()
-                once()  # warm-up: compiled kernels (gsplat builds its CUDA code on first use)
-                if not rows:
-                    print(f"first {backend} call: {time.perf_counter() - t0:.1f} s", flush=True)
-                t, _ = time_call(once, p.values(), reps)  # seconds; the gradients land on
-                t = {k.replace("_s", "_ms"): 1e3 * v for k, v in t.items()}  # the CPU: GPU waited for
-                for x in p.values():
-                    x.grad = None
-                img = once()[0]
-                w = torch.linspace(-1, 1, img.numel()).reshape(img.shape)
-                (img * w).sum().backward()
-                out[backend] = (img.detach().double(), {k: p[k].grad.detach().double().flatten().clone()
-                                                        for k in KEYS if p[k].grad is not None})
-                rows.append(dict(scene=name, width=cam.width, height=cam.height,
-                                 gaussians=int(p["means"].shape[0]), backend=backend, **t))
-            (ic, gc), (ig, gg) = out["cpu"], out["gsplat"]
-            mse = float(((ic - ig) ** 2).mean())
-            rows[-1]["psnr_vs_cpu_db"] = 10 * np.log10(1.0 / mse) if mse > 0 else float("inf")
-            rows[-1]["max_abs_diff"] = float((ic - ig).abs().max())
-            for k in (k for k in gc if float(gc[k].abs().sum()) > 0):  # sh_rest: 0 at degree 0
-                rows[-1][f"grad_cos_{k}"] = float(torch.nn.functional.cosine_similarity(
-                    gc[k], gg[k], dim=0))
-            rows[-1]["speedup_fwd_bwd"] = rows[-2]["fwd_bwd_min_ms"] / rows[-1]["fwd_bwd_min_ms"]
+    bg = torch.zeros(3)
+    for name, p, info, cam in trained_cameras(names):
+        out = {}
+        for backend in ("cpu", "gsplat"):
+            def once(backend=backend):
+                return render(p, cam, bg, int(info["sh_degree"]), backend)
+            t0 = time.perf_counter()
+            once()  # warm-up: compiled kernels (gsplat builds its CUDA code on first use)
+            if not rows:
+                print(f"first {backend} call: {time.perf_counter() - t0:.1f} s", flush=True)
+            t, _ = time_call(once, p.values(), reps)  # seconds; the gradients land on
+            t = {k.replace("_s", "_ms"): 1e3 * v for k, v in t.items()}  # the CPU: GPU waited for
+            for x in p.values():
+                x.grad = None
+            img = once()[0]
+            w = torch.linspace(-1, 1, img.numel()).reshape(img.shape)
+            (img * w).sum().backward()
+            out[backend] = (img.detach().double(), {k: p[k].grad.detach().double().flatten().clone()
+                                                    for k in KEYS if p[k].grad is not None})
+            rows.append(dict(scene=name, width=cam.width, height=cam.height,
+                             gaussians=int(p["means"].shape[0]), backend=backend, **t))
+        (ic, gc), (ig, gg) = out["cpu"], out["gsplat"]
+        mse = float(((ic - ig) ** 2).mean())
+        rows[-1]["psnr_vs_cpu_db"] = 10 * np.log10(1.0 / mse) if mse > 0 else float("inf")
+        rows[-1]["max_abs_diff"] = float((ic - ig).abs().max())
+        for k in (k for k in gc if float(gc[k].abs().sum()) > 0):  # sh_rest: 0 at degree 0
+            rows[-1][f"grad_cos_{k}"] = float(torch.nn.functional.cosine_similarity(
+                gc[k], gg[k], dim=0))
+        rows[-1]["speedup_fwd_bwd"] = rows[-2]["fwd_bwd_min_ms"] / rows[-1]["fwd_bwd_min_ms"]
     return rows
 
 

@@ -142,45 +142,55 @@ def c_vs_numba(reps, quick):
                 same_ncontrib=bool(np.array_equal(nc_c, nc_n)))
 
 
-def trained_models(reps: int, quick: bool) -> list[dict]:
-    """fwd and fwd+bwd on trained models, today's kernels vs the baseline."""
-    import _raster_v0 as v0
+def trained_cameras(names: list[str]):
+    """(name, params with gradients on, model info, camera) for each trained
+    model of bench_event_sampling.py, seen from a third of the way along its
+    base_medium trajectory at its training size and at twice it."""
     from bench_event_sampling import build_scenes
-    from gs2e.splat.model import load_model, render
+    from gs2e.splat.model import load_model
     from gs2e.trajectory import load_trajectory
 
-    kernels = {"simd": (R.raster_forward_kernel, R.raster_backward_kernel),
-               "pixel-major (baseline)": (v0.raster_forward_kernel, v0.raster_backward_kernel)}
-    rows = []
-    for name, d in build_scenes(["demo"] if quick else ["demo", "temple_ring", "llff_fern"]).items():
+    for name, d in build_scenes(names).items():
         p, info = load_model(d / "splat")
         for x in p.values():
             x.requires_grad_(True)
         tr = load_trajectory(d / "trajectories" / "base_medium.npz")
         c2w = tr.pose_at(np.array([tr.duration_us // 3]))[0]
-        bg = torch.zeros(3)
         for scale in (1, 2):
             K = tr.K * scale
-            cam = SplatCamera.from_c2w(c2w, K[0, 0], K[1, 1], K[0, 2], K[1, 2],
-                                       tr.width * scale, tr.height * scale)
-            outs = {}
-            for impl, (fwd, bwd) in kernels.items():
-                R.raster_forward_kernel, R.raster_backward_kernel = fwd, bwd
-                try:
-                    t, meta = time_call(lambda: render(p, cam, bg, int(info["sh_degree"])),
-                                        p.values(), reps)
-                    img = render(p, cam, bg, int(info["sh_degree"]))[0]
-                    g = torch.autograd.grad(img.sum(), [p["means"], p["opacity_logits"]])
-                    outs[impl] = (img.detach(), *g)
-                finally:
-                    R.raster_forward_kernel, R.raster_backward_kernel = kernels["simd"]
-                rows.append(dict(scene=f"{name} trained {cam.width}x{cam.height}", width=cam.width,
-                                 height=cam.height, n=int(p["means"].shape[0]), backend=impl, **t,
-                                 n_pairs=meta["n_pairs"]))
-            a, b = outs["simd"], outs["pixel-major (baseline)"]
-            rows[-2]["max_abs_img_diff"] = float((a[0] - b[0]).abs().max())
-            rows[-2]["grad_rel_diff"] = max(float((x - y).abs().max() / y.abs().max().clamp_min(1e-30))
-                                            for x, y in zip(a[1:], b[1:]))
+            yield name, p, info, SplatCamera.from_c2w(c2w, K[0, 0], K[1, 1], K[0, 2], K[1, 2],
+                                                      tr.width * scale, tr.height * scale)
+
+
+def trained_models(reps: int, quick: bool) -> list[dict]:
+    """fwd and fwd+bwd on trained models, today's kernels vs the baseline."""
+    import _raster_v0 as v0
+    from gs2e.splat.model import render
+
+    kernels = {"simd": (R.raster_forward_kernel, R.raster_backward_kernel),
+               "pixel-major (baseline)": (v0.raster_forward_kernel, v0.raster_backward_kernel)}
+    rows = []
+    bg = torch.zeros(3)
+    names = ["demo"] if quick else ["demo", "temple_ring", "llff_fern"]
+    for name, p, info, cam in trained_cameras(names):
+        outs = {}
+        for impl, (fwd, bwd) in kernels.items():
+            R.raster_forward_kernel, R.raster_backward_kernel = fwd, bwd
+            try:
+                t, meta = time_call(lambda: render(p, cam, bg, int(info["sh_degree"])),
+                                    p.values(), reps)
+                img = render(p, cam, bg, int(info["sh_degree"]))[0]
+                g = torch.autograd.grad(img.sum(), [p["means"], p["opacity_logits"]])
+                outs[impl] = (img.detach(), *g)
+            finally:
+                R.raster_forward_kernel, R.raster_backward_kernel = kernels["simd"]
+            rows.append(dict(scene=f"{name} trained {cam.width}x{cam.height}", width=cam.width,
+                             height=cam.height, n=int(p["means"].shape[0]), backend=impl, **t,
+                             n_pairs=meta["n_pairs"]))
+        a, b = outs["simd"], outs["pixel-major (baseline)"]
+        rows[-2]["max_abs_img_diff"] = float((a[0] - b[0]).abs().max())
+        rows[-2]["grad_rel_diff"] = max(float((x - y).abs().max() / y.abs().max().clamp_min(1e-30))
+                                        for x, y in zip(a[1:], b[1:]))
     return rows
 
 

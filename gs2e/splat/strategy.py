@@ -265,9 +265,9 @@ class GrowingBudget:
     (:meth:`update`): if the count has reached the budget, the budget grows by
     ``growth`` (at most ``budget_max``). The growth is judged once the count
     has filled the new room and one more evaluation has passed, on the better
-    of those two evaluations: a densification round can dip held-out PSNR for
-    one evaluation (1.9 dB on temple_ring), and judging on that dip would end
-    growth that pays. If the better PSNR is not at least ``min_gain_db`` above
+    of those two evaluations: one evaluation can dip (1.9 dB on temple_ring
+    when evaluations still followed a densification step), and judging on a
+    dip would end growth that pays. If the better PSNR is not at least ``min_gain_db`` above
     the PSNR at the growth, the budget is frozen at the count reached (never
     below ``floor``) for the rest of the run; otherwise it may grow again at
     once, from that better PSNR. A resolution change restarts the comparison
