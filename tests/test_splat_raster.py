@@ -131,6 +131,65 @@ def test_same_bits_whatever_the_thread_count():
         assert torch.equal(a, b)
 
 
+def test_tile_schedule_splits_by_work():
+    """Every tile exactly once, each worker's tiles ascending, and the
+    longest-first bound: loads differ by at most the largest tile cost."""
+    rng = np.random.default_rng(3)
+    counts = np.concatenate([rng.integers(0, 400, 150), np.zeros(40, np.int64),
+                             rng.integers(0, 20, 146)])  # busy top, empty band, sparse rest
+    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    for n_workers in (1, 2, 3, 7, 400):
+        order, bounds = R.tile_schedule(offsets, n_workers)
+        assert bounds.shape == (n_workers + 1,) and bounds[0] == 0 and bounds[-1] == len(counts)
+        assert np.array_equal(np.sort(order), np.arange(len(counts)))
+        cost = counts + 16.0
+        loads = [cost[order[a:b]].sum() for a, b in zip(bounds[:-1], bounds[1:])]
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            assert np.all(np.diff(order[a:b]) > 0)
+        assert max(loads) - min(loads) <= cost.max()
+        again = R.tile_schedule(offsets, n_workers)
+        assert np.array_equal(order, again[0]) and np.array_equal(bounds, again[1])
+    # a contiguous half split would give the busy top to one thread
+    order, bounds = R.tile_schedule(offsets, 2)
+    loads = [(counts[order[a:b]] + 16.0).sum() for a, b in zip(bounds[:-1], bounds[1:])]
+    halves = [(counts[:168] + 16.0).sum(), (counts[168:] + 16.0).sum()]
+    assert max(loads) / min(loads) < 1.01 < max(halves) / min(halves)
+
+
+def test_kernels_give_same_bits_for_any_split_of_tiles():
+    """The forward and backward kernels take the tile split as input; a tile's
+    pixels and pair rows do not depend on which worker or order renders it."""
+    p = random_scene(300, seed=12, dtype=torch.float32)
+    cam = look_at_camera()
+    meta = _render(rasterize, p, cam)[3]
+    m2 = meta["means2d"].numpy().astype(np.float32)
+    cn = meta["conics"].numpy().astype(np.float32)
+    op = torch.sigmoid(p["opacity_logits"]).detach().numpy()
+    feats = np.random.default_rng(0).random((300, 4)).astype(np.float32)
+    W, H = cam.width, cam.height
+    off, gids = R.bin_gaussians(meta["means2d"].numpy(), meta["depths"].numpy(),
+                                meta["radii"].numpy(), W, H, 16, op)
+    n_tiles = len(off) - 1
+    g_out = np.random.default_rng(1).random((H, W, 4))
+    g_T = np.random.default_rng(2).random((H, W))
+    res = []
+    for sched in (R.tile_schedule(off, 1), R.tile_schedule(off, 3), R.tile_schedule(off, 64),
+                  (np.arange(n_tiles)[::-1].copy(), np.array([0, n_tiles]))):
+        out = np.empty((H, W, 4), np.float32)
+        T = np.empty((H, W), np.float32)
+        nc = np.empty((H, W), np.int32)
+        R.raster_forward_kernel(np.arange(n_tiles), off, gids, m2, cn, op, feats,
+                                np.zeros(4, np.float32), W, H, 16, out, T, nc, *sched)
+        pair = np.empty((len(gids), 10))
+        R.raster_backward_kernel(off, gids, m2, cn, op, feats, W, H, 16, T, nc, g_out, g_T,
+                                 pair, *sched)
+        res.append((out, T, nc, pair))
+    assert float(res[0][1].min()) < 0.5  # Gaussians cover part of the image
+    for r in res[1:]:
+        for a, b in zip(res[0], r):
+            assert np.array_equal(a, b)
+
+
 def test_no_gaussians():
     p = random_scene(0, seed=0)
     img, alpha, depth, meta = _render(rasterize, p, look_at_camera())

@@ -314,7 +314,8 @@ class ForwardRenderer:
         tiles = np.arange(self.n_tiles, dtype=np.int64)
         _raster.raster_forward_kernel(tiles, offsets, gids, self.m2_dt, self.cn_dt, self.opac_dt,
                                       self.colors, self.bg, self.width, self.height, TILE,
-                                      self.image, self._T, self._nc)
+                                      self.image, self._T, self._nc,
+                                      *_raster.tile_schedule(offsets))
         self.renders += 1
         self.tiles_rendered += self.n_tiles
         return self.image
@@ -385,7 +386,8 @@ class ForwardRenderer:
                                     self.width, TILE)
         _raster.raster_forward_kernel(tiles, offsets, gids, self.m2_dt, self.cn_dt, self.opac_dt,
                                       self.colors, self.bg, self.width, self.height, TILE,
-                                      self.image, self._T, self._nc)
+                                      self.image, self._T, self._nc,
+                                      *_raster.tile_schedule(offsets))
         self.renders += 1
         self.tiles_rendered += len(tiles)
         return self.image
