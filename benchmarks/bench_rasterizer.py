@@ -13,8 +13,9 @@ the demo, temple_ring and llff_fern models of bench_event_sampling.py
 rendered at their training size and at twice it (640 px), float32 like
 training: forward and forward+backward with today's kernels and with the
 baseline pixel-major kernels (benchmarks/_raster_v0.py, the kernels before
-the SIMD rewrite), swapped in within the same run; the images and gradients
-of both are compared.
+the SIMD rewrite, which split tiles over threads in contiguous blocks),
+swapped in within the same run; projection, SH and binning are today's for
+both. The images and gradients of both are compared.
 
 Usage: PYTHONPATH=$PWD python benchmarks/bench_rasterizer.py [--quick]
 Writes benchmarks/results/bench_rasterizer.csv and .png; the last printed line

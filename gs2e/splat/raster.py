@@ -32,6 +32,9 @@ polynomial; within 1.4 ulp of exp on [-4.5, 0] (tests), and vectorisable
 Channels: up to 4 per-Gaussian features are composited together (RGB plus
 camera depth, so expected depth comes for free).
 
+Threads: each takes a set of whole tiles chosen by their work
+(:func:`tile_schedule`, longest first), not a contiguous block of them.
+
 Determinism: each tile is handled by one thread, which writes the gradients
 of its (tile, Gaussian) pairs into its own rows of a pair buffer (per pair:
 lane sums in row order, then the 8 lanes in order); the buffer is then
