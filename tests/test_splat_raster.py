@@ -131,6 +131,21 @@ def test_same_bits_whatever_the_thread_count():
         assert torch.equal(a, b)
 
 
+def test_fixed_background_gets_no_gradient_and_changes_nothing_else():
+    """A background that does not require grad (training) skips its gradient;
+    every other gradient keeps its bits."""
+    p = random_scene(200, seed=13)
+    cam = look_at_camera()
+    res = []
+    for bg_grad in (True, False):
+        p["background"].requires_grad_(bg_grad)
+        out = _render(rasterize, p, cam)
+        res.append(torch.autograd.grad(_loss(out), [p[k] for k in KEYS]))
+    p["background"].requires_grad_(True)
+    for a, b in zip(*res):
+        assert torch.equal(a, b)
+
+
 def test_tile_schedule_splits_by_work():
     """Every tile exactly once, each worker's tiles ascending, and the
     longest-first bound: loads differ by at most the largest tile cost."""
