@@ -193,6 +193,16 @@ def tile_schedule(offsets: np.ndarray, n_workers: int | None = None):
 
 
 @njit(inline="always", fastmath=False)
+def _tile_origin(t, tiles_x, tile, width, height):
+    """Top-left pixel (x0, y0) and size (tw, th) of tile t (row-major)."""
+    ty = t // tiles_x
+    tx = t - ty * tiles_x
+    x0 = tx * tile
+    y0 = ty * tile
+    return x0, y0, min(width, x0 + tile) - x0, min(height, y0 + tile) - y0
+
+
+@njit(inline="always", fastmath=False)
 def _footprint(o, a, b, c):
     """lpm, the power below which a Gaussian of opacity ``o`` and conic
     (a, b, c) cannot pass (the 3-sigma cut or alpha < 1/255, whichever is
@@ -304,16 +314,10 @@ def raster_forward_kernel(tile_ids, offsets, gids, means2d, conics, opac, feats,
     for w in prange(bounds.shape[0] - 1):
         for r in range(bounds[w], bounds[w + 1]):
             si = order[r]
-            t = tile_ids[si]
-            ty = t // tiles_x
-            tx = t - ty * tiles_x
+            x0, y0, tw, th = _tile_origin(tile_ids[si], tiles_x, tile, width, height)
             start = offsets[si]
             m = offsets[si + 1] - start
             mf = float(m)
-            x0 = tx * tile
-            y0 = ty * tile
-            tw = min(width, x0 + tile) - x0
-            th = min(height, y0 + tile) - y0
             # one block per (row, segment): lanes past the tile's width start closed
             st = np.zeros(th * nseg * _FBLK)
             for ii in range(th):
@@ -417,14 +421,9 @@ def raster_backward_kernel(offsets, gids, means2d, conics, opac, feats,
     for w in prange(bounds.shape[0] - 1):
         for r in range(bounds[w], bounds[w + 1]):
             t = order[r]
-            ty = t // tiles_x
-            tx = t - ty * tiles_x
+            x0, y0, tw, th = _tile_origin(t, tiles_x, tile, width, height)
             start = offsets[t]
             m = offsets[t + 1] - start
-            x0 = tx * tile
-            y0 = ty * tile
-            tw = min(width, x0 + tile) - x0
-            th = min(height, y0 + tile) - y0
             st = np.zeros(th * nseg * _BBLK)
             for ii in range(th):
                 for jj in range(nseg * LANES):
