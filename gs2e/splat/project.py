@@ -45,6 +45,18 @@ def _quat_to_rot(qw, qx, qy, qz, R):
     return n, w, x, y, z
 
 
+@njit(inline="always", cache=True, fastmath=False)
+def _mul3(A, B, out, a_t, b_t):
+    """out = op(A) op(B) for 3x3 arrays, op transposing where the flag is set;
+    each entry sums k = 0, 1, 2 in order."""
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += (A[k, i] if a_t else A[i, k]) * (B[j, k] if b_t else B[k, j])
+            out[i, j] = acc
+
+
 @njit(cache=True, fastmath=False)
 def _cov_cam(quat, logscale, V, Rq, M, S3, Sc):
     """Rq (rotation of the Gaussian), M = Rq diag(s), S3 = M M^T, Sc = V S3 V^T."""
@@ -53,25 +65,10 @@ def _cov_cam(quat, logscale, V, Rq, M, S3, Sc):
         s = math.exp(logscale[j])
         for i in range(3):
             M[i, j] = Rq[i, j] * s
-    for i in range(3):
-        for j in range(3):
-            acc = 0.0
-            for k in range(3):
-                acc += M[i, k] * M[j, k]
-            S3[i, j] = acc
+    _mul3(M, M, S3, False, True)
     tmp = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            acc = 0.0
-            for k in range(3):
-                acc += V[i, k] * S3[k, j]
-            tmp[i, j] = acc
-    for i in range(3):
-        for j in range(3):
-            acc = 0.0
-            for k in range(3):
-                acc += tmp[i, k] * V[j, k]
-            Sc[i, j] = acc
+    _mul3(V, S3, tmp, False, False)
+    _mul3(tmp, V, Sc, False, True)
 
 
 @njit(parallel=True, cache=True, fastmath=False)
@@ -348,18 +345,8 @@ def project_backward_kernel(means, quats, logscales, viewmat, fx, fy, cx, cy,
                 for k in range(3):
                     g_means[g, k] = V[0, k] * gx + V[1, k] * gy + V[2, k] * gz
                 # Sc = V S3 V^T -> GS3 = V^T GSc V
-                for i in range(3):
-                    for j in range(3):
-                        acc = 0.0
-                        for k in range(3):
-                            acc += V[k, i] * GSc[k, j]
-                        tmp[i, j] = acc
-                for i in range(3):
-                    for j in range(3):
-                        acc = 0.0
-                        for k in range(3):
-                            acc += tmp[i, k] * V[k, j]
-                        GS3[i, j] = acc
+                _mul3(V, GSc, tmp, True, False)
+                _mul3(tmp, V, GS3, False, False)
                 # S3 = M M^T -> GM = (GS3 + GS3^T) M
                 for i in range(3):
                     for j in range(3):
