@@ -39,6 +39,7 @@ STAGE_CLIS = (
     "gs2e.render.cli",
     "gs2e.events.cli",
     "gs2e.export.cli",
+    "gs2e.bench.cli",
     "gs2e.metrics.cli",
     "gs2e.report.cli",
 )

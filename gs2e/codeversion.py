@@ -47,6 +47,9 @@ STAGE_ENTRY: dict[str, str] = {
     # one CLI module, two rules: the windows table does not read exporters' code
     "windows": "gs2e.export.cli:run_windows",
     "export": "gs2e.export.cli:run_export",
+    # one CLI module, two rules: the dataset table does not run the tasks
+    "bench": "gs2e.bench.cli:run_bench",
+    "bench_summary": "gs2e.bench.cli:run_summary",
 }
 # What every stage's command goes through before its own module.
 COMMAND_ROOTS = ("gs2e.__main__", "gs2e.cli")

@@ -30,7 +30,7 @@ SCENES_SCHEMA = SCHEMA_DIR / "scenes.schema.yaml"
 # Where files are, not what a scene computes: left out of config hashes and params.
 LOCATION_KEYS = ("scenes", "results_dir")
 
-SECTIONS = ("demo", "ingest", "sfm", "splat", "trajectory", "render", "events", "metrics", "export")
+SECTIONS = ("demo", "ingest", "sfm", "splat", "trajectory", "render", "events", "metrics", "export", "bench")
 
 
 def _with_defaults(cls):
@@ -315,6 +315,24 @@ def _check_metrics(cfg: dict) -> None:
         raise _missing("metrics.real_events", real)
 
 
+def _check_bench(cfg: dict) -> None:
+    import importlib.util
+
+    b = cfg["bench"]
+    if b["edi_theta_min"] >= b["edi_theta_max"]:
+        raise ConfigError(f"bench.edi_theta_min={b['edi_theta_min']:g} is not below "
+                          f"bench.edi_theta_max={b['edi_theta_max']:g}")
+    for spec in b["methods"]:
+        mod = spec.split(":")[0]
+        try:
+            found = importlib.util.find_spec(mod) is not None
+        except (ImportError, ValueError):
+            found = False
+        if not found:
+            raise ConfigError(f"bench.methods: module '{mod}' of '{spec}' cannot be found by "
+                              "this interpreter (install it or add it to PYTHONPATH)")
+
+
 def trajectory_names(traj_cfg: dict) -> list[str]:
     """Names of the trajectory files the trajectory stage writes for this section."""
     names = [f"base_{p}" for p in traj_cfg["speed_presets"]]
@@ -330,15 +348,22 @@ def _check_render_trajectories(cfg: dict) -> None:
                               "trajectory.speed_presets, mini_groups, mini_preset)")
 
 
+def _check_bench_inputs(cfg: dict) -> None:
+    if "deblur" in cfg["bench"]["tasks"] and not cfg["render"]["write_blur"]:
+        raise ConfigError("bench.tasks: 'deblur' needs blurred frames, but render.write_blur is false")
+
+
 CROSS_CHECKS = (
     (("render",), _check_render),
     (("trajectory",), _check_trajectory),
     (("splat",), _check_splat),
     (("events",), _check_events),
     (("metrics",), _check_metrics),
+    (("bench",), _check_bench),
 )
 WORKFLOW_CHECKS = (
     (("render", "trajectory"), _check_render_trajectories),
+    (("bench", "render"), _check_bench_inputs),
 )
 
 

@@ -66,6 +66,12 @@ def stage_commands(wd: Path, out: Path) -> dict[str, list[str]]:
         # the tiny run's events (30 ms) cover no two frames: see _scene_with_longer_events
         "export": ["export", "--scene-dir", str(out / "scene"), "--trajectory", "mini00_medium",
                    "--format", "eventnerf", "--out", str(out / "export"), "--config-json", sec("export")],
+        "bench": ["bench", "--task", "video", "--frames", str(tiny / "frames" / "mini00_medium"),
+                  "--events", str(out / "scene" / "events" / "mini00_medium"),
+                  "--windows", str(out / "scene" / "windows" / "mini00_medium.parquet"),
+                  "--trajectory", traj, "--out", str(out / "bench.parquet"), "--png", str(out / "bench.png"),
+                  "--config-json", sec("bench")],
+        "bench_summary": ["bench-summary", str(out / "bench.parquet"), "--out", str(out / "bench_all.parquet")],
     }
 
 
@@ -90,9 +96,12 @@ def _scene_with_longer_events(wd: Path, out: Path) -> None:
 
 @pytest.mark.parametrize("stage", list(STAGE_ENTRY))
 def test_every_module_a_stage_loads_is_in_its_code_version(stage, tiny_pipeline, tmp_path):
-    if stage == "export":
+    commands = stage_commands(tiny_pipeline[0], tmp_path)
+    if stage in ("export", "bench", "bench_summary"):
         _scene_with_longer_events(tiny_pipeline[0], tmp_path)
-    argv = stage_commands(tiny_pipeline[0], tmp_path)[stage]
+    if stage == "bench_summary":  # a bench table to collect
+        assert run_cli(*commands["bench"]).returncode == 0
+    argv = commands[stage]
     loaded_json = tmp_path / "loaded.json"
     proc = subprocess.run([sys.executable, "-c", DRIVER, STAGE_ENTRY[stage], str(loaded_json), *argv],
                           cwd=tmp_path, capture_output=True, text=True, timeout=600,
@@ -164,15 +173,18 @@ def test_an_edit_reruns_the_stages_that_load_it(tmp_path):
 
     # the report reads event files with gs2e.events; the windows table reads them
     # with events/io.py, which loads the package
-    assert edit_and_diff("events/__init__.py") == {"events", "report", "windows", "export"}
+    assert edit_and_diff("events/__init__.py") == {"events", "report", "windows", "export", "bench"}
     # the event stage renders with gs2e.splat, not the render stage's code;
     # the windows table loads render/dataset.py (frames table), hence the
     # render package and, through it, the renderer
-    assert edit_and_diff("splat/__init__.py") == {"train", "render", "events", "windows", "export"}
-    assert edit_and_diff("render/__init__.py") == {"render", "windows", "export"}
+    assert edit_and_diff("splat/__init__.py") == {"train", "render", "events", "windows", "export", "bench"}
+    assert edit_and_diff("render/__init__.py") == {"render", "windows", "export", "bench"}
     # one CLI module, two rules: each follows only its own command's imports
     assert edit_and_diff("export/run.py") == {"export"}
-    assert edit_and_diff("export/windows.py") == {"windows", "export"}
+    assert edit_and_diff("export/windows.py") == {"windows", "export", "bench"}
+    # the benchmark's two rules: the tasks and the dataset table
+    assert edit_and_diff("bench/run.py") == {"bench"}
+    assert edit_and_diff("bench/summary.py") == {"bench_summary"}
     assert edit_and_diff("sfm/__init__.py") == {"sfm"}
     assert edit_and_diff("demo/__init__.py") == {"demo"}
     # stages write their tables with metrics/table.py; the scene tables are metrics' own

@@ -23,7 +23,7 @@ import torch
 from gs2e.common.camera import render_camera
 from gs2e.common.errors import ConfigError, InputError
 from gs2e.events.models import TileBatch
-from gs2e.events.presets import get_preset
+from gs2e.events.presets import get_preset, log_contrast
 from gs2e.events.sensors import get_sensor
 from gs2e.events.sampling import (MODES, SamplerStats, TileSampler, adaptive_samples,
                                   image_luminance)
@@ -52,15 +52,12 @@ def bound_log(events_cfg: dict) -> float:
 
 def sampling_log_eps(events_cfg: dict) -> float:
     """The dark floor of the signal the sampling bound applies to: the event
-    model's own log signal. Ideal: log(L + log_eps). DVS-Voltmeter: its voltage
-    drifts at k1 d/dt log(L * scale + k2) (mu = k1 dL/dt / (L + k2)), so its
-    signal is log(L + k2 / scale), luminance L in [0, 1]: dark pixels, where
-    the ideal model's log swings widely, barely move its voltage."""
-    if events_cfg["model"] == "voltmeter":
-        k = {i + 1: events_cfg.get(f"k{i + 1}") for i in range(6)}
-        p = get_preset(events_cfg["preset"], k)
-        return float(p.k[1] / p.intensity_scale)
-    return float(events_cfg["log_eps"])
+    model's own log signal (:func:`gs2e.events.presets.log_contrast`). Ideal:
+    log(L + log_eps). DVS-Voltmeter: its voltage drifts at k1 d/dt log(L *
+    scale + k2) (mu = k1 dL/dt / (L + k2)), so its signal is log(L + k2 /
+    scale), luminance L in [0, 1]: dark pixels, where the ideal model's log
+    swings widely, barely move its voltage."""
+    return log_contrast(events_cfg)[2]
 
 
 class _GsplatRenderer:

@@ -17,10 +17,13 @@ from gs2e.io.images import write_png
 from gs2e.io.nerf import write_transforms
 from gs2e.io.scene import Camera, Frame, Scene
 from gs2e.render.blur import average_srgb, subframe_times_us, subframes_needed
-from gs2e.render.motion import pixel_motion_px
+from gs2e.common.motion import pixel_motion_px
 from gs2e.trajectory import fixed_times_us
 
 log = get_logger("gs2e.render")
+# Image motion of the Gaussian centres over a blurred frame's exposure, recorded
+# per frame; the 99th percentile sets the sub-frame count.
+MOTION_PERCENTILES = (50, 90, 99)
 
 
 def _u8(img01: np.ndarray) -> np.ndarray:
@@ -48,7 +51,9 @@ def render_dataset(model_dir: str | Path, trajectory_path: str | Path, out_dir: 
     (average over ``exposure_us`` centred on the same time, in linear light),
     ``depth/NNNNNN.npz`` (float32 expected camera z), ``alpha/NNNNNN.png``,
     ``frames.parquet`` (frame, t_us int64, c2w (16 floats, OpenCV axes), fx, fy,
-    cx, cy, width, height, exposure_us, n_subframes, coverage),
+    cx, cy, width, height, exposure_us, n_subframes, coverage, motion_px_p50 /
+    _p90 / _p99 (percentiles over the Gaussian centres in view of their image
+    motion over the exposure, px; null without blur)),
     ``transforms.json`` (NeRF convention, OpenGL axes), ``render_stats.json``
     and ``metrics.parquet``.
 
@@ -89,12 +94,13 @@ def render_dataset(model_dir: str | Path, trajectory_path: str | Path, out_dir: 
             write_png(out / "alpha" / name, _u8(alpha)[..., None].repeat(3, axis=2))
             if cfg["write_depth"]:
                 np.savez_compressed(out / "depth" / f"{i:06d}.npz", depth=depth.astype(np.float32))
-            n_sub = 1
+            n_sub, motion = 1, np.full(3, np.nan)
             if cfg["write_blur"]:
                 ta = max(float(r.t0_us), t - E / 2)
                 tb = min(float(r.t1_us), t + E / 2)
-                motion = pixel_motion_px(centres, r.pose(ta), r.pose(tb), r.K, r.width, r.height) if tb > ta else 0.0
-                n_sub = subframes_needed(motion, cfg["blur_max_step_px"], cfg["blur_max_subframes"])
+                motion = (pixel_motion_px(centres, r.pose(ta), r.pose(tb), r.K, r.width, r.height,
+                                          MOTION_PERCENTILES) if tb > ta else np.zeros(3))
+                n_sub = subframes_needed(float(motion[2]), cfg["blur_max_step_px"], cfg["blur_max_subframes"])
                 if n_sub == 1:
                     blur = rgb
                 else:
@@ -105,7 +111,8 @@ def render_dataset(model_dir: str | Path, trajectory_path: str | Path, out_dir: 
             rows.append({"frame": i, "file": name, "t_us": int(t), "c2w": c2w.reshape(-1).tolist(),
                          "fx": r.fx, "fy": r.fy, "cx": r.cx, "cy": r.cy, "width": r.width,
                          "height": r.height, "exposure_us": E if cfg["write_blur"] else 0.0,
-                         "n_subframes": n_sub, "coverage": coverage})
+                         "n_subframes": n_sub, "coverage": coverage,
+                         **{f"motion_px_p{q}": float(m) for q, m in zip(MOTION_PERCENTILES, motion)}})
         df = pd.DataFrame(rows)
         df["t_us"] = df["t_us"].astype("int64")
         df.to_parquet(out / "frames.parquet", index=False)

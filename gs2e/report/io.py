@@ -21,6 +21,11 @@ def _read_parquet(path: Path) -> pd.DataFrame | None:
     return read_table(path) if path.exists() else None
 
 
+def read_bench(results_dir: Path) -> pd.DataFrame | None:
+    """The dataset's bench table (gs2e bench-summary), None if absent."""
+    return _read_parquet(results_dir / "bench.parquet")
+
+
 def read_summary(results_dir: Path) -> pd.DataFrame | None:
     return _read_parquet(Path(results_dir) / "summary.parquet")
 

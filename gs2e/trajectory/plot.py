@@ -19,6 +19,25 @@ def _plane(points: np.ndarray) -> np.ndarray:
     return vt[:2].T
 
 
+def preset_lines(trajs: dict) -> list[str]:
+    """One line per speed preset of the base path: its duration and what sets it."""
+    out = []
+    for name, tr in trajs.items():
+        if not name.startswith("base_"):
+            continue
+        dur = (tr.t_us[-1] - tr.t_us[0]) * 1e-6
+        step = tr.meta.get("image_step_width_median")
+        v = tr.meta.get("preset_values", {})
+        if step is not None and v.get("image_speed_width_s") and dur > 0:
+            speed = step * (len(tr.t_us) - 1) / dur
+            how = f"typical point {speed:.2f} image widths/s ({speed * 2:.1f} % of the width per 20 ms)"
+        else:
+            how = (f"peak {v.get('max_angular_speed_deg_s')} deg/s or "
+                   f"{v.get('max_linear_speed_scale_s')} scales/s (no sparse points)")
+        out.append(f"{name}: {dur:.2f} s, {how}")
+    return out
+
+
 def plot_scene(result, path: str | Path) -> None:
     """Write the scene plot (PNG) to ``path``."""
     import matplotlib
@@ -79,6 +98,8 @@ def plot_scene(result, path: str | Path) -> None:
         err = tr.meta.get("max_rel_step_error", float("nan"))
         ax1.set_title(f"base path speed profile (max rel. step error {err:.1e})")
         ax1.legend(fontsize=8)
+        ax1.text(0.02, 0.02, "\n".join(preset_lines(trajs)), transform=ax1.transAxes, fontsize=7,
+                 va="bottom", family="monospace", bbox={"fc": "white", "ec": "0.8"})
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)

@@ -19,7 +19,8 @@ from gs2e.trajectory.order import is_sequential, tour_order
 from gs2e.trajectory.trajectory import (SampledPath, Trajectory, achieved_steps_fine,
                                         build_base_path,
                                         build_mini_paths, check_config, hermite_eval,
-                                        preset_duration_s, timed_trajectory, timestamps_us)
+                                        preset_duration_s, image_steps_width, timed_trajectory,
+                                        timestamps_us)
 from gs2e.trajectory.velocity import make_profile
 
 log = logging.getLogger("gs2e.trajectory")
@@ -99,9 +100,19 @@ def generate(scene: Scene, cfg: dict, seed: int, timings: dict | None = None) ->
                      view_order_names=[scene.frames[i].name for i in order],
                      velocity=None if cfg.get("speed_list") else cfg["velocity"],
                      speed_list=cfg.get("speed_list"), **_speed_meta(base, alpha, beta_n))
+    points = scene.points_xyz if scene.points_xyz is not None and len(scene.points_xyz) else None
+    if points is None:
+        log.info("no sparse points: speed presets use their angular / linear speed limits")
+
+    def image_steps(c2w: np.ndarray, K: np.ndarray) -> np.ndarray | None:
+        return None if points is None else image_steps_width(c2w, K, scene.width, scene.height, points)
+
+    base_steps = image_steps(base.c2w, Ks[0])
+    if base_steps is not None:
+        base_meta["image_step_width_median"] = float(np.median(base_steps))
     for name in cfg["speed_presets"]:
         preset = cfg["presets"][name]
-        dur = preset_duration_s(base.c2w, preset, scale, cfg["fps_base"])
+        dur = preset_duration_s(base.c2w, preset, scale, cfg["fps_base"], base_steps)
         t_us = timestamps_us(dur, len(base.s))
         # (the requested profile is not repeated here: diff(s) is proportional to v(t_j))
         meta = dict(base_meta, preset=name, preset_values=dict(preset))
@@ -111,9 +122,9 @@ def generate(scene: Scene, cfg: dict, seed: int, timings: dict | None = None) ->
         minis = build_mini_paths(base, cfg, rng, alpha, beta_n)
         preset = cfg["presets"][cfg["mini_preset"]]
         for g, (path, j0) in enumerate(minis):
-            dur = preset_duration_s(path.c2w, preset, scale, cfg["fps_base"])
-            t_us = timestamps_us(dur, len(path.s))
             src = _nearest_input(base, j0)
+            dur = preset_duration_s(path.c2w, preset, scale, cfg["fps_base"], image_steps(path.c2w, Ks[src]))
+            t_us = timestamps_us(dur, len(path.s))
             meta = {k: v for k, v in path.info.items() if k != "v"}
             meta.update(common, kind="mini", group=g, seed=int(seed), preset=cfg["mini_preset"],
                         preset_values=dict(preset), intrinsics_from_frame=src,

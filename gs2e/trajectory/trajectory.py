@@ -266,18 +266,39 @@ def build_mini_paths(base: SampledPath, cfg: dict, rng: np.random.Generator, alp
     return out
 
 
-def preset_duration_s(c2w: np.ndarray, preset: dict, scale: float, fps_base: float) -> float:
-    """Duration (s) of a path sampled at uniform times so that the peak
+def image_steps_width(c2w: np.ndarray, K: np.ndarray, width: int, height: int,
+                      points_w: np.ndarray) -> np.ndarray:
+    """(M-1,) image motion between consecutive poses of a path, in image widths:
+    per step, the median displacement of the scene points in view (the
+    typical point, as a blurred frame shows it)."""
+    from gs2e.common.motion import pixel_motion_px
+
+    return np.array([pixel_motion_px(points_w, c2w[j], c2w[j + 1], K, width, height, 50.0)
+                     for j in range(len(c2w) - 1)]) / float(width)
+
+
+def preset_duration_s(c2w: np.ndarray, preset: dict, scale: float, fps_base: float,
+                      image_steps_w: np.ndarray | None = None) -> float:
+    """Duration (s) of a path sampled at uniform times.
+
+    With ``image_steps_w`` (the path's per-step image motion in widths, from
+    :func:`image_steps_width`) and the preset's ``image_speed_width_s``: the
+    median over the path of the typical scene point's image speed is that
+    many image widths per second, so blur and event rates match across
+    scenes and sensors. Otherwise (a scene without sparse points) the peak
     frame-to-frame angular speed is ``max_angular_speed_deg_s`` or the peak
-    linear speed is ``max_linear_speed_scale_s`` (translation scales per second),
-    whichever is binding. A static path lasts one base frame per pose."""
+    linear speed is ``max_linear_speed_scale_s`` (translation scales per
+    second), whichever is binding. A static path lasts one base frame per pose."""
     M = len(c2w)
     if M < 2:
         return 0.0
-    ang = geodesic_angle(c2w[:-1, :3, :3], c2w[1:, :3, :3]) * (M - 1)  # rad per unit t
-    lin = np.linalg.norm(np.diff(c2w[:, :3, 3], axis=0), axis=1) / scale * (M - 1)
-    d = max(float(ang.max()) / math.radians(float(preset["max_angular_speed_deg_s"])),
-            float(lin.max()) / float(preset["max_linear_speed_scale_s"]))
+    if image_steps_w is not None and preset.get("image_speed_width_s"):
+        d = float(np.median(image_steps_w)) * (M - 1) / float(preset["image_speed_width_s"])
+    else:
+        ang = geodesic_angle(c2w[:-1, :3, :3], c2w[1:, :3, :3]) * (M - 1)  # rad per unit t
+        lin = np.linalg.norm(np.diff(c2w[:, :3, 3], axis=0), axis=1) / scale * (M - 1)
+        d = max(float(ang.max()) / math.radians(float(preset["max_angular_speed_deg_s"])),
+                float(lin.max()) / float(preset["max_linear_speed_scale_s"]))
     if not d > 0:
         d = (M - 1) / float(fps_base)
     return d
@@ -338,5 +359,5 @@ def check_config(cfg: dict) -> None:
 
 
 __all__ = ["Trajectory", "SampledPath", "build_base_path", "build_mini_paths", "eval_at_s",
-           "preset_duration_s", "timestamps_us", "timed_trajectory", "achieved_steps", "achieved_steps_fine", "check_config",
+           "preset_duration_s", "image_steps_width", "timestamps_us", "timed_trajectory", "achieved_steps", "achieved_steps_fine", "check_config",
            "hermite_eval"]

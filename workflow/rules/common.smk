@@ -22,6 +22,7 @@ shell.prefix(f'export PYTHONPATH="{workflow.basedir}${{{{PYTHONPATH:+:$PYTHONPAT
 
 wildcard_constraints:
     scene="[A-Za-z0-9][A-Za-z0-9_.-]*",
+    task="deblur|video",
     traj="[A-Za-z0-9_.-]+",
     fmt="[a-z0-9]+",
 
@@ -42,7 +43,7 @@ def sweep_stale_temporaries():
 
 # Keys that say which jobs exist, not what a job computes: left out of params
 # so that listing one more trajectory does not rerun the others.
-NOT_PARAMS = {"render": ("trajectories",), "export": ("formats",)}
+NOT_PARAMS = {"render": ("trajectories",), "export": ("formats",), "bench": ("tasks",)}
 
 
 def stage_cfg(section):
@@ -54,9 +55,10 @@ def stage_cfg(section):
 
 def scene_params(sid):
     """The scene's whole config (without file locations) as canonical JSON.
-    The export section is left out: exports are copies of the dataset in other
-    layouts, so asking for one changes no metric and reruns no scene table."""
-    return scene_params_json({k: v for k, v in SCENE_CFG[sid].items() if k != "export"})
+    The export and bench sections are left out: exports are copies of the
+    dataset in other layouts and the benchmark reads the dataset, so neither
+    changes a scene metric or reruns a scene table."""
+    return scene_params_json({k: v for k, v in SCENE_CFG[sid].items() if k not in ("export", "bench")})
 
 
 def stage_seed(stage):
@@ -130,7 +132,18 @@ def scene_exports(sid):
             for t in SCENE_CFG[sid]["render"]["trajectories"]]
 
 
+def scene_bench(sid):
+    """The bench tables bench.tasks asks for, one per task and trajectory."""
+    return [res(sid, "bench", task, f"{t}.parquet") for task in SCENE_CFG[sid]["bench"]["tasks"]
+            for t in SCENE_CFG[sid]["render"]["trajectories"]]
+
+
+# The dataset's bench table exists when any scene runs a benchmark task.
+BENCH = any(scene_bench(sid) for sid in SCENES)
+
+
 def all_targets():
     """The dataset summary (which needs every scene's metrics and products),
-    the HTML report and the configured exports."""
-    return [res("summary.parquet"), res("report.html")] + [p for sid in SCENES for p in scene_exports(sid)]
+    the HTML report, the configured exports and, with bench.tasks, the bench table."""
+    return ([res("summary.parquet"), res("report.html")] + [p for sid in SCENES for p in scene_exports(sid)]
+            + ([res("bench.parquet")] if BENCH else []))

@@ -9,6 +9,8 @@ def report_inputs(wildcards):
            "products": [p for sid in SCENES for p in scene_products(sid)]}
     if REAL_EVENTS:
         out["real"] = REAL_EVENTS
+    if BENCH:
+        out["bench"] = res("bench.parquet")
     return out
 
 

@@ -1,0 +1,6 @@
+"""The paper's downstream benchmark on a gs2e dataset, against its own ground
+truth (the sharp frames): event-based deblurring (:mod:`gs2e.bench.deblur`)
+and video reconstruction from events (:mod:`gs2e.bench.video`), the
+built-in baselines and a user's own method (:mod:`gs2e.bench.methods`), the
+I/O edge (:mod:`gs2e.bench.run`) and the dataset table
+(:mod:`gs2e.bench.summary`)."""

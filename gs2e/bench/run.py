@@ -1,0 +1,385 @@
+"""The benchmark's I/O edge: one task on one trajectory of a dataset.
+
+Reads the trajectory's frames (``frames/<traj>``), events (``events/<traj>``)
+and windows table, runs the task's methods frame by frame and writes one row
+per method x frame (``bench/<task>/<traj>.parquet``) and a strip of example
+crops (``bench/<task>/<traj>.png``).
+
+Columns: scene_id, trajectory, preset, task, method, frame, t_us, t_rel_s
+(deblur: since the first frame; video: since the keyframe), motion_px (the
+frame's median image motion over its exposure, from the frames table),
+n_events (the window's), psnr (dB; null for an exact match), ssim, mse,
+psnr_grey / mse_grey (deblur: the same on luminance, which events measure;
+colour restored by ratio cannot follow a change of hue at equal luminance),
+theta (the log threshold EDI used: the oracle map's median, or the chosen
+one), time_s (the method's wall time on that frame).
+
+Deblurring is scored in sRGB colour against the sharp frame at the same
+time; video reconstruction on grey (luminance, sRGB-encoded), since events
+carry no colour. Frames whose exposure the trajectory's ends cut short are
+not scored (their blur is no plain mean over the exposure), nor frames whose
+window the events do not cover.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from gs2e.bench import methods as M
+from gs2e.bench.video import reconstruct
+from gs2e.common.color import linear_to_srgb, luminance, srgb_to_linear
+from gs2e.common.errors import InputError
+from gs2e.common.log import get_logger
+from gs2e.common.progress import progress
+
+log = get_logger("gs2e.bench")
+
+TASKS = ("deblur", "video")
+BUILTIN = {"deblur": ("blurred", "edi_oracle", "edi_chosen"),
+           "video": ("integrate", "complementary")}
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    """The resolved ``bench`` section."""
+
+    methods: tuple[str, ...]
+    eval_every: int
+    deblur: M.DeblurSettings
+    video_keyframe: int
+    video_cf_alpha_rad_s: float
+    crop_px: int
+
+
+def resolve(cfg: dict) -> BenchConfig:
+    return BenchConfig(tuple(cfg["methods"]), int(cfg["eval_every"]),
+                       M.DeblurSettings(float(cfg["edi_theta_min"]), float(cfg["edi_theta_max"]),
+                                        int(cfg["edi_theta_steps"])),
+                       int(cfg["video_keyframe"]), float(cfg["video_cf_alpha_rad_s"]),
+                       int(cfg["example_crop_px"]))
+
+
+@dataclass
+class Dataset:
+    """One trajectory's frames, events and windows, checked for a task."""
+
+    frames_dir: Path
+    frames: "object"   # pandas DataFrame (frames.parquet, c2w as (4, 4))
+    windows: "object"  # pandas DataFrame (windows table)
+    sim_span_us: tuple[int, int]
+    events: "object"   # gs2e.events.models.Events
+    theta_on: np.ndarray
+    theta_off: np.ndarray
+    log_eps: float
+    model: str
+    shape: tuple[int, int]
+    preset: str | None
+
+    def image(self, kind: str, i: int) -> np.ndarray:
+        from gs2e.io.images import read_image
+
+        return read_image(self.frames_dir / kind / str(self.frames["file"].iloc[i])) / 255.0
+
+
+def load_dataset(task: str, frames_dir: str | Path, events_dir: str | Path,
+                 windows_path: str | Path, trajectory_path: str | Path | None = None) -> Dataset:
+    """Read and check what ``task`` needs; one-line errors naming what is missing."""
+    from gs2e.events.io import read_h5
+    from gs2e.events.presets import log_contrast
+    from gs2e.export.windows import read_windows
+    from gs2e.render.dataset import read_frames_table
+
+    if task not in TASKS:
+        raise InputError(f"unknown bench task '{task}' (choose from {', '.join(TASKS)})")
+    frames_dir, events_dir = Path(frames_dir), Path(events_dir)
+    try:
+        frames = read_frames_table(frames_dir)
+    except (OSError, KeyError, ValueError) as exc:
+        raise InputError(f"{frames_dir / 'frames.parquet'}: cannot read the frames table ({exc})") from exc
+    if task == "deblur":
+        if not (frames["exposure_us"] > 0).any() or not (frames_dir / "blur").is_dir():
+            raise InputError(f"{frames_dir}: no blurred frames (render.write_blur was off); "
+                             "the deblur task needs them")
+    windows, meta = read_windows(windows_path)
+    if len(windows) != len(frames) or not np.array_equal(windows["t_us"].to_numpy(),
+                                                         frames["t_us"].to_numpy()):
+        raise InputError(f"{windows_path}: its frames differ from {frames_dir / 'frames.parquet'} "
+                         "(a windows table of another run)")
+    stats_path = events_dir / "stats.json"
+    try:
+        ev_cfg = json.loads(stats_path.read_text())["metadata"]["config"]
+    except (OSError, KeyError, TypeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{stats_path}: cannot read the event model's config ({exc})") from exc
+    ev, attrs = read_h5(events_dir / "events.h5")
+    if "theta/on" not in attrs:
+        raise InputError(f"{events_dir / 'events.h5'}: no per-pixel thresholds (theta/on, theta/off)")
+    shape = (int(frames["height"].iloc[0]), int(frames["width"].iloc[0]))
+    th_on, th_off, eps = log_contrast(ev_cfg, attrs["theta/on"], attrs["theta/off"])
+    if th_on.shape != shape:
+        raise InputError(f"{events_dir / 'events.h5'}: sensor {th_on.shape[1]}x{th_on.shape[0]} "
+                         f"differs from the frames' {shape[1]}x{shape[0]} ({frames_dir})")
+    preset = None
+    if trajectory_path is not None:
+        from gs2e.trajectory import load_trajectory
+
+        preset = load_trajectory(trajectory_path).meta.get("preset")
+    return Dataset(frames_dir, frames, windows, (int(meta["sim_start_us"]), int(meta["sim_end_us"])),
+                   ev, np.broadcast_to(th_on, shape), np.broadcast_to(th_off, shape), eps,
+                   str(ev_cfg["model"]), shape, preset)
+
+
+def deblur_frames(ds: Dataset, every: int) -> list[int]:
+    """Frames the deblur task scores: a blurred frame whose whole exposure lies
+    inside the trajectory and the simulated events."""
+    w, f = ds.windows, ds.frames
+    E = f["exposure_us"].to_numpy(np.float64)
+    t = f["t_us"].to_numpy(np.float64)
+    whole = (t - E / 2 >= t[0]) & (t + E / 2 <= t[-1]) & (E > 0)
+    ok = whole & w["exp_covered"].to_numpy(bool)
+    out = [i for i in np.flatnonzero(ok) if i % every == 0]
+    if not out:
+        raise InputError(f"{ds.frames_dir}: no blurred frame has its whole exposure inside the "
+                         f"simulated events ({ds.sim_span_us[0]}..{ds.sim_span_us[1]} us) and "
+                         "the trajectory: nothing to deblur")
+    return out
+
+
+def video_frames(ds: Dataset, key: int, every: int) -> list[int]:
+    """Frames after the keyframe up to the end of the simulated events."""
+    t = ds.frames["t_us"].to_numpy()
+    if not 0 <= key < len(t) - 1:
+        raise InputError(f"bench.video_keyframe: frame {key} is not followed by another frame "
+                         f"({ds.frames_dir} has {len(t)} frames)")
+    s0, s1 = ds.sim_span_us
+    if not s0 <= t[key] <= s1:
+        raise InputError(f"{ds.frames_dir}: the keyframe {key} (t = {t[key]} us) lies outside the "
+                         f"simulated events ({s0}..{s1} us)")
+    out = [i for i in range(key + 1, len(t)) if t[i] <= s1 and (i - key) % every == 0]
+    if not out:
+        raise InputError(f"{ds.frames_dir}: no frame after the keyframe {key} within the "
+                         f"simulated events ({s0}..{s1} us)")
+    return out
+
+
+def _grey(srgb: np.ndarray) -> np.ndarray:
+    """(H, W, 1) luminance, sRGB-encoded, of an sRGB image (grey passes)."""
+    if srgb.ndim == 2:
+        return srgb[..., None]
+    return linear_to_srgb(luminance(srgb_to_linear(srgb)))[..., None]
+
+
+def score(img: np.ndarray, ref: np.ndarray) -> dict[str, float]:
+    """PSNR (dB; inf for an exact match), SSIM (3DGS's window) and MSE."""
+    import torch
+
+    from gs2e.splat.loss import psnr, ssim
+
+    a = torch.from_numpy(np.ascontiguousarray(img, np.float64))
+    b = torch.from_numpy(np.ascontiguousarray(ref, np.float64))
+    mse = float(((a - b) ** 2).mean())
+    return {"psnr": psnr(a, b), "ssim": float(ssim(a, b)), "mse": mse}
+
+
+def _timed(fn: Callable, *args):
+    t0 = time.perf_counter()
+    out = fn(*args)
+    return out, time.perf_counter() - t0
+
+
+def _slice(ev, i0: int, i1: int):
+    from gs2e.events.models import Events
+
+    return Events(ev.t[i0:i1], ev.x[i0:i1], ev.y[i0:i1], ev.p[i0:i1])
+
+
+def run_deblur(ds: Dataset, cfg: BenchConfig, user: dict[str, Callable]):
+    """Rows of the deblur task and the example frame's images per method."""
+    rows, f, w = [], ds.frames, ds.windows
+    idx = deblur_frames(ds, cfg.eval_every)
+    t_first = int(f["t_us"].iloc[0])
+    theta_med = float(np.median(np.concatenate([ds.theta_on.ravel(), ds.theta_off.ravel()])))
+    example = idx[len(idx) // 2]
+    shown: dict[str, np.ndarray] = {}
+    K = _intrinsics(f, 0)
+    for i in progress(idx, desc="deblur"):
+        r = f.iloc[i]
+        E = float(r["exposure_us"])
+        ev = _slice(ds.events, int(w["exp_i0"].iloc[i]), int(w["exp_i1"].iloc[i]))
+        blur = ds.image("blur", i)
+        inp = M.BenchInput(
+            "deblur", i, int(r["t_us"]), ev, int(w["exp_t0_us"].iloc[i]), int(w["exp_t1_us"].iloc[i]),
+            np.asarray(r["c2w"]), K, ds.theta_on, ds.theta_off, ds.log_eps, E, blur,
+            ds.image("blur", i - 1) if i > 0 else None,
+            ds.image("blur", i + 1) if i + 1 < len(f) else None)
+        # EDI integrates over the exact exposure [t - E/2, t + E/2]
+        inp = _with_exact_exposure(inp)
+        sharp = ds.image("rgb", i)
+        outs: dict[str, tuple[np.ndarray, float, float]] = {}
+        img, dt = _timed(M.blurred, inp)
+        outs["blurred"] = (img, math.nan, dt)
+        img, dt = _timed(M.edi_oracle, inp)
+        outs["edi_oracle"] = (img, theta_med, dt)
+        j = _partner(i, idx)
+        span = None
+        if j is not None:
+            lo, hi = sorted((float(f["t_us"].iloc[i]), float(f["t_us"].iloc[j])))
+            span = _slice(ds.events, int(np.searchsorted(ds.events.t, lo - E / 2, "left")),
+                          int(np.searchsorted(ds.events.t, hi + E / 2, "right")))
+        (img, th), dt = _timed(M.edi_chosen, inp, cfg.deblur,
+                               None if j is None else ds.image("blur", j),
+                               None if j is None else int(f["t_us"].iloc[j]), span)
+        outs["edi_chosen"] = (img, th, dt)
+        for name, fn in user.items():
+            img, dt = _timed(fn, inp)
+            outs[name] = (M.as_srgb01(img, ds.shape, f"method {name}"), math.nan, dt)
+        for name, (img, th, dt) in outs.items():
+            img = img if img.ndim == 3 else np.repeat(img[..., None], 3, axis=2)
+            grey = score(_grey(img), _grey(sharp))
+            rows.append({"method": name, "frame": i, "t_us": int(r["t_us"]),
+                         "t_rel_s": (int(r["t_us"]) - t_first) * 1e-6,
+                         "motion_px": _motion(r), "n_events": len(ev), **score(img, sharp),
+                         "psnr_grey": grey["psnr"], "mse_grey": grey["mse"],
+                         "theta": th, "time_s": dt})
+            if i == example:
+                shown[name] = img
+        if i == example:
+            shown["sharp"] = sharp
+    return rows, shown, example
+
+
+def run_video(ds: Dataset, cfg: BenchConfig, user: dict[str, Callable]):
+    """Rows of the video task and the last scored frame's images per method."""
+    from gs2e.bench.deblur import log_steps
+
+    f, ev = ds.frames, ds.events
+    key = cfg.video_keyframe
+    idx = video_frames(ds, key, cfg.eval_every)
+    t_key = int(f["t_us"].iloc[key])
+    keyframe = ds.image("rgb", key)
+    key_lum = luminance(srgb_to_linear(keyframe))
+    steps = log_steps(ev.p, ev.x, ev.y, ds.theta_on, ds.theta_off)
+    q = f["t_us"].to_numpy()[idx]
+    gens = {"integrate": reconstruct(key_lum, ds.log_eps, ev.t, ev.x, ev.y, steps, t_key, q, 0.0),
+            "complementary": reconstruct(key_lum, ds.log_eps, ev.t, ev.x, ev.y, steps, t_key, q,
+                                         cfg.video_cf_alpha_rad_s)}
+    i_key = int(np.searchsorted(ev.t, t_key, side="right"))
+    K = _intrinsics(f, 0)
+    rows, shown = [], {}
+    for i in progress(idx, desc="video"):
+        r = f.iloc[i]
+        t = int(r["t_us"])
+        i1 = int(np.searchsorted(ev.t, t, side="right"))
+        target = _grey(ds.image("rgb", i))
+        outs = {}
+        for name, g in gens.items():
+            lum, dt = _timed(next, g)
+            outs[name] = (linear_to_srgb(lum)[..., None], dt)
+        if user:
+            inp = M.BenchInput("video", i, t, _slice(ev, i_key, i1), t_key, t, np.asarray(r["c2w"]),
+                               K, ds.theta_on, ds.theta_off, ds.log_eps,
+                               float(r["exposure_us"]), keyframe=keyframe, keyframe_t_us=t_key)
+            for name, fn in user.items():
+                img, dt = _timed(fn, inp)
+                outs[name] = (_grey(M.as_srgb01(img, ds.shape, f"method {name}")), dt)
+        for name, (img, dt) in outs.items():
+            rows.append({"method": name, "frame": i, "t_us": t, "t_rel_s": (t - t_key) * 1e-6,
+                         "motion_px": _motion(r), "n_events": i1 - i_key, **score(img, target),
+                         "theta": math.nan, "time_s": dt})
+            if i == idx[-1]:
+                shown[name] = img[..., 0]
+        if i == idx[-1]:
+            shown["sharp"] = target[..., 0]
+    return rows, shown, idx[-1]
+
+
+def _partner(i: int, scored: list[int]) -> int | None:
+    """The neighbouring scored frame EDI's threshold search pairs frame i with:
+    the next one, else the previous one (both exposures whole and simulated)."""
+    ok = set(scored)
+    return i + 1 if i + 1 in ok else (i - 1 if i - 1 in ok else None)
+
+
+def _with_exact_exposure(inp: M.BenchInput) -> M.BenchInput:
+    from dataclasses import replace
+
+    half = inp.exposure_us / 2
+    return replace(inp, t0_us=inp.t_us - half, t1_us=inp.t_us + half)
+
+
+def _intrinsics(frames, i: int) -> np.ndarray:
+    r = frames.iloc[i]
+    return np.array([[r["fx"], 0, r["cx"]], [0, r["fy"], r["cy"]], [0, 0, 1]], np.float64)
+
+
+def _motion(row) -> float:
+    v = row.get("motion_px_p50", math.nan)
+    return float(v) if v is not None else math.nan
+
+
+def run_task(task: str, frames_dir, events_dir, windows_path, trajectory_path, cfg: BenchConfig,
+             out_parquet, out_png, scene_id: str | None = None,
+             trajectory: str | None = None) -> dict:
+    """Run ``task`` on one trajectory and write its table and example strip."""
+    from gs2e.common.atomic import atomic_path
+    from gs2e.io.images import write_png
+    from gs2e.metrics.table import write_metrics
+
+    t0 = time.perf_counter()
+    user = {spec: M.load_method(spec) for spec in cfg.methods}  # before any work
+    ds = load_dataset(task, frames_dir, events_dir, windows_path, trajectory_path)
+    rows, shown, example = (run_deblur if task == "deblur" else run_video)(ds, cfg, user)
+    name = trajectory or Path(frames_dir).name
+    write_metrics(out_parquet, rows, scene_id=scene_id, trajectory=name, preset=ds.preset,
+                  task=task, model=ds.model)
+    png = example_strip(shown, cfg.crop_px, f"{name} frame {example}")
+    with atomic_path(out_png) as tmp:
+        write_png(tmp, png)
+    wall = time.perf_counter() - t0
+    summary = {}
+    for m in dict.fromkeys(r["method"] for r in rows):
+        mse = [r["mse"] for r in rows if r["method"] == m]
+        summary[m] = -10 * math.log10(max(float(np.mean(mse)), 1e-20))
+    log.info("%s %s: %d frames in %.1f s; PSNR %s", task, name, len({r["frame"] for r in rows}),
+             wall, ", ".join(f"{m} {v:.2f} dB" for m, v in summary.items()))
+    return {"task": task, "n_frames": len({r["frame"] for r in rows}), "time_s": wall,
+            "psnr": summary}
+
+
+def example_strip(images: dict[str, np.ndarray], crop_px: int, title: str) -> np.ndarray:
+    """Crops of the same region side by side (uint8 RGB), labelled: the
+    ``crop_px`` square where the sharp frame has the most gradient energy."""
+    import cv2
+
+    sharp = images["sharp"]
+    g = sharp if sharp.ndim == 2 else sharp.mean(axis=2)
+    H, W = g.shape
+    c = min(crop_px, H, W)
+    gy, gx = np.gradient(g)
+    energy = cv2.boxFilter(np.hypot(gx, gy), -1, (c, c), normalize=False,
+                           borderType=cv2.BORDER_CONSTANT)
+    h2 = c // 2
+    inner = energy[h2:H - (c - h2) + 1, h2:W - (c - h2) + 1]
+    y0, x0 = np.unravel_index(int(np.argmax(inner)), inner.shape)
+    scale = max(1, 160 // c)
+    tiles = []
+    for name, img in images.items():
+        crop = img[y0:y0 + c, x0:x0 + c]
+        if crop.ndim == 2:
+            crop = np.repeat(crop[..., None], 3, axis=2)
+        crop = np.clip(crop * 255 + 0.5, 0, 255).astype(np.uint8)
+        crop = cv2.resize(crop, (c * scale, c * scale), interpolation=cv2.INTER_NEAREST)
+        label = np.full((18, crop.shape[1], 3), 255, np.uint8)
+        cv2.putText(label, name, (2, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+        tiles.append(np.concatenate([crop, label], axis=0))
+        tiles.append(np.full((crop.shape[0] + 18, 4, 3), 255, np.uint8))
+    strip = np.concatenate(tiles[:-1], axis=1)
+    head = np.full((18, strip.shape[1], 3), 255, np.uint8)
+    cv2.putText(head, title, (2, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+    return np.concatenate([head, strip], axis=0)

@@ -1,0 +1,54 @@
+# The paper's downstream benchmark on the dataset's own ground truth (bench.tasks,
+# off by default): one job per scene x trajectory x task, then one table for the
+# dataset. See gs2e.bench.
+
+
+rule bench:
+    input:
+        frames=res("{scene}", "frames", "{traj}"),
+        events=res("{scene}", "events", "{traj}"),
+        windows=res("{scene}", "windows", "{traj}.parquet"),
+        trajectories=res("{scene}", "trajectories"),
+    output:
+        table=res("{scene}", "bench", "{task}", "{traj}.parquet"),
+        png=report(res("{scene}", "bench", "{task}", "{traj}.png"), category="Benchmark",
+                   subcategory="{scene}", caption="../report/bench.rst",
+                   labels={"scene": "{scene}", "task": "{task}", "trajectory": "{traj}"}),
+    params:
+        cfg=stage_cfg("bench"),
+        code=code_version("bench"),
+        trajectory=lambda wc, input: str(Path(input.trajectories, f"{wc.traj}.npz")),
+    conda:
+        ENV
+    log:
+        res("{scene}", "logs", "bench_{task}_{traj}.log"),
+    benchmark:
+        res("{scene}", "benchmarks", "bench_{task}_{traj}.tsv")
+    threads: 1
+    resources:
+        # every event of the trajectory in memory (19 bytes/event) + frames
+        mem_mb=lambda wc, attempt: 3000 * attempt,
+        runtime=lambda wc, attempt: 60 * attempt,
+    shell:
+        "python -m gs2e bench --task {wildcards.task} --frames {input.frames:q}"
+        " --events {input.events:q} --windows {input.windows:q} --trajectory {params.trajectory:q}"
+        " --out {output.table:q} --png {output.png:q} --scene-id {wildcards.scene}"
+        " --threads {threads} --config-json {params.cfg:q} 2> {log:q}"
+
+
+rule bench_summary:
+    input:
+        [t for sid in SCENES for t in scene_bench(sid)],
+    output:
+        res("bench.parquet"),
+    params:
+        code=code_version("bench_summary"),
+    conda:
+        ENV
+    log:
+        res("logs", "bench_summary.log"),
+    benchmark:
+        res("benchmarks", "bench_summary.tsv")
+    threads: 1
+    shell:
+        "python -m gs2e bench-summary {input:q} --out {output:q} 2> {log:q}"
