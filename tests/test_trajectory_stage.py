@@ -208,3 +208,24 @@ def test_config_section_complete_and_documented():
 
     walk(sec, "trajectory.")
     assert sec["properties"]["velocity"]["default"] == "0.25*sin(t)+1.1"
+
+
+def test_presets_set_the_typical_image_speed_when_the_scene_has_points():
+    """With sparse points, each preset's time scale makes the median over the path
+    of the median point's image speed its image_speed_width_s (image widths per
+    second), for the base path and the mini-trajectories alike."""
+    from gs2e.trajectory.trajectory import image_steps_width
+
+    scene = make_scene(ring(30, noise=0.01))
+    scene.points_xyz = np.random.default_rng(0).normal(scale=0.3, size=(500, 3))
+    c = cfg(mini_frames=60)
+    res = generate(scene, c, seed=3)
+    for name, tr in res.trajectories.items():
+        want = tr.meta["preset_values"]["image_speed_width_s"]
+        steps = image_steps_width(tr.c2w, tr.K, scene.width, scene.height, scene.points_xyz)
+        speed = steps / (np.diff(tr.t_us) * 1e-6)
+        assert np.median(speed) == pytest.approx(want, rel=2e-3), name
+    d = {p: res.trajectories[f"base_{p}"].duration_us for p in ("mild", "medium", "strong")}
+    v = {p: c["presets"][p]["image_speed_width_s"] for p in d}
+    assert d["mild"] / d["strong"] == pytest.approx(v["strong"] / v["mild"], rel=1e-3)
+    assert res.trajectories["base_mild"].meta["image_step_width_median"] > 0

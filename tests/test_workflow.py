@@ -88,3 +88,22 @@ def test_conda_env_covers_the_package_dependencies():
         want = conda_name.get(name, name)
         if want is not None:  # snakemake itself runs outside the job environment
             assert want in names, f"envs/gs2e.yaml lacks {want} (pyproject: {dep})"
+
+
+def test_bench_jobs_follow_bench_tasks(tmp_path):
+    """bench.tasks adds one job per trajectory x task and the dataset table; off, none."""
+    from tests.conftest import planned_jobs
+
+    scenes = _scenes(tmp_path, ["on\tdemo\t\tbench.tasks=[deblur,video];render.trajectories=[base_mild,base_strong]",
+                                "off\tdemo\t\t"])
+    proc = run_snakemake("-n", "--cores", "1", "--directory", str(tmp_path),
+                         "--config", f"scenes={scenes}", "results_dir=out")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    jobs = planned_jobs(proc.stdout)
+    assert jobs["bench"] == 4 and jobs["bench_summary"] == 1
+    assert "out/on/bench/deblur/base_strong.parquet" in proc.stdout
+    assert "out/off/bench/" not in proc.stdout
+    scenes = _scenes(tmp_path, ["off\tdemo\t\t"])
+    proc = run_snakemake("-n", "--cores", "1", "--directory", str(tmp_path),
+                         "--config", f"scenes={scenes}", "results_dir=out")
+    assert proc.returncode == 0 and "bench" not in planned_jobs(proc.stdout)

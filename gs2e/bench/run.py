@@ -335,7 +335,7 @@ def run_task(task: str, frames_dir, events_dir, windows_path, trajectory_path, c
     user = {spec: M.load_method(spec) for spec in cfg.methods}  # before any work
     ds = load_dataset(task, frames_dir, events_dir, windows_path, trajectory_path)
     rows, shown, example = (run_deblur if task == "deblur" else run_video)(ds, cfg, user)
-    name = trajectory or Path(frames_dir).name
+    name = trajectory or (Path(trajectory_path).stem if trajectory_path else Path(frames_dir).name)
     write_metrics(out_parquet, rows, scene_id=scene_id, trajectory=name, preset=ds.preset,
                   task=task, model=ds.model)
     png = example_strip(shown, cfg.crop_px, f"{name} frame {example}")
