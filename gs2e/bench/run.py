@@ -42,8 +42,6 @@ from gs2e.common.progress import progress
 log = get_logger("gs2e.bench")
 
 TASKS = ("deblur", "video")
-BUILTIN = {"deblur": ("blurred", "edi_oracle", "edi_chosen"),
-           "video": ("integrate", "complementary")}
 
 
 @dataclass(frozen=True)

@@ -152,8 +152,8 @@ def _bench_section(results_dir: Path, scenes: list[str]) -> H.Section:
     sec.add(H.paragraph("PSNR (dB) / SSIM against the sharp frames, mean over scenes, base "
                         "trajectories at each speed; deblur in colour, video on luminance (events "
                         "carry no colour), video frames reconstructed from events alone after the "
-                        "first frame. edi_oracle uses the simulator's threshold, edi_chosen picks "
-                        "one per frame."))
+                        "first frame. edi_oracle uses the simulator's threshold; edi_chosen, no "
+                        "oracle, the one per frame under which consecutive blurred frames agree."))
     for task, tab in bench_tables(bench).items():
         sec.add(H.paragraph(f"task: {task}", "meta"))
         sec.add(H.table(tab))
