@@ -109,6 +109,8 @@ TINY_OVERRIDES = ";".join([
     "splat.densify_from=40", "splat.densify_until=100", "splat.densify_every=20",
     "splat.resolution_schedule=[[0,2],[60,1]]", "splat.checkpoint_every=0",
     "trajectory.speed_presets=[medium]", "trajectory.mini_groups=1", "trajectory.mini_frames=30",
+    # a slow mini-trajectory (~0.8 s): 9 frames at 10 fps, enough views for every export
+    "trajectory.presets.medium.image_speed_width_s=0.3",
     "trajectory.plot=false",
     "render.trajectories=[mini00_medium]", "render.fps=10", "render.exposure_us=20000",
     "events.max_duration_s=0.03", "render.min_coverage=0.0",
