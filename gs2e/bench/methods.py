@@ -6,7 +6,7 @@ evaluated frame. It returns the frame at ``inp.t_us``: an (H, W, 3) or
 (uint8 is accepted and divided by 255). A user's method is named
 ``package.module:function`` (``gs2e bench --method``, ``bench.methods``); it
 must be importable by the job's interpreter and must not read the sharp frame
-it is scored against (it is not given it).
+it is scored against (it is not given it). Its input arrays are read-only.
 
 What a method receives (:class:`BenchInput`):
 
