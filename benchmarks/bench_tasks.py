@@ -101,23 +101,35 @@ def bench_psnr(table: Path) -> dict[str, dict[str, float]]:
     return {r["method"]: r for r in summarise(read_table(table))}
 
 
+def prepare(out: Path, model_dir: Path, traj: Path, render_extra: list[str], ev_name: str,
+            ev_cfg: dict, sensor_cfg: dict, span_s: float | None, frames_done: bool = False) -> dict:
+    """Frames (once per trajectory), then events and windows of one event model."""
+    frames = out / "frames"
+    t_render = math.nan
+    if not frames_done:
+        t_render = gs2e("render", "--model", model_dir, "--trajectory", traj, "--out", frames,
+                        *render_extra, "--config-json", json.dumps({**RENDER, "min_coverage": 0.0}))
+    ev = out / f"events_{ev_name}"
+    t_events = gs2e("events", "--model", model_dir, "--trajectory", traj, "-o", ev,
+                    "--config-json", json.dumps({**ev_cfg, **sensor_cfg, "preview": False,
+                                                 "max_duration_s": span_s}))
+    win = out / f"windows_{ev_name}.parquet"
+    gs2e("windows", "--frames", frames, "--events", ev, "--out", win)
+    return {"frames": frames, "events": ev, "windows": win, "render_s": t_render, "events_s": t_events}
+
+
 def run_trajectory(out: Path, model_dir: Path, traj: Path, render_extra: list[str],
                    event_models: dict, sensor_cfg: dict, span_s: float | None = None) -> list[dict]:
     """Frames, then per event model events, windows and both tasks: rows."""
-    frames = out / "frames"
-    t_render = gs2e("render", "--model", model_dir, "--trajectory", traj, "--out", frames,
-                    *render_extra, "--config-json", json.dumps({**RENDER, "min_coverage": 0.0}))
-    p50, p90, n_frames = frames_motion(frames)
     rows = []
-    for name, ev_cfg in event_models.items():
-        ev = out / f"events_{name}"
-        t_events = gs2e("events", "--model", model_dir, "--trajectory", traj, "-o", ev,
-                        "--config-json", json.dumps({**ev_cfg, **sensor_cfg, "preview": False,
-                                                     "max_duration_s": span_s}))
-        win = out / f"windows_{name}.parquet"
-        gs2e("windows", "--frames", frames, "--events", ev, "--out", win)
+    t_render = math.nan
+    for k, (name, ev_cfg) in enumerate(event_models.items()):
+        d = prepare(out, model_dir, traj, render_extra, name, ev_cfg, sensor_cfg, span_s, k > 0)
+        t_render = d["render_s"] if k == 0 else t_render
+        frames, ev, win = d["frames"], d["events"], d["windows"]
+        p50, p90, n_frames = frames_motion(frames)
         row = {"events": name, "n_frames": n_frames, "motion_px_p50": p50, "motion_px_p90": p90,
-               "render_s": t_render, "events_s": t_events, **dict.fromkeys(MISSING, math.nan)}
+               "render_s": t_render, "events_s": d["events_s"], **dict.fromkeys(MISSING, math.nan)}
         for task in ("deblur", "video"):
             table = out / f"bench_{task}_{name}.parquet"
             try:
@@ -166,29 +178,188 @@ def full_rows(scenes: list[str], work: Path, models: list[str], span_s: float) -
     return rows
 
 
-def quick_rows(work: Path) -> list[dict]:
-    """The tests' plane, panned at three speeds (image speeds x3 apart)."""
-    from test_render import _plane_model, _straight_trajectory
+def _plane_pans(work: Path) -> list[Path]:
+    """The tests' straight pan over the plane at three speeds (image speeds x3 apart)."""
+    from test_render import _straight_trajectory
 
     from gs2e.trajectory import load_trajectory
     from gs2e.trajectory.io import save_trajectory
     from gs2e.trajectory.trajectory import Trajectory
 
-    model = _plane_model(work)
     base = load_trajectory(_straight_trajectory(work, dx=1.2)).to_arrays()
-    rows = []
+    paths = []
     for speed, dur_s in zip(SPEEDS, (1.2, 0.4, 0.133)):
-        d = dict(base)
-        f = d["t_us"][-1] / (dur_s * 1e6)
-        d["t_us"] = np.round(d["t_us"] / f).astype(np.int64)
-        d["ds_dt"] = d["ds_dt"] * f
         traj = work / f"pan_{speed}.npz"
-        save_trajectory(traj, Trajectory.from_arrays(d))
+        if not traj.exists():
+            d = dict(base)
+            f = d["t_us"][-1] / (dur_s * 1e6)
+            d["t_us"] = np.round(d["t_us"] / f).astype(np.int64)
+            d["ds_dt"] = d["ds_dt"] * f
+            save_trajectory(traj, Trajectory.from_arrays(d))
+        paths.append(traj)
+    return paths
+
+
+def quick_rows(work: Path) -> list[dict]:
+    """The tests' plane, panned at three speeds (image speeds x3 apart)."""
+    from test_render import _plane_model
+
+    model = _plane_model(work)
+    rows = []
+    for speed, traj in zip(SPEEDS, _plane_pans(work)):
         out = work / speed
         out.mkdir()
         for r in run_trajectory(out, model, traj, [], {"ideal": EVENT_MODELS["ideal"]}, {}, 0.15):
             rows.append({"scene": "plane", "speed": speed, **r})
     return rows
+
+
+# ----------------------------------------------------------------- recon3d (issue 30)
+R3_VARIANTS = ("event_only", "event_blur", "sharp")
+R3_QUICK = {"recon3d_steps": 60, "recon3d_init_points": 800, "recon3d_blur_subframes": 3}
+R3_CPU_MIN = {"demo": 10.0}  # per run (one trajectory, one variant); real scenes: 30
+R3_COLS = ("psnr", "ssim", "psnr_raw", "psnr_rgb", "cpu_min", "n_frames", "n_gaussians")
+
+
+def recon3d_run(out: Path, d: dict, traj: Path, r3_cfg: dict) -> list[dict]:
+    """``gs2e bench --task recon3d`` on prepared data: one row per variant."""
+    table = out / "bench_recon3d.parquet"
+    wall = gs2e("bench", "--task", "recon3d", "--frames", d["frames"], "--events", d["events"],
+                "--windows", d["windows"], "--trajectory", traj, "--out", table,
+                "--png", out / "bench_recon3d.png", "--threads", "2", "--config-json", json.dumps(r3_cfg))
+    s = bench_psnr(table)
+    p50, _, n_frames = frames_motion(Path(d["frames"]))
+    return [{"variant": v, "motion_px_p50": p50, "n_frames_total": n_frames, "task_wall_s": wall,
+             **{c: s[v][c] for c in R3_COLS}} for v in R3_VARIANTS if v in s]
+
+
+def recon3d_rows_full(scenes: list[str], work: Path, results: Path | None, r3_cfg: dict,
+                      model: str) -> list[dict]:
+    """Per scene and speed: a workflow's own data where ``results/<scene>`` has
+    it (whole trajectories), else the cached model's (benchmarks/bench_event_sampling.py)
+    rendered and simulated over whole trajectories here."""
+    rows = []
+    built = None
+    for scene in scenes:
+        for speed in SPEEDS:
+            name = f"base_{speed}"
+            out = work / "recon3d" / scene / speed
+            shutil.rmtree(out, ignore_errors=True)
+            out.mkdir(parents=True)
+            src = results / scene if results is not None else None
+            if src is not None and (src / "windows" / f"{name}.parquet").exists():
+                traj = src / "trajectories" / f"{name}.npz"
+                d = {"frames": src / "frames" / name, "events": src / "events" / name,
+                     "windows": src / "windows" / f"{name}.parquet", "render_s": math.nan,
+                     "events_s": math.nan}
+                origin = f"workflow {src}"
+            else:
+                if built is None:
+                    import bench_event_sampling as B
+
+                    built = B.build_scenes([s for s in scenes if not (
+                        results is not None and (results / s / "windows").is_dir())])
+                tdir = work / "recon3d" / scene / "trajectories"
+                if not tdir.exists():
+                    gs2e("trajectory", "--scene", built[scene] / "sfm", "--out", tdir, "--seed", "0")
+                traj = tdir / f"{name}.npz"
+                d = prepare(out, built[scene] / "splat", traj,
+                            ["--sensor-size", "346x260", "--sensor-fit", "cover"], model,
+                            EVENT_MODELS[model], {"sensor": SENSOR}, None)
+                origin = f"cached model, {SENSOR}, {model} events"
+            print(f"recon3d {scene} {speed} ({origin}) ...", flush=True)
+            for r in recon3d_run(out, d, traj, r3_cfg):
+                rows.append({"scene": scene, "speed": speed, "data": origin,
+                             "render_s": d["render_s"], "events_s": d["events_s"], **r})
+    return rows
+
+
+def recon3d_rows_quick(work: Path) -> list[dict]:
+    """The tests' plane panned at three speeds, a tiny recon3d on each."""
+    from test_render import _plane_model
+
+    model = _plane_model(work)
+    rows = []
+    for speed, traj in zip(SPEEDS, _plane_pans(work)):
+        out = work / "recon3d" / speed
+        out.mkdir(parents=True)
+        d = prepare(out, model, traj, [], "ideal", EVENT_MODELS["ideal"], {}, 0.15)
+        for r in recon3d_run(out, d, traj, R3_QUICK):
+            rows.append({"scene": "plane", "speed": speed, "data": "tests' plane", **r})
+    return rows
+
+
+def recon3d_targets(rows: list[dict]) -> dict[str, bool]:
+    """Issue 30's targets per scene."""
+    out = {}
+    for scene in dict.fromkeys(r["scene"] for r in rows):
+        by = {(r["speed"], r["variant"]): r for r in rows if r["scene"] == scene}
+        speeds = [s for s in SPEEDS if (s, "event_only") in by and (s, "event_blur") in by]
+        if speeds:
+            out[f"{scene}: event+blur >= event-only at every speed"] = all(
+                by[s, "event_blur"]["psnr"] >= by[s, "event_only"]["psnr"] for s in speeds)
+        for v in ("event_only", "event_blur"):
+            if all((s, v) in by for s in SPEEDS):
+                p = [by[s, v]["psnr"] for s in SPEEDS]
+                out[f"{scene}: {v} falls mild -> strong"] = p[0] >= p[1] >= p[2]
+        if ("mild", "event_blur") in by and ("mild", "sharp") in by:
+            out[f"{scene}: event+blur at mild within 4 dB of sharp"] = (
+                by["mild", "event_blur"]["psnr"] >= by["mild", "sharp"]["psnr"] - 4.0)
+        cap = R3_CPU_MIN.get(scene, 30.0)
+        out[f"{scene}: every run <= {cap:.0f} CPU-min"] = all(
+            r["cpu_min"] <= cap for r in rows if r["scene"] == scene)
+    return out
+
+
+def scene_axes(rows: list[dict]):
+    """A figure with one panel per scene of ``rows``: (figure, [(axis, scene)])."""
+    plt = pyplot()
+    scenes = list(dict.fromkeys(r["scene"] for r in rows))
+    fig, axes = plt.subplots(1, len(scenes), figsize=(4.2 * len(scenes), 3.6), squeeze=False)
+    return fig, list(zip(axes[0], scenes))
+
+
+def recon3d_plot(rows: list[dict], path: Path) -> None:
+    fig, panels = scene_axes(rows)
+    for ax, scene in panels:
+        for v, c in zip(R3_VARIANTS, ("tab:blue", "tab:orange", "k")):
+            rs = [r for r in rows if r["scene"] == scene and r["variant"] == v]
+            ax.plot([SPEEDS.index(r["speed"]) for r in rs], [r["psnr"] for r in rs], "-o", color=c,
+                    label=v)
+        ax.set_xticks(range(len(SPEEDS)), SPEEDS)
+        ax.set_ylabel("held-out PSNR, luminance, log-affine corrected (dB)")
+        ax.set_title(scene)
+        ax.grid(alpha=0.3)
+    panels[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def recon3d_report(rows: list[dict], name: str, t0: float) -> None:
+    csv = write_csv(name, rows)
+    png = RESULTS / f"{name}.png"
+    recon3d_plot(rows, png)
+    print(f"{'scene':>12s} {'variant':>11s} " + " ".join(f"{s:>15s}" for s in SPEEDS) + "   CPU-min")
+    for scene in dict.fromkeys(r["scene"] for r in rows):
+        for v in R3_VARIANTS:
+            cells, cpu = [], []
+            for sp in SPEEDS:
+                r = next((r for r in rows if r["scene"] == scene and r["variant"] == v
+                          and r["speed"] == sp), None)
+                cells.append(f"{r['psnr']:6.2f} / {r['ssim']:.3f}" if r else "missing")
+                cpu.append(f"{r['cpu_min']:.1f}" if r else "-")
+            print(f"{scene:>12s} {v:>11s} " + " ".join(f"{c:>15s}" for c in cells) + "   " + "/".join(cpu))
+    t = recon3d_targets(rows)
+    for k, v in t.items():
+        print(f"  {k}: {'met' if v else 'NOT met'}")
+    print(f"wrote {csv} and {png} in {time.perf_counter() - t0:.0f} s")
+    mild = [r for r in rows if r["speed"] == "mild"]
+    parts = []
+    for scene in dict.fromkeys(r["scene"] for r in mild):
+        by = {r["variant"]: r["psnr"] for r in mild if r["scene"] == scene}
+        parts.append(f"{scene} " + " / ".join(f"{by.get(v, math.nan):.1f}" for v in R3_VARIANTS))
+    print(f"headline: recon3d {sum(t.values())}/{len(t)} targets met; at mild, event-only / "
+          f"event+blur / sharp (dB): {'; '.join(parts)}")
 
 
 def targets(rows: list[dict]) -> dict[str, bool]:
@@ -207,10 +378,8 @@ def targets(rows: list[dict]) -> dict[str, bool]:
 
 
 def plot(rows: list[dict], path: Path) -> None:
-    plt = pyplot()
-    scenes = list(dict.fromkeys(r["scene"] for r in rows))
-    fig, axes = plt.subplots(1, len(scenes), figsize=(4.2 * len(scenes), 3.6), squeeze=False)
-    for ax, scene in zip(axes[0], scenes):
+    fig, panels = scene_axes(rows)
+    for ax, scene in panels:
         for model, ls in (("ideal", "-"), ("voltmeter", "--")):
             rs = [r for r in rows if r["scene"] == scene and r["events"] == model]
             if not rs:
@@ -225,7 +394,7 @@ def plot(rows: list[dict], path: Path) -> None:
         ax.set_ylabel("PSNR against the sharp frame (dB)")
         ax.set_title(scene)
         ax.grid(alpha=0.3)
-    axes[0][0].legend(fontsize=6)
+    panels[0][0].legend(fontsize=6)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
@@ -237,10 +406,32 @@ def main_cli() -> None:
     ap.add_argument("--models", default="ideal", help="event models: ideal,voltmeter")
     ap.add_argument("--span-s", type=float, default=0.3,
                     help="simulate events over this much of each trajectory (s)")
+    ap.add_argument("--part", choices=["tasks", "recon3d"], default="tasks",
+                    help="tasks: deblurring and video; recon3d: the paper's Table 1 (event-based 3DGS)")
+    ap.add_argument("--results", type=Path, default=None,
+                    help="recon3d: a workflow's results folder; its scenes' base trajectories "
+                         "(whole, as simulated there) are used where present")
+    ap.add_argument("--recon3d-config", default="{}",
+                    help="recon3d: JSON of bench.recon3d_* keys (default: config.yaml's)")
+    ap.add_argument("--model", default="ideal", help="recon3d: event model of the cached real scenes")
     args = ap.parse_args()
     os.environ.setdefault("GS2E_PROGRESS", "0")
     import logging
 
+    if args.part == "recon3d":
+        from gs2e.common.log import setup_logging
+
+        setup_logging(False)
+        logging.getLogger("gs2e").setLevel(logging.WARNING)
+        name = "bench_recon3d_quick" if args.quick else "bench_recon3d"
+        work = RESULTS / f"{name}_work"
+        shutil.rmtree(work, ignore_errors=True)
+        work.mkdir(parents=True)
+        t0 = time.perf_counter()
+        rows = (recon3d_rows_quick(work) if args.quick else recon3d_rows_full(
+            args.scenes.split(","), work, args.results, json.loads(args.recon3d_config), args.model))
+        recon3d_report(rows, name, t0)
+        return
     name = "bench_tasks_quick" if args.quick else "bench_tasks"
     work = RESULTS / f"{name}_work"
     shutil.rmtree(work, ignore_errors=True)

@@ -62,6 +62,11 @@ def size_arg(text: str) -> tuple[int, int]:
         raise argparse.ArgumentTypeError(f"expected WxH (e.g. 346x260), got {text!r}") from None
     if w < 1 or h < 1:
         raise argparse.ArgumentTypeError(f"expected a positive WxH, got {text!r}")
+    from gs2e.common.camera import size_problem
+
+    why = size_problem(w, h)
+    if why:
+        raise argparse.ArgumentTypeError(why)
     return w, h
 
 
@@ -188,12 +193,20 @@ def describe_os_error(exc: OSError, output: str | None = None) -> str:
 
 def _install_signal_handlers() -> None:
     """SIGTERM/SIGHUP raise :class:`Terminated` in the main thread (cleanup as
-    for an exception); a second signal during that cleanup is ignored."""
+    for an exception); a second signal during that cleanup is ignored, Ctrl-C's
+    SIGINT included (a terminal's Ctrl-C reaches the job's process group while
+    the workflow forwards it as SIGTERM)."""
     if threading.current_thread() is not threading.main_thread():
         return
+    # pycolmap's glog installs a C handler for SIGTERM on import (a stack dump,
+    # then death, with no cleanup); imported first, it cannot replace ours
+    try:
+        import pycolmap  # noqa: F401
+    except ImportError:
+        pass
 
     def handler(signum, frame):
-        for s in (signal.SIGTERM, signal.SIGHUP):
+        for s in (signal.SIGTERM, signal.SIGHUP, signal.SIGINT):
             signal.signal(s, signal.SIG_IGN)
         raise Terminated(signum)
 

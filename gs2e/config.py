@@ -294,6 +294,22 @@ def _check_splat(cfg: dict) -> None:
             raise _missing("splat.ply_path", s["ply_path"])
 
 
+def _check_sensor_size(path: str) -> None:
+    """A custom sensor's pixel array, before any job (the event stage reads the
+    rest of the file; this module does not import it: every command loads it)."""
+    from gs2e.common.camera import size_problem
+
+    try:
+        doc = yaml.safe_load(Path(path).read_text())
+        size = {k: (doc[k]["value"] if isinstance(doc[k], dict) else doc[k]) for k in ("width", "height")}
+        w, h = int(size["width"]), int(size["height"])
+    except (OSError, yaml.YAMLError, TypeError, KeyError, ValueError) as exc:
+        raise ConfigError(f"events.sensor_file: {path}: no readable width and height ({exc})") from None
+    why = size_problem(w, h)
+    if why:
+        raise ConfigError(f"events.sensor_file: {path}: sensor {why}")
+
+
 def _check_events(cfg: dict) -> None:
     e = cfg["events"]
     lo, hi = e["theta_range"]
@@ -304,6 +320,7 @@ def _check_events(cfg: dict) -> None:
             raise ConfigError("events.sensor=custom needs events.sensor_file (a sensor YAML)")
         if not Path(e["sensor_file"]).is_file():
             raise _missing("events.sensor_file", e["sensor_file"])
+        _check_sensor_size(e["sensor_file"])
     elif e["sensor_file"]:
         raise ConfigError(f"events.sensor_file is set but events.sensor is {e['sensor']!r} "
                           "(set events.sensor: custom to use it)")
@@ -351,6 +368,10 @@ def _check_render_trajectories(cfg: dict) -> None:
 def _check_bench_inputs(cfg: dict) -> None:
     if "deblur" in cfg["bench"]["tasks"] and not cfg["render"]["write_blur"]:
         raise ConfigError("bench.tasks: 'deblur' needs blurred frames, but render.write_blur is false")
+    if ("recon3d" in cfg["bench"]["tasks"] and "event_blur" in cfg["bench"]["recon3d_variants"]
+            and not cfg["render"]["write_blur"]):
+        raise ConfigError("bench.recon3d_variants: 'event_blur' needs blurred frames, but "
+                          "render.write_blur is false")
 
 
 CROSS_CHECKS = (

@@ -199,6 +199,13 @@ PROBES = [
     cfg_probe("cfg-k1-zero", "a zero DVS-Voltmeter gain", "events:\n  k1: 0\n", "events.k1"),
     cfg_probe("cfg-real-events", "a real recording that is not there",
               "metrics:\n  real_events: nope.aedat4\n", "metrics.real_events", "nope.aedat4"),
+    Probe("cfg-sensor-huge", "a custom sensor of 200000x200000 pixels",
+          lambda t: ["config", "--validate", _yaml(t, "events:\n  sensor: custom\n  sensor_file: {}\n".format(
+              _write(t / "huge.yaml", "width: 200000\nheight: 200000\n")))],
+          ("events.sensor_file", "huge.yaml", "200000x200000"), None),
+    Probe("render-sensor-huge", "gs2e render --sensor-size 200000x200000",
+          lambda t: ["render", "--model", t, "--trajectory", t / "x.npz", "--out", t / "out",
+                     "--sensor-size", "200000x200000"], ("--sensor-size", "200000x200000")),
     cfg_probe("cfg-yaml", "broken YAML", "render: [fps: 30\n", "config.yaml", "not valid YAML"),
     cfg_probe("cfg-list", "a list instead of a mapping", "- 1\n- 2\n", "expected a mapping"),
     Probe("cfg-missing-file", "a config file that does not exist",

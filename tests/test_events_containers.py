@@ -154,7 +154,7 @@ def test_reads_evt3_written_by_faery(tmp_path):
 
 @pytest.mark.parametrize("name,content,match", [
     ("bad.aedat4", b"garbage" * 10, "not a readable AEDAT4 file .*magic"),
-    ("bad.raw", b"garbage" * 10, "not a readable Prophesee RAW .*no size"),
+    ("bad.raw", b"garbage" * 10, "gives no sensor size and names no camera"),
     ("noversion.raw", b"% geometry 640x480\n" + b"\x00" * 8, "not a readable Prophesee RAW .*no version"),
     ("bad.dat", b"% Width 640\n% Height 480\n" + b"\x00", "not a readable Prophesee DAT"),
 ])

@@ -204,3 +204,64 @@ def test_every_rule_killed_then_rerun(tiny_pipeline, tmp_path, sig):
     run_to_end(wd)
     assert temporaries(wd) == []
     assert_same_outputs(tiny_pipeline[0] / "results", res)
+
+
+def _snakemake_bare_path(wd: Path, *targets: str) -> subprocess.Popen:
+    """.venv/bin/snakemake from a shell whose PATH lacks the venv (its ``python``
+    is the system's, without gs2e's dependencies)."""
+    env = {**os.environ, "GS2E_PROGRESS": "0", "PATH": "/usr/bin:/bin"}
+    env.pop("VIRTUAL_ENV", None)
+    cmd = [str(BIN / "snakemake"), "--snakefile", str(REPO / "Snakefile"), *targets,
+           *tiny_pipeline_args(wd)]
+    return subprocess.Popen(cmd, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, start_new_session=True)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("subcommand,target,ready", [
+    ("train", f"results/{SCENE}/splat", lambda scene: "it 60:" in _text(scene / "logs" / "train.log")),
+    ("events", f"results/{SCENE}/events/{TRAJ}",
+     lambda scene: _has(scene / "events", f".{TRAJ}.tmp-*/.events.h5.tmp-*.h5")),
+])
+def test_ctrl_c_stops_the_job_within_seconds_from_a_bare_shell(tmp_path, subcommand, target, ready):
+    """SIGINT to Snakemake (Ctrl-C) while a job runs: the job process receives
+    the signal and is gone within seconds with gs2e's one-line message, no
+    temporary is left, and a rerun completes. Run from a shell without the
+    venv on PATH: the jobs must still run gs2e's own interpreter."""
+    wd = tmp_path / "ctrl_c"
+    wd.mkdir()
+    (wd / "scenes.tsv").write_text(f"scene_id\tlayout\tpath\toverrides\n{SCENE}\tdemo\t\t{TINY_OVERRIDES}\n")
+    scene = wd / "results" / SCENE
+    proc = _snakemake_bare_path(wd, target)
+    pid, deadline = None, time.time() + 900
+    try:
+        while proc.poll() is None and time.time() < deadline:
+            pid = _job_pid(proc.pid, subcommand)
+            if pid is not None and ready(scene):
+                break
+            time.sleep(0.05)
+        assert pid is not None and proc.poll() is None, proc.communicate()[0][-3000:]
+        t0 = time.time()
+        os.kill(proc.pid, signal.SIGINT)
+        while Path(f"/proc/{pid}").exists() and time.time() - t0 < 30:
+            time.sleep(0.05)
+        gone_s = time.time() - t0
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert gone_s < 10, f"the {subcommand} job ran on {gone_s:.0f} s after Ctrl-C"
+    log = _text(scene / "logs" / f"{subcommand if subcommand == 'train' else 'events_' + TRAJ}.log")
+    assert "terminated" in log.lower() or "interrupted" in log.lower(), log[-2000:]
+    assert "Fatal Python error" not in log and "Traceback" not in log, log[-3000:]
+    assert temporaries(wd / "results") == [], temporaries(wd / "results")
+    proc = _snakemake_bare_path(wd, target)
+    out, _ = proc.communicate(timeout=1500)
+    assert proc.returncode == 0, out[-3000:]
+
+
+def _text(path: Path) -> str:
+    try:
+        return path.read_text()
+    except OSError:
+        return ""

@@ -187,7 +187,7 @@ def test_report_of_synthetic_tree_shows_sections_images_and_missing(tmp_path):
     text = build_report(res, timings=timings)
     doc = _Parsed(text)
     assert doc.h2 == ["Dataset overview", "Speed against error (training)",
-                      "Benchmark: deblurring and video reconstruction", "Real recording",
+                      "Benchmark: deblurring, video and 3D reconstruction", "Real recording",
                       "Scene a", "Scene b"]
     assert doc.h3.count("Event statistics") == 2 and doc.h3.count("Thumbnails") == 2
     # a: speed-error, costs, event stats, sharp + blur thumbnails, preview; b: nothing

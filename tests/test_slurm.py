@@ -94,7 +94,7 @@ def test_dry_run_through_profile_without_slurm(tmp_path, path_without_slurm, att
     # sfm keeps the resources written in its rule, and its threads are the
     # profile's CPUs per job (not the 1 core of a dry-run)
     assert int(res["sfm"]["mem_mb"]) >= 1000 and int(res["sfm"]["runtime"]) >= 10
-    assert re.search(r"python -m gs2e sfm .*--threads 8 ", out)
+    assert re.search(r"python3? -m gs2e sfm .*--threads 8 ", out)
     assert not (wd / "results").exists(), "a dry-run must not write outputs"
 
 

@@ -94,14 +94,19 @@ def test_bench_jobs_follow_bench_tasks(tmp_path):
     """bench.tasks adds one job per trajectory x task and the dataset table; off, none."""
     from tests.conftest import planned_jobs
 
-    scenes = _scenes(tmp_path, ["on\tdemo\t\tbench.tasks=[deblur,video];render.trajectories=[base_mild,base_strong]",
-                                "off\tdemo\t\t"])
-    proc = run_snakemake("-n", "--cores", "1", "--directory", str(tmp_path),
+    scenes = _scenes(tmp_path, ["on\tdemo\t\tbench.tasks=[deblur,video,recon3d];"
+                                "render.trajectories=[base_mild,base_strong]", "off\tdemo\t\t"])
+    proc = run_snakemake("-n", "--cores", "2", "--directory", str(tmp_path),
                          "--config", f"scenes={scenes}", "results_dir=out")
     assert proc.returncode == 0, proc.stderr[-3000:]
     jobs = planned_jobs(proc.stdout)
-    assert jobs["bench"] == 4 and jobs["bench_summary"] == 1
+    assert jobs["bench"] == 6 and jobs["bench_summary"] == 1
     assert "out/on/bench/deblur/base_strong.parquet" in proc.stdout
+    assert "out/on/bench/recon3d/base_mild.parquet" in proc.stdout
+    # recon3d trains (two threads), the other tasks score frames (one); each has its own seed
+    blocks = proc.stdout.split("\n\n")
+    r3 = [b for b in blocks if "bench/recon3d/base_mild.parquet" in b and "rule bench:" in b]
+    assert r3 and "threads: 2" in r3[0]
     assert "out/off/bench/" not in proc.stdout
     scenes = _scenes(tmp_path, ["off\tdemo\t\t"])
     proc = run_snakemake("-n", "--cores", "1", "--directory", str(tmp_path),

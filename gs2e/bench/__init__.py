@@ -1,6 +1,7 @@
 """The paper's downstream benchmark on a gs2e dataset, against its own ground
-truth (the sharp frames): event-based deblurring (:mod:`gs2e.bench.deblur`)
-and video reconstruction from events (:mod:`gs2e.bench.video`), the
-built-in baselines and a user's own method (:mod:`gs2e.bench.methods`), the
-I/O edge (:mod:`gs2e.bench.run`) and the dataset table
-(:mod:`gs2e.bench.summary`)."""
+truth (the sharp frames): event-based deblurring (:mod:`gs2e.bench.deblur`),
+video reconstruction from events (:mod:`gs2e.bench.video`) and event-based 3D
+reconstruction, a 3DGS model trained from the trajectory alone
+(:mod:`gs2e.bench.recon3d`, the paper's Table 1); the built-in baselines and
+a user's own method (:mod:`gs2e.bench.methods`), the I/O edge
+(:mod:`gs2e.bench.run`) and the dataset table (:mod:`gs2e.bench.summary`)."""

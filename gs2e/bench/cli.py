@@ -14,9 +14,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Evaluate event-based deblurring (--task deblur: the blurred frame, EDI with the "
                     "simulator's threshold and with one chosen per frame) or video reconstruction "
                     "(--task video: direct integration and a complementary filter after one keyframe) "
+                    "or event-based 3D reconstruction (--task recon3d: 3DGS trained from the "
+                    "trajectory's events, events + blurred frames, or sharp frames, scored at held-out "
+                    "poses; see gs2e.bench.recon3d) "
                     "against the sharp frames, plus any --method package.module:function; writes one "
                     "row per method x frame (see gs2e.bench.run) and a strip of example crops.")
-    p.add_argument("--task", required=True, choices=["deblur", "video"])
+    p.add_argument("--task", required=True, choices=["deblur", "video", "recon3d"])
     p.add_argument("--frames", required=True, help="frames folder of gs2e render")
     p.add_argument("--events", required=True, help="events folder of gs2e events")
     p.add_argument("--windows", required=True, help="windows table of gs2e windows")
@@ -27,6 +30,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--method", action="append", default=[], metavar="MODULE:FUNCTION",
                    help="also evaluate this callable (repeatable; see gs2e.bench.methods)")
     p.add_argument("--scene-id", default=None)
+    p.add_argument("--seed", type=int, default=0, help="seed of recon3d's initialisation and sampling "
+                                                       "(the workflow derives it per scene x trajectory)")
     p.add_argument("--threads", type=int, default=None,
                    help="CPU threads (default or -1: the CPUs this process may use)")
     add_config_args(p)
@@ -50,7 +55,7 @@ def run_bench(args: argparse.Namespace) -> int:
     set_threads(args.threads)
     cfg = load_section("bench", args.config_json, args.config)
     cfg["methods"] = list(dict.fromkeys(list(cfg["methods"]) + list(args.method)))
-    run_task(args.task, args.frames, args.events, args.windows, args.trajectory, resolve(cfg),
+    run_task(args.task, args.frames, args.events, args.windows, args.trajectory, resolve(cfg, args.seed),
              args.out, args.png, scene_id=args.scene_id)
     return 0
 

@@ -41,7 +41,7 @@ from gs2e.common.progress import progress
 
 log = get_logger("gs2e.bench")
 
-TASKS = ("deblur", "video")
+TASKS = ("deblur", "video", "recon3d")
 
 
 @dataclass(frozen=True)
@@ -54,14 +54,25 @@ class BenchConfig:
     video_keyframe: int
     video_cf_alpha_rad_s: float
     crop_px: int
+    recon3d: "object" = None  # gs2e.bench.recon3d.Recon3dSettings
 
 
-def resolve(cfg: dict) -> BenchConfig:
+def resolve(cfg: dict, seed: int = 0) -> BenchConfig:
+    from gs2e.bench.recon3d import Recon3dSettings
+
+    r3 = Recon3dSettings(
+        variants=tuple(cfg["recon3d_variants"]), steps=int(cfg["recon3d_steps"]),
+        n_init=int(cfg["recon3d_init_points"]), budget=int(cfg["recon3d_budget"]),
+        test_every=int(cfg["recon3d_test_every"]), window_px_max=float(cfg["recon3d_window_px_max"]),
+        blur_subframes=int(cfg["recon3d_blur_subframes"]),
+        blur_downscale=int(cfg["recon3d_blur_downscale"]), lambda_blur=float(cfg["recon3d_lambda_blur"]),
+        resolution_schedule=tuple(tuple(int(v) for v in x) for x in cfg["recon3d_resolution_schedule"]),
+        seed=int(seed))
     return BenchConfig(tuple(cfg["methods"]), int(cfg["eval_every"]),
                        M.DeblurSettings(float(cfg["edi_theta_min"]), float(cfg["edi_theta_max"]),
                                         int(cfg["edi_theta_steps"])),
                        int(cfg["video_keyframe"]), float(cfg["video_cf_alpha_rad_s"]),
-                       int(cfg["example_crop_px"]))
+                       int(cfg["example_crop_px"]), r3)
 
 
 @dataclass
@@ -79,6 +90,7 @@ class Dataset:
     model: str
     shape: tuple[int, int]
     preset: str | None
+    trajectory: "object" = None  # gs2e.trajectory.Trajectory (recon3d)
     _cache: dict = field(default_factory=dict, repr=False)
 
     def image(self, kind: str, i: int) -> np.ndarray:
@@ -134,14 +146,17 @@ def load_dataset(task: str, frames_dir: str | Path, events_dir: str | Path,
     if th_on.shape != shape:
         raise InputError(f"{events_dir / 'events.h5'}: sensor {th_on.shape[1]}x{th_on.shape[0]} "
                          f"differs from the frames' {shape[1]}x{shape[0]} ({frames_dir})")
-    preset = None
+    preset = traj = None
     if trajectory_path is not None:
         from gs2e.trajectory import load_trajectory
 
-        preset = load_trajectory(trajectory_path).meta.get("preset")
+        traj = load_trajectory(trajectory_path)
+        preset = traj.meta.get("preset")
+    elif task == "recon3d":
+        raise InputError("bench --task recon3d needs --trajectory (poses between frames)")
     return Dataset(frames_dir, frames, windows, (int(meta["sim_start_us"]), int(meta["sim_end_us"])),
                    ev, np.broadcast_to(th_on, shape), np.broadcast_to(th_off, shape), eps,
-                   str(ev_cfg["model"]), shape, preset)
+                   str(ev_cfg["model"]), shape, preset, traj)
 
 
 def deblur_frames(ds: Dataset, every: int) -> list[int]:
@@ -308,6 +323,79 @@ def run_video(ds: Dataset, cfg: BenchConfig, user: dict[str, Callable]):
     return rows, shown, idx[-1]
 
 
+def recon3d_data(ds: Dataset, settings) -> "object":
+    """The trajectory's training data and held-out frames (gs2e.bench.recon3d)."""
+    import torch
+
+    from gs2e.bench.deblur import log_steps
+    from gs2e.bench.recon3d import Recon3dData, split_frames
+
+    f, ev, traj = ds.frames, ds.events, ds.trajectory
+    t = f["t_us"].to_numpy(np.int64)
+    E = f["exposure_us"].to_numpy(np.float64)
+    lo = max(ds.sim_span_us[0], int(traj.t_us[0]))
+    hi = min(ds.sim_span_us[1], int(traj.t_us[-1]))
+    has_blur = bool((E > 0).any()) and (ds.frames_dir / "blur").is_dir()
+    half = E / 2 if has_blur else np.zeros_like(E)
+    usable = [int(i) for i in np.flatnonzero((t - half >= lo) & (t + half <= hi))]
+    if len(usable) < 2 or hi - lo <= 0:
+        raise InputError(f"{ds.frames_dir}: recon3d needs at least 2 frames inside the simulated "
+                         f"events ({ds.sim_span_us[0]}..{ds.sim_span_us[1]} us), found {len(usable)}")
+    train, test = split_frames(usable, settings.test_every)
+    if not test:
+        raise InputError(f"{ds.frames_dir}: recon3d holds out no frame (bench.recon3d_test_every)")
+    H, W = ds.shape
+    i0, i1 = np.searchsorted(ev.t, [lo, hi], side="right")
+    x, y = ev.x[i0:i1].astype(np.int64), ev.y[i0:i1].astype(np.int64)
+    steps = log_steps(ev.p[i0:i1], x, y, ds.theta_on, ds.theta_off)
+    sharp = {i: torch.from_numpy(np.asarray(ds.image("rgb", i), np.float32)) for i in train + test}
+    blurred = ({i: torch.from_numpy(np.asarray(ds.image("blur", i), np.float32)) for i in train}
+               if has_blur else {})
+    c2w = np.stack([np.asarray(c, np.float64) for c in f["c2w"]])
+    motion = np.array([_motion(f.iloc[i]) for i in range(len(f))], np.float64)
+    speed = motion[usable] / np.maximum(E[usable], 1.0)  # px per us over each exposure
+    speed = speed[np.isfinite(speed) & (speed > 0) & (E[usable] > 0)]
+    # without motion figures (no exposure): a window of window_px_max spans ~2 frames
+    us_per_px = (1.0 / float(np.median(speed)) if speed.size else
+                 2.0 * float(np.median(np.diff(t))) / settings.window_px_max if len(t) > 1
+                 else float(hi - lo) / settings.window_px_max)
+    return Recon3dData(_intrinsics(f, 0), W, H, traj.pose_at, (lo, hi), us_per_px, ev.t[i0:i1],
+                       y * W + x, steps, ds.log_eps, train, test, t, c2w, E, motion, sharp, blurred)
+
+
+def run_recon3d(ds: Dataset, cfg: BenchConfig, user: dict[str, Callable]):
+    """Rows of the recon3d task (one per variant x held-out frame) and the
+    middle held-out frame's corrected luminance per variant."""
+    from gs2e.bench import recon3d as R3
+
+    if user:
+        log.warning("recon3d: user methods (%s) apply to the deblur and video tasks only; not run",
+                    ", ".join(user))
+    s = cfg.recon3d
+    data = recon3d_data(ds, s)
+    f = ds.frames
+    t_first = int(f["t_us"].iloc[data.train_idx[0] if data.train_idx else 0])
+    example = data.test_idx[len(data.test_idx) // 2]
+    log.info("recon3d: %d training frames, %d held out, %d events over %.2f s", len(data.train_idx),
+             len(data.test_idx), len(data.ev_t), (data.span_us[1] - data.span_us[0]) * 1e-6)
+    rows, shown = [], {}
+    for variant in s.variants:
+        p, st = R3.train_variant(variant, data, s)
+        for r in R3.evaluate(p, data):
+            i = r["frame"]
+            rows.append({"method": variant, **r, "t_rel_s": (r["t_us"] - t_first) * 1e-6,
+                         "motion_px": _motion(f.iloc[i]), "n_events": len(data.ev_t), "theta": math.nan,
+                         "time_s": st["wall_s"], "cpu_s": st["cpu_s"], "steps": st["steps"],
+                         "n_gaussians": st["n_gaussians"], "n_train_frames": len(data.train_idx)})
+            if i == example:
+                img = R3.render_view(p, data, data.c2w[i])
+                y = luminance(srgb_to_linear(np.clip(img, 0, 1)))
+                shown[variant] = linear_to_srgb(R3.corrected_luminance(
+                    y, r["log_gain"], r["log_offset"], data.log_eps))
+    shown["sharp"] = _grey(ds.image("rgb", example))[..., 0]
+    return rows, shown, example
+
+
 def _partner(i: int, scored: list[int]) -> int | None:
     """The neighbouring scored frame EDI's threshold search pairs frame i with:
     the next one, else the previous one (both exposures whole and simulated)."""
@@ -343,7 +431,8 @@ def run_task(task: str, frames_dir, events_dir, windows_path, trajectory_path, c
     t0 = time.perf_counter()
     user = {spec: M.load_method(spec) for spec in cfg.methods}  # before any work
     ds = load_dataset(task, frames_dir, events_dir, windows_path, trajectory_path)
-    rows, shown, example = (run_deblur if task == "deblur" else run_video)(ds, cfg, user)
+    runner = {"deblur": run_deblur, "video": run_video, "recon3d": run_recon3d}[task]
+    rows, shown, example = runner(ds, cfg, user)
     name = trajectory or (Path(trajectory_path).stem if trajectory_path else Path(frames_dir).name)
     write_metrics(out_parquet, rows, scene_id=scene_id, trajectory=name, preset=ds.preset,
                   task=task, model=ds.model)

@@ -7,7 +7,11 @@ motion_px_p90 (over frames, of each frame's median image motion over its
 exposure), theta_median (EDI's log threshold), time_s_per_frame, and for
 video: psnr_at_0_5s (the frame nearest 0.5 s after the keyframe; null if the
 trajectory is shorter), psnr_end (its last scored frame), drift_db_per_s
-(least-squares slope of per-frame PSNR against time).
+(least-squares slope of per-frame PSNR against time); for recon3d:
+psnr is on luminance after the per-image log-affine correction (see
+gs2e.bench.recon3d), psnr_raw the same uncorrected, psnr_rgb uncorrected
+colour, cpu_min the variant's training CPU-minutes, n_gaussians its final
+count.
 """
 
 from __future__ import annotations
@@ -53,6 +57,12 @@ def summarise(df) -> list[dict]:
             row["psnr_at_0_5s"] = float(per[j]) if abs(t[j] - VIDEO_AT_S) <= max(step, 1e-9) else math.nan
             row["psnr_end"] = float(per[-1])
             row["drift_db_per_s"] = float(np.polyfit(t, per, 1)[0]) if len(t) > 2 else math.nan
+        if row.get("task") == "recon3d":
+            row["psnr_raw"] = _pooled_psnr(g["mse_raw"].to_numpy(np.float64))
+            row["psnr_rgb"] = float(-10.0 * np.log10(np.mean(10.0 ** (-g["psnr_rgb"].to_numpy(np.float64)
+                                                                         / 10.0))))
+            row["cpu_min"] = float(g["cpu_s"].iloc[0]) / 60.0
+            row["n_gaussians"] = int(g["n_gaussians"].iloc[0])
         out.append(row)
     return out
 

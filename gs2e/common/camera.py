@@ -15,6 +15,21 @@ import numpy as np
 from gs2e.common.errors import ConfigError
 
 FITS = ("cover", "contain")
+# The largest pixel array gs2e renders or simulates: each side at most 16384 px
+# and 64 M pixels (HD event cameras are 1280x720; 16k frames need ~3 GB per
+# float32 RGB image). Larger is refused up front, before any allocation.
+MAX_SIDE_PX = 16384
+MAX_PIXELS = 1 << 26
+
+
+def size_problem(width: int, height: int) -> str | None:
+    """Why a ``width`` x ``height`` pixel array is refused, or None."""
+    if width < 1 or height < 1:
+        return f"{width}x{height} is empty"
+    if width > MAX_SIDE_PX or height > MAX_SIDE_PX or width * height > MAX_PIXELS:
+        return (f"{width}x{height} is beyond gs2e's limit ({MAX_SIDE_PX} px a side, "
+                f"{MAX_PIXELS // (1 << 20)} M pixels)")
+    return None
 
 
 def fit_scale(width: float, height: float, target_w: int, target_h: int, fit: str = "cover") -> float:

@@ -53,8 +53,9 @@ def register(subparsers) -> None:
                     ".h5 (DSEC), .npz and 't x y p' text; prints JSON. --write-preset saves "
                     "the fitted values as a custom sensor preset (YAML).")
     q.add_argument("events_file")
-    q.add_argument("--width", type=int, help="sensor width (files without a size: text, DSEC)")
-    q.add_argument("--height", type=int, help="sensor height (files without a size: text, DSEC)")
+    q.add_argument("--width", type=int, help="sensor width, for files whose header gives no size "
+                                              "and names no known camera (text, DSEC, some RAW)")
+    q.add_argument("--height", type=int, help="sensor height (as --width)")
     q.add_argument("--ba-window-us", type=int, default=10000,
                    help="support window of the background-activity criterion (us, default 10000)")
     q.add_argument("-o", "--out", help="write the JSON here instead of stdout")
@@ -76,7 +77,8 @@ def register(subparsers) -> None:
                     "OUT appears only when complete.")
     c.add_argument("input", help="event file to read")
     c.add_argument("output", help="event file to write (suffix picks the container)")
-    c.add_argument("--width", type=int, help="sensor width, for inputs without a size (text, DSEC)")
+    c.add_argument("--width", type=int, help="sensor width, for inputs whose header gives no size "
+                                              "and names no known camera (text, DSEC, some RAW)")
     c.add_argument("--height", type=int, help="sensor height, for inputs without a size (text, DSEC)")
     c.set_defaults(func=run_convert)
 
@@ -158,6 +160,37 @@ def run(args) -> int:
     return 0
 
 
+def _size_arg(args) -> tuple[int, int] | None:
+    """--width/--height: the size of files whose header gives none and names no known camera."""
+    from gs2e.common.errors import InputError
+
+    if (args.width is None) != (args.height is None):
+        raise InputError("give both --width and --height, or neither")
+    if args.width is None:
+        return None
+    if not (0 < args.width <= 65536 and 0 < args.height <= 65536):
+        raise InputError(f"--width/--height {args.width}x{args.height}: outside 1..65536")
+    return args.width, args.height
+
+
+def _size_source(args) -> str | None:
+    """Where a recording's size came from when its header does not state it."""
+    from pathlib import Path
+
+    from gs2e.events.containers import READ_SUFFIXES, _header_size, _prophesee_header, camera_size
+
+    path = Path(args.events_file)
+    if path.suffix.lower() not in READ_SUFFIXES or path.suffix.lower() == ".aedat4":
+        return None
+    header, _ = _prophesee_header(path)
+    if _header_size(header):
+        return None
+    cam = camera_size(header)
+    if cam is not None:
+        return f"the camera the header of {path} names: {cam[2]}"
+    return "--width/--height" if args.width else None
+
+
 def run_stats(args) -> int:
     import json
     from pathlib import Path
@@ -171,9 +204,7 @@ def run_stats(args) -> int:
 
     if args.write_preset:
         check_writable(args.write_preset)  # before the work (gs2e.cli checks --out)
-    ev, shape = read_events(args.events_file)
-    if args.width and args.height:
-        shape = (args.height, args.width)
+    ev, shape = read_events(args.events_file, _size_arg(args))
     if not shape or not all(shape):
         if len(ev) == 0:
             raise InputError(f"{args.events_file}: no events and no sensor size")
@@ -186,7 +217,8 @@ def run_stats(args) -> int:
         if not len(ev) > 1 or not np.isfinite(cal["ba_rate_hz"]):
             raise InputError(f"{args.events_file}: too few events to fit a sensor preset")
         name = args.preset_name or Path(args.events_file).stem
-        write_sensor_preset(args.write_preset, sensor_preset(cal, name, shape, str(args.events_file)))
+        write_sensor_preset(args.write_preset, sensor_preset(cal, name, shape, str(args.events_file),
+                                                             _size_source(args)))
     if args.out:
         write_json_atomic(args.out, out)
     else:
@@ -211,9 +243,7 @@ def run_convert(args) -> int:
         raise InputError(f"{out}: unknown output container '{suf or 'no suffix'}' "
                          f"(one of {', '.join(writable)})")
     check_writable(out)
-    ev, shape = read_events(args.input)
-    if args.width and args.height:
-        shape = (args.height, args.width)
+    ev, shape = read_events(args.input, _size_arg(args))
     if not shape or not all(shape):
         raise InputError(f"{args.input}: the file gives no sensor size: pass --width and --height")
     if np.any(ev.t[1:] < ev.t[:-1]):

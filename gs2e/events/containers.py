@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -177,9 +178,56 @@ def _aedat4_description(width: int, height: int):
 
 
 # ---------------------------------------------------------------- reading
-def read_container(path: str | os.PathLike) -> tuple[Events, tuple[int, int] | None]:
+# Pixel arrays of the cameras a recording's header may name, for headers that
+# carry no width/height (many Prophesee EVK recordings): (name pattern matched
+# in the header's plugin_name / sensor_generation / sensor / camera values,
+# (width, height), source). The most specific pattern first.
+_PSEE = "docs.prophesee.ai/stable/hw/"
+CAMERA_SIZES: tuple[tuple[str, tuple[int, int], str], ...] = (
+    ("genx320", (320, 320), _PSEE + "sensors/genx320.html (Prophesee GenX320)"),
+    ("imx636", (1280, 720), _PSEE + "sensors/imx636.html (Sony IMX636 HD, EVK4)"),
+    ("imx646", (1280, 720), "Sony IMX646 product brief (1280x720, as IMX636)"),
+    ("gen41", (1280, 720), _PSEE + "sensors/gen41.html (Prophesee Gen4.1 HD, EVK3-HD)"),
+    ("gen4", (1280, 720), "Prophesee Gen4 HD (Finateu et al., ISSCC 2020: 1280x720)"),
+    ("gen31", (640, 480), _PSEE + "sensors/gen31.html (Prophesee Gen3.1 VGA)"),
+    ("gen3", (640, 480), "Prophesee Gen3 VGA (PPS3MVCD datasheet: 640x480)"),
+    ("davis346", (346, 260), "iniVation DAVIS346 datasheet"),
+    ("davis240", (240, 180), "iniVation DAVIS240 datasheet"),
+    ("dvxplorerlite", (320, 240), "iniVation DVXplorer Lite datasheet"),
+    ("dvxplorermini", (640, 480), "iniVation DVXplorer Mini datasheet"),
+    ("dvxplorer", (640, 480), "iniVation DVXplorer datasheet"),
+    ("dvs128", (128, 128), "iniVation DVS128 (Lichtsteiner et al., JSSC 2008)"),
+)
+_CAMERA_KEYS = ("plugin_name", "sensor_generation", "sensor_name", "sensor", "camera", "camera_type")
+
+
+def camera_size(header: dict[str, str]) -> tuple[int, int, str] | None:
+    """(width, height, source) of the camera a file header names, or None.
+
+    Reads the ``plugin_name`` (e.g. ``hal_plugin_gen3_fx3``), ``sensor_generation``
+    (``4.1``), ``sensor_name``, ``sensor``, ``camera`` values, ignoring case,
+    ``_``, ``.``, ``-`` and spaces; :data:`CAMERA_SIZES` lists what is known.
+    """
+    for key in _CAMERA_KEYS:
+        if key not in header:
+            continue
+        v = re.sub(r"[\s_.\-]", "", header[key].lower())
+        if key == "sensor_generation":
+            v = "gen" + v
+        for pattern, (w, h), source in CAMERA_SIZES:
+            if pattern in v:
+                return w, h, f"{key} '{header[key]}': {source}"
+    return None
+
+
+def read_container(path: str | os.PathLike,
+                   size: tuple[int, int] | None = None) -> tuple[Events, tuple[int, int] | None]:
     """Events of an AEDAT4 (first event stream), Prophesee RAW (EVT2/EVT3) or
     DAT (CD events) file, picked by suffix.
+
+    The sensor size comes from the header, else from the camera the header
+    names (:func:`camera_size`), else from ``size`` = (width, height) (the
+    user's); a RAW file with none of these is a one-line error saying so.
 
     Returns
     -------
@@ -203,10 +251,10 @@ def read_container(path: str | os.PathLike) -> tuple[Events, tuple[int, int] | N
             a, shape = _read_aedat4(path, faery)
         elif suf == ".raw":
             label = "Prophesee RAW (EVT2/EVT3)"
-            a, shape = _read_raw(path, faery)
+            a, shape = _read_raw(path, faery, size)
         else:
             label = "Prophesee DAT"
-            a, shape = _read_dat(path, faery)
+            a, shape = _read_dat(path, faery, size)
     except InputError:
         raise
     except Exception as exc:  # faery reports corrupt input as RuntimeError
@@ -237,9 +285,32 @@ def _read_aedat4(path: Path, faery):
     return _concat(parts), (int(H), int(W))
 
 
-def _read_raw(path: Path, faery):
-    # no fallbacks: a RAW file without its version or size in the header is refused
-    with faery.evt.Decoder(path, None, None) as dec:
+def _header_size(header: dict[str, str]) -> bool:
+    """Whether a Prophesee header states the size itself (what faery reads)."""
+    fmt = header.get("format", "")
+    return ("width=" in fmt and "height=" in fmt) or "geometry" in header or (
+        "Width" in header and "Height" in header)
+
+
+def _size_fallback(path: Path, header: dict[str, str], size: tuple[int, int] | None):
+    """(width, height) for a header without a size: the named camera's, else ``size``."""
+    if _header_size(header):
+        return None
+    cam = camera_size(header)
+    if cam is not None:
+        return cam[0], cam[1]
+    if size is not None:
+        return int(size[0]), int(size[1])
+    named = ", ".join(f"{k} '{header[k]}'" for k in _CAMERA_KEYS if k in header)
+    what = (f"names a camera gs2e's table does not know ({named}; gs2e.events.containers."
+            "CAMERA_SIZES)" if named else "names no camera")
+    raise InputError(f"{path}: the header gives no sensor size and {what}: pass --width and --height")
+
+
+def _read_raw(path: Path, faery, size: tuple[int, int] | None = None):
+    # the version must be in the header; the size may come from the camera it names
+    header, _ = _prophesee_header(path)
+    with faery.evt.Decoder(path, _size_fallback(path, header, size), None) as dec:
         if dec.version not in ("evt2", "evt3"):
             raise InputError(f"{path}: RAW version {dec.version} is not supported (EVT2, EVT3)")
         W, H = dec.dimensions
@@ -247,18 +318,21 @@ def _read_raw(path: Path, faery):
     return _concat(parts), (int(H), int(W))
 
 
-def _read_dat(path: Path, faery):
+def _read_dat(path: Path, faery, size: tuple[int, int] | None = None):
     header, data_len = _prophesee_header(path)
+    cam = camera_size(header)
+    fallback = (cam[0], cam[1]) if cam is not None else size
     if data_len == 0:
         # faery writes no event-type bytes before the first event, and its
         # decoder cannot open such a header-only file: zero events
         if "Width" in header and "Height" in header:
             return None, (int(header["Height"]), int(header["Width"]))
-        return None, None
+        return None, None if fallback is None else (int(fallback[1]), int(fallback[0]))
     with faery.dat.Decoder(path, None, None) as dec:
         if dec.event_type != "cd":
             raise InputError(f"{path}: DAT event type '{dec.event_type}' is not CD (polarity) events")
-        shape = None if dec.dimensions is None else (int(dec.dimensions[1]), int(dec.dimensions[0]))
+        dims = dec.dimensions if dec.dimensions is not None else fallback
+        shape = None if dims is None else (int(dims[1]), int(dims[0]))
         parts = [pk for pk in dec if len(pk)]
     return _concat(parts), shape
 

@@ -283,8 +283,11 @@ def read_npz(path: str | os.PathLike) -> tuple[Events, tuple[int, int]]:
         raise InputError(f"{path}: not a gs2e event npz ({exc})") from exc
 
 
-def read_events(path: str | os.PathLike) -> tuple[Events, tuple[int, int] | None]:
-    """Any supported event file, by suffix.
+def read_events(path: str | os.PathLike,
+                size: tuple[int, int] | None = None) -> tuple[Events, tuple[int, int] | None]:
+    """Any supported event file, by suffix. ``size`` = (width, height) is the
+    fallback for files whose header gives no size and names no known camera
+    (:func:`gs2e.events.containers.read_container`); a header's own size wins.
 
     ``.aedat4`` (iniVation), ``.raw`` (Prophesee EVT2/EVT3, version from the
     header), ``.dat`` (Prophesee DAT) through :mod:`gs2e.events.containers`
@@ -305,13 +308,14 @@ def read_events(path: str | os.PathLike) -> tuple[Events, tuple[int, int] | None
     suf = path.suffix.lower()
     if not path.exists():
         raise InputError(f"{path}: no such event file")
+    fallback = None if size is None else (int(size[1]), int(size[0]))
     if suf in READ_SUFFIXES:
-        return read_container(path)
+        return read_container(path, size)
     if suf in (".h5", ".hdf5"):
         ev, attrs = read_h5(path)
         if attrs.get("width") and attrs.get("height"):
             return ev, (int(attrs["height"]), int(attrs["width"]))
-        return ev, None  # DSEC's own files carry no sensor size
+        return ev, fallback  # DSEC's own files carry no sensor size
     if suf == ".npz":
         return read_npz(path)
-    return read_text(path), None
+    return read_text(path), fallback

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gs2e.common.camera import fit_scale
+from gs2e.common.camera import fit_scale, size_problem
 from gs2e.common.errors import ConfigError, InputError
 
 # The pixel non-idealities a sensor sets, and their value without a sensor.
@@ -159,6 +159,9 @@ def load_sensor_file(path: str | Path) -> Sensor:
     for s in (w, h):
         if s.value < 1 or s.value != int(s.value):
             raise InputError(f"{path}: width and height must be positive integers")
+    why = size_problem(int(w.value), int(h.value))
+    if why:
+        raise InputError(f"{path}: sensor {why}")
     on = val("shot_noise_on_fraction", 0.5)
     if on.value > 1:
         raise InputError(f"{path}: 'shot_noise_on_fraction' must be in [0, 1]")

@@ -247,7 +247,8 @@ def _refractory(ev: Events, W: int, q: float, n_boot: int, rng) -> tuple[float, 
     return value, [float(v) for v in np.percentile(boot, [2.5, 97.5])], float(iei_sorted[0]), int(iei.size)
 
 
-def sensor_preset(cal: dict, name: str, shape: tuple[int, int], source: str) -> dict:
+def sensor_preset(cal: dict, name: str, shape: tuple[int, int], source: str,
+                  size_source: str | None = None) -> dict:
     """A custom sensor preset from :func:`calibrate_noise`'s result.
 
     Layout (what :func:`write_sensor_preset` writes, one mapping per value)::
@@ -272,8 +273,8 @@ def sensor_preset(cal: dict, name: str, shape: tuple[int, int], source: str) -> 
 
     return {
         "name": name,
-        "width": {"value": int(W), "source": f"header of {source}"},
-        "height": {"value": int(H), "source": f"header of {source}"},
+        "width": {"value": int(W), "source": size_source or f"header of {source}"},
+        "height": {"value": int(H), "source": size_source or f"header of {source}"},
         "shot_noise_rate_hz": {
             "value": sig(cal["ba_rate_hz"]), "ci95": [sig(v) for v in cal["ba_rate_ci95_hz"]],
             "method": f"events without an 8-neighbour event within +-{cal['window_us']} us, per pixel "

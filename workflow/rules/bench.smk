@@ -18,22 +18,24 @@ rule bench:
         cfg=stage_cfg("bench"),
         code=code_version("bench"),
         trajectory=lambda wc, input: str(Path(input.trajectories, f"{wc.traj}.npz")),
+        seed=lambda wc: derive_seed(SCENE_CFG[wc.scene]["seed"], f"{wc.scene}/{wc.traj}", "bench"),
     conda:
         ENV
     log:
         res("{scene}", "logs", "bench_{task}_{traj}.log"),
     benchmark:
         res("{scene}", "benchmarks", "bench_{task}_{traj}.tsv")
-    threads: 1
+    # recon3d trains three 3DGS models (minutes each, multi-threaded rasterizer)
+    threads: lambda wc: 2 if wc.task == "recon3d" else 1
     resources:
         # every event of the trajectory in memory (19 bytes/event) + frames
         mem_mb=lambda wc, attempt: 3000 * attempt,
-        runtime=lambda wc, attempt: 60 * attempt,
+        runtime=lambda wc, attempt: (120 if wc.task == "recon3d" else 60) * attempt,
     shell:
-        "python -m gs2e bench --task {wildcards.task} --frames {input.frames:q}"
+        "{GS2E} bench --task {wildcards.task} --frames {input.frames:q}"
         " --events {input.events:q} --windows {input.windows:q} --trajectory {params.trajectory:q}"
         " --out {output.table:q} --png {output.png:q} --scene-id {wildcards.scene}"
-        " --threads {threads} --config-json {params.cfg:q} 2> {log:q}"
+        " --seed {params.seed} --threads {threads} --config-json {params.cfg:q} 2> {log:q}"
 
 
 rule bench_summary:
@@ -51,4 +53,4 @@ rule bench_summary:
         res("benchmarks", "bench_summary.tsv")
     threads: 1
     shell:
-        "python -m gs2e bench-summary {input:q} --out {output:q} 2> {log:q}"
+        "{GS2E} bench-summary {input:q} --out {output:q} 2> {log:q}"

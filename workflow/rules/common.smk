@@ -1,5 +1,7 @@
 # Shared wiring: validated config, the scenes table, per-scene parameters.
 import json
+import shlex
+import sys
 from pathlib import Path
 
 from gs2e.codeversion import code_version
@@ -20,9 +22,58 @@ ENV = "../../envs/gs2e.yaml"  # used with --sdm conda (relative to the rule file
 shell.prefix(f'export PYTHONPATH="{workflow.basedir}${{{{PYTHONPATH:+:$PYTHONPATH}}}}"; ')
 
 
+def gs2e_python():
+    """The interpreter jobs run: under --sdm conda the environment's `python`
+    (Snakemake activates it), else the one running Snakemake -- the venv gs2e
+    is installed in -- whatever the shell's PATH holds."""
+    try:
+        from snakemake.settings.types import DeploymentMethod
+
+        if DeploymentMethod.CONDA in workflow.deployment_settings.deployment_method:
+            return "python"
+    except (ImportError, AttributeError):
+        pass
+    return shlex.quote(sys.executable)
+
+
+# `exec`: the job's shell becomes gs2e, so the signals Snakemake or the
+# scheduler sends (Ctrl-C, scancel) reach it and its cleanup runs.
+GS2E = f"exec {gs2e_python()} -m gs2e"
+
+
+def forward_interrupt_to_jobs():
+    """On SIGINT to Snakemake (Ctrl-C, `kill -INT`), SIGTERM the local jobs at
+    once: Snakemake's local executor would otherwise wait for them to finish.
+    The jobs clean up and exit with gs2e's one-line message."""
+    import signal
+
+    previous = signal.getsignal(signal.SIGINT)
+
+    def handler(signum, frame):
+        from snakemake.shell import shell as snakemake_shell
+
+        for proc in list(getattr(snakemake_shell, "_processes", {}).values()):
+            try:
+                proc.terminate()
+            except (ProcessLookupError, OSError):
+                pass
+        if callable(previous):
+            previous(signum, frame)
+        else:
+            raise KeyboardInterrupt
+
+    try:
+        signal.signal(signal.SIGINT, handler)
+    except ValueError:  # not the main thread: nothing to forward from here
+        pass
+
+
+forward_interrupt_to_jobs()
+
+
 wildcard_constraints:
     scene="[A-Za-z0-9][A-Za-z0-9_.-]*",
-    task="deblur|video",
+    task="deblur|video|recon3d",
     traj="[A-Za-z0-9_.-]+",
     fmt="[a-z0-9]+",
 

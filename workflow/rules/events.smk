@@ -31,7 +31,7 @@ rule events:
         mem_mb=lambda wc, attempt: 4000 * attempt,
         runtime=lambda wc, attempt: 240 * attempt,
     shell:
-        "python -m gs2e events --model {input.model:q} --trajectory {params.trajectory:q}"
+        "{GS2E} events --model {input.model:q} --trajectory {params.trajectory:q}"
         " -o {output:q} --seed {params.seed} --threads {threads}"
         " --background {params.background} --scale {params.scale} --backend {params.backend}"
         " --config-json {params.cfg:q} 2> {log:q}"

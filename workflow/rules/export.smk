@@ -22,7 +22,7 @@ rule windows:
         mem_mb=lambda wc, attempt: 2000 * attempt,
         runtime=lambda wc, attempt: 30 * attempt,
     shell:
-        "python -m gs2e windows --frames {input.frames:q} --events {input.events:q}"
+        "{GS2E} windows --frames {input.frames:q} --events {input.events:q}"
         " --out {output:q} 2> {log:q}"
 
 
@@ -50,6 +50,6 @@ rule export:
         mem_mb=lambda wc, attempt: 3000 * attempt,
         runtime=lambda wc, attempt: 60 * attempt,
     shell:
-        "python -m gs2e export --scene-dir {params.scene_dir:q} --trajectory {wildcards.traj}"
+        "{GS2E} export --scene-dir {params.scene_dir:q} --trajectory {wildcards.traj}"
         " --format {wildcards.fmt} --out {output:q} --scene-id {wildcards.scene}"
         " --config-json {params.cfg:q} 2> {log:q}"

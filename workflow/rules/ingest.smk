@@ -12,7 +12,7 @@ rule demo_scene:
         res("{scene}", "benchmarks", "demo_scene.tsv")
     threads: 1
     shell:
-        "python -m gs2e demo-scene --out {output} --config-json {params.cfg:q} 2> {log:q}"
+        "{GS2E} demo-scene --out {output} --config-json {params.cfg:q} 2> {log:q}"
 
 
 rule ingest:
@@ -33,5 +33,5 @@ rule ingest:
         res("{scene}", "benchmarks", "ingest.tsv")
     threads: 1
     shell:
-        "python -m gs2e ingest --layout {params.layout} --src {input:q} --out {output:q}"
+        "{GS2E} ingest --layout {params.layout} --src {input:q} --out {output:q}"
         " {params.target} --config-json {params.cfg:q} 2> {log:q}"

@@ -33,7 +33,7 @@ rule scene_metrics:
         res("{scene}", "benchmarks", "metrics.tsv")
     threads: 1
     shell:
-        "python -m gs2e metrics --scene-dir {RESULTS}/{wildcards.scene} --scene-id {wildcards.scene}"
+        "{GS2E} metrics --scene-dir {RESULTS}/{wildcards.scene} --scene-id {wildcards.scene}"
         " --trajectories {params.trajectories} --config-json {params.config:q}"
         " --seeds-json {params.seeds:q} --out {output:q} 2> {log:q}"
 
@@ -53,7 +53,7 @@ rule summary:
         res("benchmarks", "summary.tsv")
     threads: 1
     shell:
-        "python -m gs2e summary {input:q} --out {output:q} 2> {log:q}"
+        "{GS2E} summary {input:q} --out {output:q} 2> {log:q}"
 
 
 rule report:
@@ -77,5 +77,5 @@ rule report:
         mem_mb=lambda wc, attempt: 2000 * attempt,
         runtime=lambda wc, attempt: 30 * attempt,
     shell:
-        "python -m gs2e report --results-dir {RESULTS:q} --out {output:q} --scenes {params.scenes}"
+        "{GS2E} report --results-dir {RESULTS:q} --out {output:q} --scenes {params.scenes}"
         " --config-json {params.cfg:q} 2> {log:q}"

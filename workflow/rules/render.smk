@@ -21,6 +21,6 @@ rule render:
         mem_mb=lambda wc, attempt: 3000 * attempt,
         runtime=lambda wc, attempt: 120 * attempt,
     shell:
-        "python -m gs2e render --model {input.model:q} --trajectory {params.trajectory:q}"
+        "{GS2E} render --model {input.model:q} --trajectory {params.trajectory:q}"
         " --out {output:q} --threads {threads} --scene-id {wildcards.scene} {params.sensor}"
         " --config-json {params.cfg:q} 2> {log:q}"

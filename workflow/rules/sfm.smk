@@ -18,6 +18,6 @@ rule sfm:
         mem_mb=lambda wc, attempt: 4000 * attempt,
         runtime=lambda wc, attempt: 60 * attempt,
     shell:
-        "python -m gs2e sfm --scene {input:q} --out {output:q} --seed {params.seed}"
+        "{GS2E} sfm --scene {input:q} --out {output:q} --seed {params.seed}"
         " --threads {threads} --scene-id {wildcards.scene}"
         " --config-json {params.cfg:q} 2> {log:q}"

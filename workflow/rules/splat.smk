@@ -19,6 +19,6 @@ rule train:
         mem_mb=lambda wc, attempt: 6000 * attempt,
         runtime=train_runtime_min,
     shell:
-        "python -m gs2e train --scene {input:q} --out {output:q} --seed {params.seed}"
+        "{GS2E} train --scene {input:q} --out {output:q} --seed {params.seed}"
         " --threads {threads} --scene-id {wildcards.scene} --checkpoint-dir {params.ckpt:q}"
         " --config-json {params.cfg:q} 2> {log:q}"

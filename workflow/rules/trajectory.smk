@@ -20,5 +20,5 @@ rule trajectory:
         mem_mb=lambda wc, attempt: 1000 * attempt,
         runtime=lambda wc, attempt: 10 * attempt,
     shell:
-        "python -m gs2e trajectory --scene {input:q} --out {output:q} --seed {params.seed}"
+        "{GS2E} trajectory --scene {input:q} --out {output:q} --seed {params.seed}"
         " --config-json {params.cfg:q} 2> {log:q}"

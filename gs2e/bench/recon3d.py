@@ -1,0 +1,401 @@
+"""Event-based 3D reconstruction on the CPU: the paper's Table 1 task.
+
+A 3DGS model is trained from one generated trajectory alone (its events,
+blurred frames, poses and intrinsics; never the source photos, model or
+points) with gs2e's own trainer parts (rasterizer, Adam, density control on
+the 3DGS schedule, position learning-rate decay), in three variants:
+
+``event_only``
+    EventNeRF's event loss (Rudnev et al., CVPR 2023): two renders at the
+    ends of a random window [t_a, t_b] of the stream, compared in log
+    luminance with the window's per-pixel sum of signed log steps (the
+    simulator's per-pixel thresholds; ON +theta_on, OFF -theta_off):
+    ``mean((log(Y_b + eps) - log(Y_a + eps) - sum)^2)`` over the whole image,
+    so pixels without events ask for no change (EventNeRF's negative
+    samples). Y is linear luminance, eps the event model's dark floor. We
+    follow EventNeRF rather than IncEventGS's normalised loss because gs2e's
+    windows carry the simulator's exact thresholds: the unnormalised
+    difference is the quantity the events measure. A window spans a random
+    image motion of ``window_px_max / 8`` to ``window_px_max`` pixels (the
+    trajectory's median image speed converts it to time), so every speed
+    preset sees windows of the same geometry and the speeds differ only in
+    what the sensor does with the motion (EventNeRF draws random window
+    lengths too); windows lie anywhere in the simulated span.
+``event_blur``
+    The same plus a blur term (E2GS / EvDeblurNeRF style): a training
+    frame's blurred image is predicted as the linear-light mean of renders
+    at poses spread over its exposure, compared with the 3DGS loss (0.8 L1 +
+    0.2 D-SSIM) in sRGB, weight ``lambda_blur``. As many renders as the
+    frame's motion needs (one per 2 px, at most ``blur_subframes``), at
+    ``blur_downscale`` or coarser: a blurred frame holds little detail
+    along its motion, and the events carry the fine detail.
+``sharp``
+    The upper bound: the same trainer on the training frames' sharp images
+    at their poses (the 3DGS loss).
+
+Initialisation (no source geometry): ``n_init`` points drawn along random
+pixel rays of the training cameras, uniform in inverse depth over
+[d / 4, 4 d], kept where at least half the cameras see them (the cameras'
+common view volume); d is the distance from the cameras to the point nearest
+all their optical axes, or, when the axes do not converge (forward-facing
+paths), ten times the cameras' spread. Grey colour, opacity 0.1, scales
+from the 3 nearest neighbours (3DGS's rule).
+
+Evaluation: every ``test_every``-th usable frame (offset by half) is held
+out: its sharp and blurred images are never trained on (its events stay in
+the stream, as in EventNeRF's evaluation). Renders at its pose are scored
+on luminance (events carry no colour) after the literature's per-image
+correction for what events cannot observe (Robust e-NeRF / Deblur e-NeRF,
+Low & Lee 2023: an affine map of predicted log luminance, a log Y + b,
+least-squares fitted to the sharp frame's), applied to every variant alike;
+the uncorrected luminance score and, for the variants that see colour, the
+RGB score are recorded too.
+
+Arrays: images (H, W, 3) float32 sRGB in [0, 1]; times int64 us; poses
+camera-to-world (4, 4), OpenCV axes.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from gs2e.common.color import linear_to_srgb, luminance, srgb_to_linear
+from gs2e.common.errors import InputError
+from gs2e.common.log import get_logger
+from gs2e.common.progress import progress
+from gs2e.splat.init import init_from_points
+from gs2e.splat.loss import photometric_loss
+from gs2e.splat.model import render, to_params
+from gs2e.splat.rasterize import SplatCamera
+from gs2e.splat.strategy import PARAMS, Adam, DensifyConfig, DensifyStrategy
+from gs2e.splat.train import downscale_at, position_lr
+
+log = get_logger("gs2e.bench")
+
+VARIANTS = ("event_only", "event_blur", "sharp")
+# 3DGS's learning rates (position: times the scene extent, log-linear decay)
+LRS = {"quats": 1e-3, "log_scales": 5e-3, "opacity_logits": 0.025, "sh_dc": 2.5e-3, "sh_rest": 1.25e-4}
+# 10x 3DGS's: Gaussians start at random, far from the surfaces (demo base_mild, sharp
+# frames, 1500 steps: +0.6 dB and SSIM 0.73 -> 0.80 against 3DGS's rate)
+POSITION_LR = {"lr_position_init": 1.6e-3, "lr_position_final": 1.6e-5}
+# one blur sub-frame per this much image motion over the exposure (rendered px)
+BLUR_PX_PER_SUBFRAME = 2.0
+
+
+@dataclass(frozen=True)
+class Recon3dSettings:
+    """The ``bench.recon3d_*`` keys, resolved."""
+
+    variants: tuple[str, ...] = VARIANTS
+    steps: int = 1500
+    n_init: int = 5000
+    budget: int = 30000
+    test_every: int = 8
+    window_px_max: float = 64.0
+    blur_subframes: int = 4
+    blur_downscale: int = 2
+    lambda_blur: float = 1.0
+    densify_from: int = 300
+    densify_every: int = 100
+    densify_grad_threshold: float = 2e-4
+    # [[from_step, downscale factor], ...] as the trainer's coarse-to-fine schedule
+    resolution_schedule: tuple = ((0, 2), (800, 1))
+    seed: int = 0
+
+
+@dataclass
+class Recon3dData:
+    """What the trainer may use, and the held-out ground truth."""
+
+    K: np.ndarray  # (3, 3) px
+    width: int
+    height: int
+    pose_at: object  # t_us (Q,) -> c2w (Q, 4, 4)
+    span_us: tuple[int, int]  # the events' (and poses') usable span
+    us_per_px: float  # the trajectory's median time per pixel of image motion (us)
+    ev_t: np.ndarray  # (M,) int64 us, sorted
+    ev_pix: np.ndarray  # (M,) int64 y * W + x
+    ev_step: np.ndarray  # (M,) float64 signed log step
+    log_eps: float
+    train_idx: list[int]  # frame indices whose images may be trained on
+    test_idx: list[int]
+    t_us: np.ndarray  # (F,) frame times
+    c2w: np.ndarray  # (F, 4, 4)
+    exposure_us: np.ndarray  # (F,)
+    motion_px: np.ndarray  # (F,) median image motion over each exposure (px; NaN unknown)
+    sharp: dict[int, torch.Tensor]  # train + test frames
+    blurred: dict[int, torch.Tensor]  # train frames (when blurred frames exist)
+
+
+# ------------------------------------------------------------------ losses
+def log_luminance(img_srgb: torch.Tensor, eps: float) -> torch.Tensor:
+    """(H, W) log(Y + eps), Y the linear luminance of an sRGB render (H, W, 3)."""
+    return torch.log(luminance(srgb_to_linear(img_srgb.clamp_min(0.0))) + eps)
+
+
+def event_loss(img_a: torch.Tensor, img_b: torch.Tensor, step_sum: torch.Tensor, eps: float) -> torch.Tensor:
+    """Mean squared difference between the renders' change of log luminance
+    from t_a to t_b and the window's per-pixel sum of signed log steps (H, W)."""
+    d = log_luminance(img_b, eps) - log_luminance(img_a, eps)
+    return ((d - step_sum) ** 2).mean()
+
+
+def blur_of(renders: list[torch.Tensor]) -> torch.Tensor:
+    """The blurred frame of sub-frame renders: their linear-light mean, sRGB-encoded."""
+    lin = torch.stack([srgb_to_linear(r.clamp_min(0.0)) for r in renders]).mean(dim=0)
+    return linear_to_srgb(lin)
+
+
+def blur_subframes(motion_px: float, most: int) -> int:
+    """Renders that average a frame's exposure: one per BLUR_PX_PER_SUBFRAME of
+    its image motion (rendered px), 1 to ``most`` (``most`` when unknown)."""
+    if not np.isfinite(motion_px):
+        return most
+    return int(min(most, max(1, math.ceil(motion_px / BLUR_PX_PER_SUBFRAME))))
+
+
+def window_step_sum(data: Recon3dData, t_a: float, t_b: float, downscale: int = 1) -> torch.Tensor:
+    """(H, W) float32 sum of the signed log steps of the events in (t_a, t_b];
+    area-averaged to the size of ``downscale`` (the mean change over each block)."""
+    # integer keys: a float key would convert the whole int64 time array per search
+    i0 = int(np.searchsorted(data.ev_t, np.int64(np.floor(t_a)), side="right"))
+    i1 = int(np.searchsorted(data.ev_t, np.int64(np.floor(t_b)), side="right"))
+    acc = np.bincount(data.ev_pix[i0:i1], weights=data.ev_step[i0:i1],
+                      minlength=data.width * data.height)
+    acc = acc.reshape(data.height, data.width).astype(np.float32)
+    return torch.from_numpy(_downscaled(acc, downscale))
+
+
+def _downscaled(img: np.ndarray, downscale: int) -> np.ndarray:
+    """Area-averaged to (H // d, W // d) as the trainer's views (d = 1: as is)."""
+    if downscale == 1:
+        return img
+    import cv2
+
+    h, w = img.shape[:2]
+    return cv2.resize(img, (max(1, w // downscale), max(1, h // downscale)), interpolation=cv2.INTER_AREA)
+
+
+# ------------------------------------------------------------------ evaluation
+def log_affine_fit(pred_y: np.ndarray, gt_y: np.ndarray, eps: float) -> tuple[float, float]:
+    """(a, b) minimising sum (a log(pred + eps) + b - log(gt + eps))^2 over pixels."""
+    x = np.log(np.asarray(pred_y, np.float64).ravel() + eps)
+    y = np.log(np.asarray(gt_y, np.float64).ravel() + eps)
+    vx = float(np.var(x))
+    if vx < 1e-12:  # a flat render: only the offset is defined
+        return 1.0, float(np.mean(y) - np.mean(x))
+    a = float(np.mean((x - x.mean()) * (y - y.mean())) / vx)
+    return a, float(y.mean() - a * x.mean())
+
+
+def corrected_luminance(pred_y: np.ndarray, a: float, b: float, eps: float) -> np.ndarray:
+    """exp(a log(pred + eps) + b) - eps, clipped to [0, 1]."""
+    return np.clip(np.exp(a * np.log(np.asarray(pred_y, np.float64) + eps) + b) - eps, 0.0, 1.0)
+
+
+def score_view(render_srgb: np.ndarray, sharp_srgb: np.ndarray, eps: float) -> dict[str, float]:
+    """Scores of one held-out render (H, W, 3) against its sharp frame: luminance
+    after the per-image log-affine correction (psnr, ssim, mse, a, b), luminance
+    uncorrected (psnr_raw, mse_raw) and colour uncorrected (psnr_rgb)."""
+    from gs2e.bench.run import score
+
+    y_pred = luminance(srgb_to_linear(np.clip(render_srgb, 0.0, 1.0)))
+    y_gt = luminance(srgb_to_linear(sharp_srgb))
+    a, b = log_affine_fit(y_pred, y_gt, eps)
+    grey_gt = linear_to_srgb(y_gt)[..., None]
+    corr = score(linear_to_srgb(corrected_luminance(y_pred, a, b, eps))[..., None], grey_gt)
+    raw = score(linear_to_srgb(y_pred)[..., None], grey_gt)
+    rgb = score(np.clip(render_srgb, 0.0, 1.0), sharp_srgb)
+    return {**corr, "log_gain": a, "log_offset": b, "psnr_raw": raw["psnr"], "mse_raw": raw["mse"],
+            "psnr_rgb": rgb["psnr"]}
+
+
+# ------------------------------------------------------------------ initialisation
+def look_at_distance(c2w: np.ndarray) -> float | None:
+    """Median distance from the cameras to the point nearest all their optical
+    axes, or None when the axes do not converge (nearly parallel)."""
+    o = c2w[:, :3, 3]
+    d = c2w[:, :3, 2] / np.linalg.norm(c2w[:, :3, 2], axis=1, keepdims=True)
+    P = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
+    A, rhs = P.sum(0), np.einsum("nij,nj->i", P, o)
+    w = np.linalg.eigvalsh(A)
+    if w[0] < 0.02 * w[-1]:
+        return None
+    x = np.linalg.solve(A, rhs)
+    depth = np.einsum("ni,ni->n", x[None] - o, d)
+    if np.median(depth) <= 0:
+        return None
+    return float(np.median(np.linalg.norm(x[None] - o, axis=1)))
+
+
+def random_init(c2w: np.ndarray, K: np.ndarray, width: int, height: int, n: int,
+                rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """``n`` grey Gaussians in the cameras' common view volume (module docstring)."""
+    o = c2w[:, :3, 3]
+    d0 = look_at_distance(c2w)
+    if d0 is None:
+        spread = float(np.max(np.linalg.norm(o - o.mean(0), axis=1)))
+        d0 = 10.0 * spread if spread > 0 else 1.0
+    near, far = d0 / 4, d0 * 4
+    w2c = np.linalg.inv(c2w)
+    Kinv = np.linalg.inv(K)
+    pts: list[np.ndarray] = []
+    have = 0
+    for _ in range(50):  # rounds of candidates
+        m = max(4 * n, 1000)
+        cam = rng.integers(0, len(c2w), m)
+        pix = np.stack([rng.uniform(0, width, m), rng.uniform(0, height, m), np.ones(m)], 1)
+        inv_depth = rng.uniform(1 / far, 1 / near, m)
+        x_cam = (pix @ Kinv.T) / inv_depth[:, None]
+        x = np.einsum("nij,nj->ni", c2w[cam, :3, :3], x_cam) + o[cam]
+        xh = np.concatenate([x, np.ones((m, 1))], 1)
+        xc = np.einsum("cij,nj->nci", w2c[:, :3], xh)  # (m, C, 3)
+        z = xc[..., 2]
+        uv = np.einsum("ij,ncj->nci", K, xc)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u, v = uv[..., 0] / z, uv[..., 1] / z
+        seen = (z > 0) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+        keep = seen.mean(axis=1) >= 0.5
+        pts.append(x[keep])
+        have += int(keep.sum())
+        if have >= n:
+            break
+    xyz = np.concatenate(pts)[:n]
+    if len(xyz) < 2:
+        raise InputError("recon3d: the cameras share no common view volume to initialise Gaussians in")
+    return init_from_points(xyz, np.full((len(xyz), 3), 128, np.uint8), sh_degree=0,
+                            init_opacity=0.1)
+
+
+# ------------------------------------------------------------------ training
+def _camera(data: Recon3dData, c2w: np.ndarray, downscale: int = 1) -> SplatCamera:
+    """The trajectory's camera at ``c2w``, intrinsics scaled to the downscaled size."""
+    K = data.K
+    w, h = max(1, data.width // downscale), max(1, data.height // downscale)
+    sx, sy = w / data.width, h / data.height
+    return SplatCamera.from_c2w(c2w, K[0, 0] * sx, K[1, 1] * sy, K[0, 2] * sx, K[1, 2] * sy, w, h)
+
+
+class _Targets:
+    """Frame images at each downscale factor, made on first use."""
+
+    def __init__(self, images: dict[int, torch.Tensor]):
+        self.images = images
+        self.cache: dict[tuple[int, int], torch.Tensor] = {}
+
+    def get(self, i: int, downscale: int) -> torch.Tensor:
+        if downscale == 1:
+            return self.images[i]
+        key = (i, downscale)
+        if key not in self.cache:
+            self.cache[key] = torch.from_numpy(np.ascontiguousarray(
+                _downscaled(self.images[i].numpy(), downscale)))
+        return self.cache[key]
+
+
+def _extent(c2w: np.ndarray, d_hint: float | None) -> float:
+    o = c2w[:, :3, 3]
+    r = float(np.max(np.linalg.norm(o - o.mean(0), axis=1)))
+    return 1.1 * max(r, 0.1 * (d_hint or 0.0), 1e-6)
+
+
+def train_variant(variant: str, data: Recon3dData, s: Recon3dSettings,
+                  background: torch.Tensor | None = None) -> tuple[dict[str, torch.Tensor], dict]:
+    """Train one variant; returns (params, stats: steps, cpu_s, wall_s, n_gaussians)."""
+    if variant not in VARIANTS:
+        raise InputError(f"unknown recon3d variant '{variant}' (choose from {', '.join(VARIANTS)})")
+    if variant != "event_only" and not data.train_idx:
+        raise InputError(f"recon3d {variant}: no training frames")
+    if variant == "event_blur" and not data.blurred:
+        raise InputError("recon3d event_blur: the trajectory has no blurred frames (render.write_blur)")
+    rng = np.random.default_rng(s.seed)
+    gen = torch.Generator().manual_seed(s.seed)
+    bg = torch.zeros(3) if background is None else background
+    train_c2w = data.c2w[data.train_idx] if data.train_idx else data.pose_at(
+        np.linspace(*data.span_us, 16))
+    p = to_params(random_init(train_c2w, data.K, data.width, data.height, s.n_init, rng))
+    extent = _extent(train_c2w, look_at_distance(train_c2w))
+    opt = Adam({"means": 0.0, **LRS})
+    lr_cfg = {"max_iterations": s.steps, **POSITION_LR}
+    strategy = DensifyStrategy(DensifyConfig(grad_threshold=s.densify_grad_threshold, budget=s.budget),
+                               extent, densify_from=s.densify_from, densify_until=int(0.8 * s.steps),
+                               densify_every=s.densify_every, opacity_reset_every=10 ** 9)
+    t_lo, t_hi = data.span_us
+    sharp, blurred = _Targets(data.sharp), _Targets(data.blurred)
+    schedule = [list(x) for x in s.resolution_schedule]
+    c0, w0 = time.process_time(), time.perf_counter()
+    for it in progress(range(s.steps), desc=f"recon3d {variant}"):
+        opt.lrs["means"] = position_lr(it, lr_cfg, extent)
+        ds = downscale_at(schedule, it)
+        for k in PARAMS:
+            p[k].requires_grad_(True)
+        if variant == "sharp":
+            j = data.train_idx[int(rng.integers(len(data.train_idx)))]
+            cam = _camera(data, data.c2w[j], ds)
+            img, _, _, meta = render(p, cam, bg, 0)
+            loss = photometric_loss(img, sharp.get(j, ds))
+        else:
+            w_us = rng.uniform(s.window_px_max / 8, s.window_px_max) * data.us_per_px
+            w_us = min(w_us, t_hi - t_lo)
+            t_a = rng.uniform(t_lo, t_hi - w_us)
+            t_b = t_a + w_us
+            pose = data.pose_at(np.array([t_a, t_b]))
+            cam = _camera(data, pose[1], ds)
+            img_b, _, _, meta = render(p, cam, bg, 0)
+            img_a = render(p, _camera(data, pose[0], ds), bg, 0)[0]
+            loss = event_loss(img_a, img_b, window_step_sum(data, t_a, t_b, ds), data.log_eps)
+            if variant == "event_blur":
+                j = data.train_idx[int(rng.integers(len(data.train_idx)))]
+                E = float(data.exposure_us[j])
+                dsb = max(ds, s.blur_downscale)
+                k = blur_subframes(float(data.motion_px[j]) / dsb, s.blur_subframes)
+                ts = data.t_us[j] - E / 2 + (np.arange(k) + 0.5) * E / k
+                subs = [render(p, _camera(data, c, dsb), bg, 0)[0] for c in data.pose_at(ts)]
+                loss = loss + s.lambda_blur * photometric_loss(blur_of(subs), blurred.get(j, dsb))
+        loss.backward()
+        grads = {k: p[k].grad for k in PARAMS}
+        for k in PARAMS:
+            p[k].requires_grad_(False)
+            p[k].grad = None
+        opt.step(p, grads)
+        if it + 1 < s.steps:
+            strategy.step_post_update(p, opt, it + 1, meta, cam.width, cam.height, ds, gen)
+    stats = {"steps": s.steps, "cpu_s": time.process_time() - c0, "wall_s": time.perf_counter() - w0,
+             "n_gaussians": int(p["means"].shape[0])}
+    log.info("recon3d %s: %d steps, %d Gaussians, %.1f CPU-s (%.1f s wall)", variant, s.steps,
+             stats["n_gaussians"], stats["cpu_s"], stats["wall_s"])
+    return p, stats
+
+
+def render_view(p: dict[str, torch.Tensor], data: Recon3dData, c2w: np.ndarray,
+                background: torch.Tensor | None = None) -> np.ndarray:
+    """(H, W, 3) float64 sRGB render of the model at ``c2w``."""
+    with torch.no_grad():
+        bg = torch.zeros(3) if background is None else background
+        img = render(p, _camera(data, c2w), bg, 0)[0]
+    return img.double().numpy()
+
+
+def evaluate(p: dict[str, torch.Tensor], data: Recon3dData) -> list[dict]:
+    """Per held-out frame: its index, time and :func:`score_view`."""
+    rows = []
+    for i in data.test_idx:
+        img = render_view(p, data, data.c2w[i])
+        rows.append({"frame": int(i), "t_us": int(data.t_us[i]),
+                     **score_view(img, data.sharp[i].double().numpy(), data.log_eps)})
+    return rows
+
+
+def split_frames(usable: list[int], test_every: int) -> tuple[list[int], list[int]]:
+    """(train, test) frame indices: every ``test_every``-th usable frame,
+    starting at test_every // 2, is held out (at least one when possible)."""
+    if test_every <= 0 or len(usable) < 2:
+        return list(usable), []
+    test = usable[test_every // 2::test_every] or usable[len(usable) // 2:len(usable) // 2 + 1]
+    held = set(test)
+    return [i for i in usable if i not in held], test
