@@ -234,14 +234,14 @@ def recon3d_run(out: Path, d: dict, traj: Path, r3_cfg: dict) -> list[dict]:
 
 
 def recon3d_rows_full(scenes: list[str], work: Path, results: Path | None, r3_cfg: dict,
-                      model: str) -> list[dict]:
+                      model: str, speeds: tuple[str, ...] = SPEEDS) -> list[dict]:
     """Per scene and speed: a workflow's own data where ``results/<scene>`` has
     it (whole trajectories), else the cached model's (benchmarks/bench_event_sampling.py)
     rendered and simulated over whole trajectories here."""
     rows = []
     built = None
     for scene in scenes:
-        for speed in SPEEDS:
+        for speed in speeds:
             name = f"base_{speed}"
             out = work / "recon3d" / scene / speed
             shutil.rmtree(out, ignore_errors=True)
@@ -414,6 +414,7 @@ def main_cli() -> None:
     ap.add_argument("--recon3d-config", default="{}",
                     help="recon3d: JSON of bench.recon3d_* keys (default: config.yaml's)")
     ap.add_argument("--model", default="ideal", help="recon3d: event model of the cached real scenes")
+    ap.add_argument("--speeds", default=",".join(SPEEDS), help="recon3d: speed presets to run")
     args = ap.parse_args()
     os.environ.setdefault("GS2E_PROGRESS", "0")
     import logging
@@ -429,7 +430,8 @@ def main_cli() -> None:
         work.mkdir(parents=True)
         t0 = time.perf_counter()
         rows = (recon3d_rows_quick(work) if args.quick else recon3d_rows_full(
-            args.scenes.split(","), work, args.results, json.loads(args.recon3d_config), args.model))
+            args.scenes.split(","), work, args.results, json.loads(args.recon3d_config), args.model,
+            tuple(args.speeds.split(","))))
         recon3d_report(rows, name, t0)
         return
     name = "bench_tasks_quick" if args.quick else "bench_tasks"

@@ -170,9 +170,14 @@ def test_random_init_lies_in_the_common_view_volume_and_is_seeded():
 
 
 def test_split_frames_holds_out_every_nth_from_the_middle():
-    train, test = R3.split_frames(list(range(20)), 8)
-    assert test == [4, 12] and set(train) | set(test) == set(range(20)) and not set(train) & set(test)
+    train, test = R3.split_frames(list(range(40)), 8)
+    assert test == [4, 12, 20, 28, 36] and set(train) | set(test) == set(range(40))
+    assert not set(train) & set(test)
+    # a short trajectory (a strong preset's 12 frames): 3 held out, not 1
+    train, test = R3.split_frames(list(range(12)), 8)
+    assert test == [2, 6, 10] and len(train) == 9
     assert R3.split_frames([3, 4, 5], 8) == ([3, 5], [4])
+    assert R3.split_frames([7], 8) == ([7], [])
 
 
 # ----------------------------------------------------------------- end to end

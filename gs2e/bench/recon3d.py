@@ -41,7 +41,8 @@ all their optical axes, or, when the axes do not converge (forward-facing
 paths), ten times the cameras' spread. Grey colour, opacity 0.1, scales
 from the 3 nearest neighbours (3DGS's rule).
 
-Evaluation: every ``test_every``-th usable frame (offset by half) is held
+Evaluation: every ``test_every``-th usable frame (offset by half; a smaller
+step on short trajectories, so that at least 3 frames are held out) is held
 out: its sharp and blurred images are never trained on (its events stay in
 the stream, as in EventNeRF's evaluation). Renders at its pose are scored
 on luminance (events carry no colour) after the literature's per-image
@@ -391,11 +392,15 @@ def evaluate(p: dict[str, torch.Tensor], data: Recon3dData) -> list[dict]:
     return rows
 
 
-def split_frames(usable: list[int], test_every: int) -> tuple[list[int], list[int]]:
+def split_frames(usable: list[int], test_every: int, min_test: int = 3) -> tuple[list[int], list[int]]:
     """(train, test) frame indices: every ``test_every``-th usable frame,
-    starting at test_every // 2, is held out (at least one when possible)."""
+    starting at half that step, is held out; on short trajectories the step
+    shrinks (to 2 at least) so that ``min_test`` frames are held out when
+    there are enough (a fast preset's few frames would otherwise leave one
+    frame to score a speed on)."""
     if test_every <= 0 or len(usable) < 2:
         return list(usable), []
-    test = usable[test_every // 2::test_every] or usable[len(usable) // 2:len(usable) // 2 + 1]
+    step = max(2, min(test_every, len(usable) // min_test))
+    test = usable[step // 2::step]
     held = set(test)
     return [i for i in usable if i not in held], test
