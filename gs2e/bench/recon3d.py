@@ -98,7 +98,7 @@ class Recon3dSettings:
     budget: int = 30000
     test_every: int = 8
     window_px_max: float = 64.0
-    blur_subframes: int = 4
+    blur_subframes: int = 3
     blur_downscale: int = 2
     lambda_blur: float = 1.0
     densify_from: int = 300
