@@ -75,6 +75,7 @@ from gs2e.splat.model import render, to_params
 from gs2e.splat.rasterize import SplatCamera
 from gs2e.splat.strategy import PARAMS, Adam, DensifyConfig, DensifyStrategy
 from gs2e.splat.train import downscale_at, position_lr
+from gs2e.splat.views import downscale_area
 
 log = get_logger("gs2e.bench")
 
@@ -169,17 +170,7 @@ def window_step_sum(data: Recon3dData, t_a: float, t_b: float, downscale: int = 
     acc = np.bincount(data.ev_pix[i0:i1], weights=data.ev_step[i0:i1],
                       minlength=data.width * data.height)
     acc = acc.reshape(data.height, data.width).astype(np.float32)
-    return torch.from_numpy(_downscaled(acc, downscale))
-
-
-def _downscaled(img: np.ndarray, downscale: int) -> np.ndarray:
-    """Area-averaged to (H // d, W // d) as the trainer's views (d = 1: as is)."""
-    if downscale == 1:
-        return img
-    import cv2
-
-    h, w = img.shape[:2]
-    return cv2.resize(img, (max(1, w // downscale), max(1, h // downscale)), interpolation=cv2.INTER_AREA)
+    return torch.from_numpy(downscale_area(acc, downscale))
 
 
 # ------------------------------------------------------------------ evaluation
@@ -295,7 +286,7 @@ class _Targets:
         key = (i, downscale)
         if key not in self.cache:
             self.cache[key] = torch.from_numpy(np.ascontiguousarray(
-                _downscaled(self.images[i].numpy(), downscale)))
+                downscale_area(self.images[i].numpy(), downscale)))
         return self.cache[key]
 
 
@@ -382,13 +373,16 @@ def render_view(p: dict[str, torch.Tensor], data: Recon3dData, c2w: np.ndarray,
     return img.double().numpy()
 
 
-def evaluate(p: dict[str, torch.Tensor], data: Recon3dData) -> list[dict]:
-    """Per held-out frame: its index, time and :func:`score_view`."""
+def evaluate(p: dict[str, torch.Tensor], data: Recon3dData, keep: int | None = None) -> list[dict]:
+    """Per held-out frame: its index, time and :func:`score_view`; the row of
+    frame ``keep`` also holds its ``render`` (H, W, 3)."""
     rows = []
     for i in data.test_idx:
         img = render_view(p, data, data.c2w[i])
         rows.append({"frame": int(i), "t_us": int(data.t_us[i]),
                      **score_view(img, data.sharp[i].double().numpy(), data.log_eps)})
+        if i == keep:
+            rows[-1]["render"] = img
     return rows
 
 

@@ -381,14 +381,14 @@ def run_recon3d(ds: Dataset, cfg: BenchConfig, user: dict[str, Callable]):
     rows, shown = [], {}
     for variant in s.variants:
         p, st = R3.train_variant(variant, data, s)
-        for r in R3.evaluate(p, data):
+        for r in R3.evaluate(p, data, keep=example):
+            img = r.pop("render", None)
             i = r["frame"]
             rows.append({"method": variant, **r, "t_rel_s": (r["t_us"] - t_first) * 1e-6,
                          "motion_px": _motion(f.iloc[i]), "n_events": len(data.ev_t), "theta": math.nan,
                          "time_s": st["wall_s"], "cpu_s": st["cpu_s"], "steps": st["steps"],
                          "n_gaussians": st["n_gaussians"], "n_train_frames": len(data.train_idx)})
-            if i == example:
-                img = R3.render_view(p, data, data.c2w[i])
+            if img is not None:
                 y = luminance(srgb_to_linear(np.clip(img, 0, 1)))
                 shown[variant] = linear_to_srgb(R3.corrected_luminance(
                     y, r["log_gain"], r["log_offset"], data.log_eps))

@@ -173,24 +173,6 @@ def _size_arg(args) -> tuple[int, int] | None:
     return args.width, args.height
 
 
-def _size_source(args) -> str | None:
-    """Where a recording's size came from when its header does not state it."""
-    from pathlib import Path
-
-    from gs2e.events.containers import READ_SUFFIXES, _header_size, _prophesee_header, camera_size
-
-    path = Path(args.events_file)
-    if path.suffix.lower() not in READ_SUFFIXES or path.suffix.lower() == ".aedat4":
-        return None
-    header, _ = _prophesee_header(path)
-    if _header_size(header):
-        return None
-    cam = camera_size(header)
-    if cam is not None:
-        return f"the camera the header of {path} names: {cam[2]}"
-    return "--width/--height" if args.width else None
-
-
 def run_stats(args) -> int:
     import json
     from pathlib import Path
@@ -200,6 +182,7 @@ def run_stats(args) -> int:
     from gs2e.common.atomic import check_writable, json_safe, write_json_atomic
     from gs2e.common.errors import InputError
     from gs2e.events.io import read_events
+    from gs2e.events.containers import size_origin
     from gs2e.events.stats import calibrate_noise, event_stats, sensor_preset, write_sensor_preset
 
     if args.write_preset:
@@ -218,7 +201,7 @@ def run_stats(args) -> int:
             raise InputError(f"{args.events_file}: too few events to fit a sensor preset")
         name = args.preset_name or Path(args.events_file).stem
         write_sensor_preset(args.write_preset, sensor_preset(cal, name, shape, str(args.events_file),
-                                                             _size_source(args)))
+                                                             size_origin(args.events_file, _size_arg(args))))
     if args.out:
         write_json_atomic(args.out, out)
     else:

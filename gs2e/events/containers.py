@@ -292,15 +292,37 @@ def _header_size(header: dict[str, str]) -> bool:
         "Width" in header and "Height" in header)
 
 
-def _size_fallback(path: Path, header: dict[str, str], size: tuple[int, int] | None):
-    """(width, height) for a header without a size: the named camera's, else ``size``."""
+def _size_choice(header: dict[str, str], size: tuple[int, int] | None):
+    """(fallback (width, height) or None, where the size comes from: "header",
+    the named camera's table entry, "--width/--height", or None if nowhere)."""
     if _header_size(header):
-        return None
+        return None, "header"
     cam = camera_size(header)
     if cam is not None:
-        return cam[0], cam[1]
+        return (cam[0], cam[1]), cam[2]
     if size is not None:
-        return int(size[0]), int(size[1])
+        return (int(size[0]), int(size[1])), "--width/--height"
+    return None, None
+
+
+def size_origin(path: str | os.PathLike, size: tuple[int, int] | None = None) -> str | None:
+    """Where the sensor size of a RAW/DAT file whose header states none comes
+    from (the named camera, or ``size``); None when the header states it, or
+    for other formats."""
+    path = Path(path)
+    if path.suffix.lower() not in (".raw", ".dat"):
+        return None
+    origin = _size_choice(_prophesee_header(path)[0], size)[1]
+    if origin in (None, "header", "--width/--height"):
+        return None if origin == "header" else origin
+    return f"the camera the header of {path} names: {origin}"
+
+
+def _size_fallback(path: Path, header: dict[str, str], size: tuple[int, int] | None):
+    """(width, height) for a header without a size: the named camera's, else ``size``."""
+    dims, origin = _size_choice(header, size)
+    if origin is not None:
+        return dims
     named = ", ".join(f"{k} '{header[k]}'" for k in _CAMERA_KEYS if k in header)
     what = (f"names a camera gs2e's table does not know ({named}; gs2e.events.containers."
             "CAMERA_SIZES)" if named else "names no camera")

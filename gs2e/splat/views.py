@@ -40,12 +40,21 @@ class View:
         return cam, img
 
 
+def downscale_area(img: np.ndarray, downscale: int) -> np.ndarray:
+    """``img`` (H, W, ...) area-averaged to (H // d, W // d) (at least 1 px;
+    d = 1: ``img`` itself): the size of each step of the resolution schedule."""
+    if downscale == 1:
+        return img
+    import cv2
+
+    h, w = img.shape[:2]
+    return cv2.resize(img, (max(1, w // downscale), max(1, h // downscale)), interpolation=cv2.INTER_AREA)
+
+
 def load_views(scene_dir: Path, scene: Scene, downscales: list[int]) -> list[View]:
     """Every frame of ``scene`` (read from ``scene_dir``) with its image at the
     given downscale factors (area-averaged). Raises InputError naming the frame
     when it has no pose or a distorted camera."""
-    import cv2
-
     from gs2e.io.images import read_image
 
     views = []
@@ -56,11 +65,8 @@ def load_views(scene_dir: Path, scene: Scene, downscales: list[int]) -> list[Vie
             raise InputError(f"{scene_dir}: frame {f.name} has a {f.camera.model} camera; "
                              "training needs undistorted PINHOLE views (gs2e sfm output)")
         rgb = read_image(scene_dir / IMAGES_DIR / f.name)
-        imgs = {}
-        for d in sorted(set(downscales)):
-            im = rgb if d == 1 else cv2.resize(
-                rgb, (max(1, rgb.shape[1] // d), max(1, rgb.shape[0] // d)), interpolation=cv2.INTER_AREA)
-            imgs[d] = torch.from_numpy(im.astype(np.float32) / 255.0)
+        imgs = {d: torch.from_numpy(downscale_area(rgb, d).astype(np.float32) / 255.0)
+                for d in sorted(set(downscales))}
         views.append(View(f.name, f.c2w, f.camera.fx, f.camera.fy, f.camera.cx, f.camera.cy, imgs))
     return views
 
