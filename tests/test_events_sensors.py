@@ -173,15 +173,18 @@ def test_rendered_at_the_sensor_matches_the_scene_camera(tmp_path, size):
     assert min(err(dy, dx) for dy, dx in [(1, 0), (-1, 0), (0, 1), (0, -1)]) > 1.4 * e0
 
 
-def test_ingest_auto_resolution_follows_the_sensor(tmp_path):
-    """max_side=auto: the views shrink to the smallest size that still covers
-    the sensor's array (a DAVIS346 dataset does not train at full size); no
-    target keeps the resolution; a number set by the user wins."""
+def test_training_resolution_follows_the_sensor_ingest_does_not(tmp_path):
+    """Ingest (and so SfM) keeps the photos' resolution whatever the sensor;
+    training with splat.max_side=auto shrinks the views to the smallest size
+    that still covers the sensor's array (a DAVIS346 dataset does not train at
+    full size), portrait views by the same angular resolution; no target keeps
+    the resolution; a number set by the user wins; never enlarges."""
     import cv2
 
     from gs2e.cli import main
     from gs2e.io.images import cover_max_side
-    from gs2e.io.scene import read_scene
+    from gs2e.io.scene import Camera, Frame, Scene, read_scene
+    from gs2e.splat.views import train_sizes
 
     assert cover_max_side(640, 480, (346, 260)) == 347  # 347x260 covers 346x260
     assert cover_max_side(480, 640, (346, 260)) == 462  # portrait views: width binds
@@ -192,16 +195,25 @@ def test_ingest_auto_resolution_follows_the_sensor(tmp_path):
     rng = np.random.default_rng(0)
     for i in range(3):
         cv2.imwrite(str(src / f"{i}.png"), rng.integers(0, 255, (480, 640, 3), dtype=np.uint8))
-    sizes = {}
-    for name, extra in [("auto", ["--target-size", "346x260"]), ("none", []),
-                        ("user", ["--target-size", "346x260", "--config-json", '{"max_side": 200}'])]:
-        out = tmp_path / name
-        assert main(["ingest", "--layout", "folder", "--src", str(src), "--out", str(out), *extra]) == 0
-        sc = read_scene(out)
-        sizes[name] = (sc.width, sc.height)
-    assert sizes == {"auto": (347, 260), "none": (640, 480), "user": (200, 150)}
-    with pytest.raises(SystemExit):
+    assert main(["ingest", "--layout", "folder", "--src", str(src), "--out", str(tmp_path / "ing")]) == 0
+    assert (read_scene(tmp_path / "ing").width, read_scene(tmp_path / "ing").height) == (640, 480)
+    with pytest.raises(SystemExit):  # ingest takes no sensor any more
         main(["ingest", "--layout", "folder", "--src", str(src), "--out", str(tmp_path / "x"),
+              "--target-size", "346x260"])
+
+    land, port = Camera(500.0, 500.0, 320.0, 240.0), Camera(500.0, 500.0, 240.0, 320.0)
+    sharp = Camera(1000.0, 1000.0, 640.0, 480.0)  # twice the angular resolution
+    eye = np.eye(4)
+    scene = Scene(640, 480, [Frame("a", land, eye), Frame("b", port, eye), Frame("c", land, eye),
+                             Frame("d", sharp, eye)],
+                  extra={"frame_sizes": [[640, 480], [480, 640], [640, 480], [1280, 960]]})
+    assert train_sizes(scene, "auto", (346, 260)) == [(347, 260), (260, 347), (347, 260), (347, 260)]
+    assert train_sizes(scene, "auto", None) == [(640, 480), (480, 640), (640, 480), (1280, 960)]
+    assert train_sizes(scene, None, (346, 260)) == [(640, 480), (480, 640), (640, 480), (1280, 960)]
+    assert train_sizes(scene, 200, (346, 260)) == [(200, 150), (150, 200), (200, 150), (200, 150)]
+    assert train_sizes(scene, "auto", (1280, 720)) == [(640, 480), (480, 640), (640, 480), (1280, 960)]
+    with pytest.raises(SystemExit):
+        main(["train", "--scene", str(tmp_path / "ing"), "--out", str(tmp_path / "t"),
               "--target-size", "346by260"])
 
 

@@ -18,8 +18,8 @@ from _io_synth import (DATA, make_scene, project, random_image, write_images, wr
 from gs2e.common.errors import ConfigError, InputError
 from gs2e.io.colmap import reconstruction_from_scene, write_colmap_model
 from gs2e.io.images import encode_png, read_image
-from gs2e.io.ingest import ingest_scene, subsample_indices, unique_png_names
-from gs2e.io.scene import Camera, Frame, Scene, read_scene, write_scene_json
+from gs2e.io.ingest import guess_camera, ingest_scene, subsample_indices, unique_png_names
+from gs2e.io.scene import Camera, Frame, Scene, main_size, read_scene, write_scene_json
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -247,7 +247,9 @@ def test_internal_layout(tmp_path, layout):
         assert (tmp_path / "out" / "images" / n).read_bytes() == (tmp_path / "out2" / "images" / n).read_bytes()
 
 
-def test_mixed_resolutions_allowed_rescales(tmp_path):
+def test_mixed_resolutions_allowed_keep_their_own_size(tmp_path):
+    """A view of another resolution (not a rotation) needs the flag, and then
+    keeps its size and its own intrinsics: no view is resampled to another's grid."""
     cam = Camera(40.0, 41.0, 24.2, 15.8, "PINHOLE", [])
     ref = make_scene(3, camera=cam)
     big = cam.scaled(2.0, 2.0)
@@ -257,11 +259,50 @@ def test_mixed_resolutions_allowed_rescales(tmp_path):
     write_images(tmp_path / "src" / "images", ["001.png"], 96, 64, seed=11)
     _assert_fails(tmp_path / "src", "colmap", tmp_path / "out", {}, "001.png", "96x64", "000.png")
     scene = ingest_scene(tmp_path / "src", "colmap", tmp_path / "out", {"allow_mixed_resolutions": True})
-    assert (scene.width, scene.height) == (48, 32)
-    for f in scene.frames:
-        assert f.camera == cam
-    assert read_image(tmp_path / "out" / "images" / "001.png").shape == (32, 48, 3)
-    assert scene.extra["ingest"]["scale_xy"][1] == [0.5, 0.5]
+    assert (scene.width, scene.height) == (48, 32)  # the most common size
+    assert [f.camera for f in scene.frames] == [cam, big, cam]
+    assert read_image(tmp_path / "out" / "images" / "001.png").shape == (64, 96, 3)
+    again = read_scene(tmp_path / "out")
+    assert [again.frame_size(i) for i in range(3)] == [(48, 32), (96, 64), (48, 32)]
+    assert scene.extra["ingest"]["scale_xy"][1] == [1.0, 1.0]
+    # max_side caps each view's longer side: 96x64 -> 72x48 (scale 0.75), 48x32 untouched
+    capped = ingest_scene(tmp_path / "src", "colmap", tmp_path / "capped",
+                          {"allow_mixed_resolutions": True, "max_side": 72})
+    assert [capped.frame_size(i) for i in range(3)] == [(48, 32), (72, 48), (48, 32)]
+    assert capped.frames[1].camera == big.scaled(0.75, 0.75)
+
+
+@pytest.mark.parametrize("layout", ["colmap", "mvimgnet"])
+def test_mixed_orientation_views_keep_their_orientation(tmp_path, layout):
+    """A phone capture: landscape and portrait views of one lens, one camera per
+    image. Each view keeps its orientation and intrinsics (no flag needed); the
+    scene's size, the virtual trajectories' camera, is the most common one;
+    the written COLMAP model round-trips every camera at its own size."""
+    from gs2e.io.colmap import reconstruction_from_scene, scene_from_reconstruction
+
+    land = Camera(50.0, 50.0, 24.0, 16.0, "PINHOLE", [])
+    port = Camera(50.0, 50.0, 16.0, 24.0, "PINHOLE", [])
+    ref = make_scene(5, camera=land)
+    for i in (1, 3):
+        ref.frames[i] = Frame(ref.frames[i].name, port, ref.frames[i].c2w)
+    sizes = [[48, 32], [32, 48], [48, 32], [32, 48], [48, 32]]
+    ref.extra["frame_sizes"] = sizes
+    _colmap_project(tmp_path / "src", ref, ext=".png")
+    for i in (1, 3):
+        write_images(tmp_path / "src" / "images", [ref.frames[i].name], 32, 48, seed=20 + i)
+    scene = ingest_scene(tmp_path / "src", layout, tmp_path / "out", {})
+    assert (scene.width, scene.height) == (48, 32) and scene.main_frame() == 0
+    assert [list(scene.frame_size(i)) for i in range(5)] == sizes
+    assert [f.camera for f in scene.frames] == [land, port, land, port, land]
+    for i, f in enumerate(scene.frames):
+        w, h = scene.frame_size(i)
+        assert read_image(tmp_path / "out" / "images" / f.name).shape == (h, w, 3)
+    back = scene_from_reconstruction(reconstruction_from_scene(scene))
+    assert [back.frame_size(i) for i in range(5)] == [scene.frame_size(i) for i in range(5)]
+    assert [f.camera for f in back.frames] == [f.camera for f in scene.frames]
+    # a portrait majority makes the scene portrait
+    assert main_size([(48, 32), (32, 48), (32, 48)]) == (32, 48)
+    assert main_size([(48, 32), (32, 48)]) == (48, 32)  # a tie: the first seen
 
 
 # ---------------------------------------------------------------- bad input
@@ -309,8 +350,12 @@ def test_mixed_resolution_folder(tmp_path):
     write_images(src, ["c.png"], 30, 24)
     _assert_fails(src, "folder", tmp_path / "out", {}, "c.png", "30x24")
     scene = ingest_scene(src, "folder", tmp_path / "out", {"allow_mixed_resolutions": True})
-    assert read_image(tmp_path / "out" / "images" / "c.png").shape == (24, 32, 3)
-    assert scene.frames[2].camera == scene.frames[0].camera
+    assert read_image(tmp_path / "out" / "images" / "c.png").shape == (24, 30, 3)
+    assert scene.frames[2].camera == guess_camera(30, 24)  # each view's own guess
+    # a rotated view is no mixed resolution
+    write_images(src, ["c.png"], 24, 32)
+    rot = ingest_scene(src, "folder", tmp_path / "rot", {})
+    assert [rot.frame_size(i) for i in range(3)] == [(32, 24), (32, 24), (24, 32)]
 
 
 def test_nan_pose(tmp_path):

@@ -145,9 +145,12 @@ def test_unchanged_config_reruns_nothing(tiny_pipeline):
     ("render: {background: [0.2, 0.2, 0.2]}", {"render", "events"}),
     ("events: {theta_mismatch_sigma: 0.01}", {"events"}),
     ("events: {sampling: {bound_fraction: 0.5}}", {"events"}),
-    # a target sensor: events and frames through its camera, and (ingest.max_side=auto)
-    # training at the smallest size that covers it
-    ("events: {sensor: davis346}", {"ingest", "render", "events"}),
+    # a target sensor: events and frames through its camera, and (splat.max_side=auto)
+    # training at the smallest size that covers it; ingest and SfM never see it, so
+    # choosing a sensor cannot change which views register
+    ("events: {sensor: davis346}", {"train", "render", "events"}),
+    ("events: {sensor: imx636}", {"train", "render", "events"}),
+    ("splat: {max_side: 100}", {"train"}),
     # seeds are derived per (scene, stage) from the global seed: sfm, train,
     # trajectory and events use one; demo (own demo.seed), ingest and render do not
     ("seed: 5", {"sfm", "train", "trajectory", "events"}),

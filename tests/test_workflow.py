@@ -112,3 +112,39 @@ def test_bench_jobs_follow_bench_tasks(tmp_path):
     proc = run_snakemake("-n", "--cores", "1", "--directory", str(tmp_path),
                          "--config", f"scenes={scenes}", "results_dir=out")
     assert proc.returncode == 0 and "bench" not in planned_jobs(proc.stdout)
+
+
+def test_sensor_choice_never_reaches_ingest_or_sfm(tmp_path):
+    """Structure from motion sees the photos, not the event sensor: for the real
+    captures (a turntable object, a forward-facing scene, a phone capture of
+    mixed orientation) and every sensor preset, the ingest and sfm jobs are the
+    same commands, so the same views register; only training (the size that
+    covers the sensor), frames and events change."""
+    import re
+
+    from gs2e.events.sensors import SENSORS
+    from tests.conftest import shared_data
+
+    rows = [f"temple_ring\tfolder\t{shared_data('temple_ring')}\t",
+            f"llff_fern\tfolder\t{shared_data('llff_fern', 'images')}\t",
+            f"mouse_colmap\tcolmap\t{shared_data('mouse_colmap')}\t"]
+    jobs = {}
+    for sensor in ["null", *SENSORS]:
+        scenes = _scenes(tmp_path, [r + f"events.sensor={sensor}" for r in rows])
+        proc = run_snakemake("-n", "-p", "--cores", "2", "--directory", str(tmp_path),
+                             "--config", f"scenes={scenes}", "results_dir=out")
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        shells = {}
+        for block in proc.stdout.split("\n\n"):
+            m = re.search(r"rule (ingest|sfm|train):", block)
+            scene = re.search(r"out/(\w+)/", block)
+            if m and scene:
+                shells[(m.group(1), scene.group(1))] = block[block.index("\n", block.index("reason")):]
+        assert len(shells) == 9, sorted(shells)
+        jobs[sensor] = shells
+    for sensor in SENSORS:
+        for key, cmd in jobs[sensor].items():
+            if key[0] == "train":  # the sensor's size reaches training, and only training
+                assert cmd != jobs["null"][key] and "--target-size" in cmd
+            else:
+                assert cmd == jobs["null"][key], (sensor, key)

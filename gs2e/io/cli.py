@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 
-from gs2e.cli import add_config_args, size_arg
+from gs2e.cli import add_config_args
 
 LAYOUT_HELP = """layouts:
   demo, internal  a gs2e scene folder (scene.json + images/ [+ points3d.npz])
@@ -35,10 +35,6 @@ def register(subparsers) -> None:
     p.add_argument("--layout", required=True, choices=LAYOUTS, help="source layout (see below)")
     p.add_argument("--src", required=True, metavar="PATH", help="source scene folder (or json for nerf)")
     p.add_argument("--out", required=True, metavar="DIR", help="output scene folder")
-    p.add_argument("--target-size", type=size_arg, metavar="WxH",
-                   help="the largest image the outputs need (the workflow passes the event "
-                        "sensor's array): with ingest.max_side=auto the views are shrunk to the "
-                        "smallest size that still covers it")
     add_config_args(p)
     p.set_defaults(func=run)
     _register_scenes(subparsers)
@@ -105,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
     log = logging.getLogger("gs2e.ingest")
     cfg = load_section("ingest", text=args.config_json, path=args.config)
     log.info("ingest config: %s", cfg)
-    scene = ingest_scene(args.src, args.layout, args.out, cfg, target_size=args.target_size)
+    scene = ingest_scene(args.src, args.layout, args.out, cfg)
     log.info("scene %s: %d views %dx%d, poses=%s", args.out, len(scene.frames), scene.width,
              scene.height, scene.has_poses)
     return 0

@@ -22,7 +22,7 @@ import pycolmap
 
 from gs2e.common.atomic import atomic_dir
 from gs2e.common.errors import InputError
-from gs2e.io.scene import Camera, Frame, Scene, check_pose
+from gs2e.io.scene import Camera, Frame, Scene, check_pose, main_size, with_frame_sizes
 from gs2e.io.views import SourceView, natural_key
 
 # COLMAP model name -> (single focal length?, number of distortion params)
@@ -163,17 +163,16 @@ def points_from_reconstruction(rec: pycolmap.Reconstruction) -> tuple[np.ndarray
 
 def scene_from_views(views: list[SourceView], layout: str = "colmap", source: str = "",
                      points: tuple[np.ndarray | None, np.ndarray | None] = (None, None)) -> Scene:
-    """Scene from SourceViews: width/height of the first view; if views differ in
-    size, ``extra['frame_sizes']`` lists (W, H) per frame."""
+    """Scene from SourceViews: width/height are the most common view size
+    (:func:`gs2e.io.scene.main_size`); if views differ in size or orientation,
+    ``extra['frame_sizes']`` lists (W, H) per frame."""
     if not views:
         return Scene(0, 0, [], layout, source, points[0], points[1])
     frames = [Frame(v.name, v.camera, v.c2w) for v in views]
-    w, h = views[0].size if views[0].size else (0, 0)
-    extra = {}
-    sizes = [list(v.size) if v.size else None for v in views]
-    if any(s != sizes[0] for s in sizes):
-        extra["frame_sizes"] = sizes
-    return Scene(int(w), int(h), frames, layout, source, points[0], points[1], extra)
+    sizes = [tuple(v.size) if v.size else (0, 0) for v in views]
+    w, h = main_size(sizes)
+    return Scene(int(w), int(h), frames, layout, source, points[0], points[1],
+                 with_frame_sizes({}, sizes, (w, h)))
 
 
 def scene_from_reconstruction(rec: pycolmap.Reconstruction, names: Iterable[str] | None = None) -> Scene:
@@ -206,10 +205,9 @@ def reconstruction_from_scene(scene: Scene) -> pycolmap.Reconstruction:
     ``scene.points_xyz`` exists.
     """
     rec = pycolmap.Reconstruction()
-    sizes = scene.extra.get("frame_sizes")
     cam_ids: dict[tuple, int] = {}
     for i, f in enumerate(scene.frames):
-        w, h = sizes[i] if sizes and sizes[i] else (scene.width, scene.height)
+        w, h = scene.frame_size(i)
         c = f.camera
         key = (c.model, c.fx, c.fy, c.cx, c.cy, tuple(c.dist), int(w), int(h))
         if key not in cam_ids:

@@ -33,10 +33,10 @@ Layouts (``src`` is a folder unless said otherwise):
 Every layout goes through the same steps: sort views by name (natural order),
 subsample to ``max_views`` evenly spaced views (first and last kept), read each
 image (missing, empty, corrupt -> InputError naming the file), reconcile the
-size the source's intrinsics refer to with the actual size, check resolutions
-agree (or resize to the first view's when ``allow_mixed_resolutions``), reject
-duplicate views (pixel-identical images), downscale, re-encode as PNG and write
-the internal layout atomically. Provenance goes to ``extra["ingest"]``.
+size the source's intrinsics refer to with the actual size, keep each view's
+size and orientation (sizes other than the first view's or its rotation need
+``allow_mixed_resolutions``), reject duplicate views (pixel-identical images),
+downscale, re-encode as PNG and write the internal layout atomically. Provenance goes to ``extra["ingest"]``.
 """
 
 from __future__ import annotations
@@ -57,17 +57,20 @@ from gs2e.common.log import timed
 from gs2e.common.progress import progress
 from gs2e.io import colmap as colmap_io
 from gs2e.io import nerf as nerf_io
-from gs2e.io.images import (IMAGE_EXTS, cover_max_side, decode_image, is_image_file,
-                            list_images, read_image_bytes, resize_image, resize_with_camera, scaled_size,
-                            write_png)
-from gs2e.io.scene import (IMAGES_DIR, SCENE_JSON, Camera, Frame, Scene, read_scene,
-                           write_scene_json)
+from gs2e.io.images import (IMAGE_EXTS, decode_image, is_image_file, list_images, read_image_bytes,
+                            resize_with_camera, scaled_size, write_png)
+from gs2e.io.scene import (IMAGES_DIR, SCENE_JSON, Camera, Frame, Scene, main_size, read_scene,
+                           with_frame_sizes, write_scene_json)
 from gs2e.io.views import LAYOUTS, SourceView, natural_key, sort_views
 
 log = logging.getLogger("gs2e.ingest")
 
 GUESS_FOCAL_FACTOR = 1.2  # folder layout: fx = fy = 1.2 * max(W, H)
-ASPECT_TOL = 0.02  # relative aspect-ratio mismatch tolerated between declared and actual size
+ASPECT_TOL = 0.02
+# max_side: auto caps the longer side here: COLMAP's usual SIFT extraction limit
+# (SiftExtractionOptions.max_image_size in its command line tools), so structure
+# from motion sees what it would see from the photos, whatever the event sensor
+SFM_MAX_SIDE = 3200  # relative aspect-ratio mismatch tolerated between declared and actual size
 
 
 # ---------------------------------------------------------------- small pure helpers
@@ -141,10 +144,7 @@ def _read_internal(src: Path, cfg: dict) -> _Source:
         raise InputError(msg if str(src) in msg else f"{src / SCENE_JSON}: {msg}") from exc
     except (KeyError, TypeError, ValueError) as exc:
         raise InputError(f"{src / SCENE_JSON}: malformed scene file ({exc!r})") from exc
-    frame_sizes = scene.extra.get("frame_sizes")
-    views = [SourceView(f.name, src / IMAGES_DIR / f.name, f.camera,
-                        tuple(frame_sizes[i]) if frame_sizes and frame_sizes[i] else (scene.width, scene.height),
-                        f.c2w)
+    views = [SourceView(f.name, src / IMAGES_DIR / f.name, f.camera, scene.frame_size(i), f.c2w)
              for i, f in enumerate(scene.frames)]
     extra = {k: v for k, v in scene.extra.items() if k not in ("ingest", "frame_sizes")}
     return _Source(views, (scene.points_xyz, scene.points_rgb), extra,
@@ -357,8 +357,16 @@ def _declared_to_actual(view: SourceView, actual: tuple[int, int]) -> tuple[Came
 
 
 def ingest_scene(src: str | os.PathLike, layout: str, out_dir: str | os.PathLike,
-                 cfg: dict | None = None, target_size: tuple[int, int] | None = None) -> Scene:
+                 cfg: dict | None = None) -> Scene:
     """Read the scene at ``src`` in ``layout`` and write the internal layout to ``out_dir``.
+
+    Each view keeps its own size and orientation (a phone capture's portrait
+    views stay portrait, with their own intrinsics), only downscaled by
+    ``downscale`` and ``max_side``. The scene's width/height are the most common
+    view size (the camera of its virtual trajectories, see
+    :func:`gs2e.io.scene.main_size`); ``extra["frame_sizes"]`` lists each view's
+    size when they differ. Views whose size is neither the first view's nor its
+    rotation need ``allow_mixed_resolutions``.
 
     Parameters
     ----------
@@ -366,9 +374,9 @@ def ingest_scene(src: str | os.PathLike, layout: str, out_dir: str | os.PathLike
     layout : one of ``LAYOUTS``.
     out_dir : output folder; written atomically (replaced only on success).
     cfg : the ``ingest`` config section (defaults filled in if keys are missing).
-    target_size : (W, H) of the largest image the scene's outputs need (the event
-        sensor's array); with ``max_side: auto`` the views are shrunk to the
-        smallest size that still covers it (None: auto keeps the resolution).
+        ``max_side: auto`` caps the longer side at ``SFM_MAX_SIDE`` px, a size
+        that suits feature matching whatever the event sensor (training shrinks
+        the views to what the sensor needs: ``splat.max_side``).
 
     Returns
     -------
@@ -380,9 +388,8 @@ def ingest_scene(src: str | os.PathLike, layout: str, out_dir: str | os.PathLike
     mixed resolutions, invalid poses, fewer than 2 views; ConfigError for bad cfg.
     """
     cfg = _validated_cfg(cfg)
-    auto = cfg["max_side"] == "auto"
-    if auto:  # resolved on the first image's size
-        cfg["max_side"] = None
+    if cfg["max_side"] == "auto":
+        cfg["max_side"] = SFM_MAX_SIDE
     if layout not in LAYOUTS:
         raise ConfigError(f"layout '{layout}' is not one of {', '.join(LAYOUTS)}")
     src = Path(src)
@@ -408,9 +415,7 @@ def ingest_scene(src: str | os.PathLike, layout: str, out_dir: str | os.PathLike
 
     frames: list[Frame] = []
     seen: dict[bytes, int] = {}
-    src_sizes, scales, cam_scales = [], [], []
-    first_size: tuple[int, int] | None = None
-    out_size: tuple[int, int] | None = None
+    src_sizes, out_sizes, scales, cam_scales = [], [], [], []
     with timed(f"ingest {len(views)} images -> {out_dir}", log), atomic_dir(out_dir) as tmp:
         (tmp / IMAGES_DIR).mkdir()
         for i, v in enumerate(progress(views, desc="ingest images")):
@@ -421,35 +426,22 @@ def ingest_scene(src: str | os.PathLike, layout: str, out_dir: str | os.PathLike
                 j = seen[digest]
                 raise InputError(f"duplicate views: images {views[j].path} and {v.path} are identical")
             seen[digest] = i
+            if src_sizes and sorted((w, h)) != sorted(src_sizes[0]) and not cfg["allow_mixed_resolutions"]:
+                w0, h0 = src_sizes[0]
+                raise InputError(
+                    f"mixed resolutions: image {v.path} is {w}x{h} but {views[0].path} is {w0}x{h0} "
+                    "(set ingest.allow_mixed_resolutions to keep each view at its own size)")
             src_sizes.append([w, h])
             cam, s0 = _declared_to_actual(v, (w, h))
-            if first_size is None:
-                first_size = (w, h)
-                if auto:
-                    d = cfg["downscale"]
-                    cfg["max_side"] = cover_max_side(w / d, h / d, target_size)
-                    log.info("ingest.max_side=auto: %s (outputs need %s)", cfg["max_side"] or "full size",
-                             "x".join(map(str, target_size)) if target_size else "no more")
-                out_size = scaled_size(w, h, cfg["downscale"], cfg["max_side"])
-            if (w, h) != first_size:
-                if not cfg["allow_mixed_resolutions"]:
-                    raise InputError(
-                        f"mixed resolutions: image {v.path} is {w}x{h} but {views[0].path} is "
-                        f"{first_size[0]}x{first_size[1]} (set ingest.allow_mixed_resolutions to resize)")
-                # Resize to the first view's size first so every view shares one grid.
-                if cam is not None:
-                    img, cam, s1 = resize_with_camera(img, cam, first_size)
-                else:
-                    img, s1 = resize_image(img, first_size), (first_size[0] / w, first_size[1] / h)
-            else:
-                s1 = (1.0, 1.0)
             if cam is None:
-                cam = guess_camera(*first_size)
-            img, cam, s2 = resize_with_camera(img, cam, out_size)
-            scales.append([s1[0] * s2[0], s1[1] * s2[1]])
-            cam_scales.append([s0[0] * s1[0] * s2[0], s0[1] * s1[1] * s2[1]])
+                cam = guess_camera(w, h)
+            img, cam, s1 = resize_with_camera(img, cam, scaled_size(w, h, cfg["downscale"], cfg["max_side"]))
+            out_sizes.append((img.shape[1], img.shape[0]))
+            scales.append(list(s1))
+            cam_scales.append([s0[0] * s1[0], s0[1] * s1[1]])
             write_png(tmp / IMAGES_DIR / out_names[i], img)
             frames.append(Frame(out_names[i], cam, v.c2w))
+        out_size = main_size(out_sizes)
         extra = dict(source.extra)
         extra["ingest"] = {
             "layout": layout,
@@ -462,10 +454,11 @@ def ingest_scene(src: str | os.PathLike, layout: str, out_dir: str | os.PathLike
             "scale_xy": scales,
             "camera_scale_xy": cam_scales,
             "output_size": list(out_size),
+            "main_size_views": sum(tuple(o) == tuple(out_size) for o in out_sizes),
             "config": cfg,
         }
         scene = Scene(out_size[0], out_size[1], frames, layout, str(src),
-                      source.points_xyz, source.points_rgb, extra)
+                      source.points_xyz, source.points_rgb, with_frame_sizes(extra, out_sizes, out_size))
         write_scene_json(scene, tmp)
     log.info("wrote %d views (%dx%d, poses: %s, points: %s) to %s", len(frames), out_size[0],
              out_size[1], scene.has_poses, 0 if scene.points_xyz is None else len(scene.points_xyz), out_dir)

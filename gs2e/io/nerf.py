@@ -200,11 +200,9 @@ def transforms_from_scene(scene: Scene, image_prefix: str = "images/") -> dict:
     """
     if not scene.has_poses:
         raise InputError("transforms.json needs a pose for every frame")
-    sizes = scene.extra.get("frame_sizes")
-
     def intr(i: int) -> dict:
         c = scene.frames[i].camera
-        w, h = sizes[i] if sizes and sizes[i] else (scene.width, scene.height)
+        w, h = scene.frame_size(i)
         d = {"w": int(w), "h": int(h), "fl_x": c.fx, "fl_y": c.fy, "cx": c.cx, "cy": c.cy,
              "camera_angle_x": 2.0 * math.atan(0.5 * w / c.fx),
              "camera_angle_y": 2.0 * math.atan(0.5 * h / c.fy)}

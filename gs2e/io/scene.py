@@ -122,11 +122,44 @@ class Scene:
     def has_poses(self) -> bool:
         return bool(self.frames) and all(f.c2w is not None for f in self.frames)
 
+    def frame_size(self, i: int) -> tuple[int, int]:
+        """(W, H) of frame ``i``: its own size (``extra["frame_sizes"]``) when
+        the views differ in size or orientation, else the scene's."""
+        sizes = self.extra.get("frame_sizes")
+        if sizes and sizes[i]:
+            return int(sizes[i][0]), int(sizes[i][1])
+        return int(self.width), int(self.height)
+
+    def main_frame(self) -> int:
+        """Index of the first frame of the scene's own size: the camera virtual
+        trajectories use (see :func:`main_size`)."""
+        size = (int(self.width), int(self.height))
+        return next((i for i in range(len(self.frames)) if self.frame_size(i) == size), 0)
+
     def c2w_array(self) -> np.ndarray:
         """(N, 4, 4) camera-to-world poses; raises if any frame lacks one."""
         if not self.has_poses:
             raise InputError("scene has frames without poses")
         return np.stack([f.c2w for f in self.frames])
+
+
+def main_size(sizes: list[tuple[int, int]]) -> tuple[int, int]:
+    """The most common (W, H) of ``sizes`` (a tie: the one seen first): a scene's
+    own size, the size and orientation of the camera its virtual trajectories use.
+    Views of other sizes or orientations keep theirs (``extra["frame_sizes"]``)."""
+    counts: dict[tuple[int, int], int] = {}
+    for s in sizes:
+        counts[tuple(s)] = counts.get(tuple(s), 0) + 1
+    return max(counts, key=counts.__getitem__)  # max keeps the first of equal counts
+
+
+def with_frame_sizes(extra: dict, sizes: list[tuple[int, int]], main: tuple[int, int]) -> dict:
+    """``extra`` with ``frame_sizes`` set when any size differs from ``main``
+    (dropped otherwise)."""
+    out = {k: v for k, v in extra.items() if k != "frame_sizes"}
+    if any(tuple(s) != tuple(main) for s in sizes):
+        out["frame_sizes"] = [[int(w), int(h)] for w, h in sizes]
+    return out
 
 
 def check_pose(c2w: Any, name: str = "pose") -> np.ndarray:

@@ -189,7 +189,12 @@ def _reconstruct_incremental(run: _Run, matcher: str):
     import pycolmap
 
     cfg = run.cfg
-    mode = pycolmap.CameraMode.SINGLE if cfg["single_camera"] else pycolmap.CameraMode.PER_IMAGE
+    mode = pycolmap.CameraMode.PER_IMAGE
+    if cfg["single_camera"]:
+        # one camera per view size: a phone's portrait and landscape views
+        # share a lens but not a pixel grid (AUTO groups by size; PNGs carry no EXIF)
+        mixed = len({run.scene.frame_size(i) for i in range(len(run.scene.frames))}) > 1
+        mode = pycolmap.CameraMode.AUTO if mixed else pycolmap.CameraMode.SINGLE
     run.features(mode, cfg["camera_model"], matcher)
     with timed("mapping", log, run.timings):
         recs = pycolmap.incremental_mapping(run.db, run.image_dir, run.work / "sparse",

@@ -6,7 +6,7 @@ import argparse
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from gs2e.cli import add_config_args
+    from gs2e.cli import add_config_args, size_arg
 
     p = sub.add_parser(
         "train", help="3D Gaussian Splatting on the CPU (or import an official model)",
@@ -21,6 +21,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--checkpoint-dir", default=None,
                    help="where checkpoints go (default: <out>.ckpt); a matching one is resumed")
     p.add_argument("--no-resume", action="store_true", help="ignore existing checkpoints")
+    p.add_argument("--target-size", type=size_arg, metavar="WxH",
+                   help="the largest image the outputs need (the workflow passes the event "
+                        "sensor's array): with splat.max_side=auto the views train at the "
+                        "smallest size that still covers it")
     add_config_args(p)
     p.set_defaults(func=run_train)
 
@@ -44,7 +48,7 @@ def run_train(args: argparse.Namespace) -> int:
 
     cfg = load_section("splat", args.config_json, args.config)
     train(args.scene, args.out, cfg, seed=args.seed, threads=args.threads, scene_id=args.scene_id,
-          checkpoint_dir=args.checkpoint_dir, resume=not args.no_resume)
+          checkpoint_dir=args.checkpoint_dir, resume=not args.no_resume, target_size=args.target_size)
     return 0
 
 

@@ -53,7 +53,9 @@ def render_views(model_dir: str | Path, scene_dir: str | Path, out_dir: str | Pa
     backend = resolve_backend(backend, "--backend")
     scene_dir = Path(scene_dir)
     scene = read_scene(scene_dir)
-    views = load_views(scene_dir, scene, [1])
+    trained = info.get("view_sizes") or {}  # the sizes the model was trained and scored at
+    views = load_views(scene_dir, scene, [1], [tuple(trained.get(f.name, scene.frame_size(i)))
+                                                for i, f in enumerate(scene.frames)])
     if test_every is None:
         test_every = int(info.get("test_every", 8))
     train_v, test_v = split_views(views, test_every)

@@ -33,7 +33,7 @@ def find_model_ply(path: str | Path) -> tuple[Path, int | None]:
 
 def import_ply(ply_path: str | None, scene: Scene, scene_dir: Path, out_dir: Path,
                test_views: list[View], background: torch.Tensor, stats: dict[str, Any],
-               scene_id: str | None) -> dict[str, Any]:
+               scene_id: str | None, view_sizes: dict[str, list[int]] | None = None) -> dict[str, Any]:
     """Evaluate the model at ``ply_path`` on the held-out views and write it as
     the stage's output; returns ``stats`` updated with the model's figures."""
     if not ply_path:
@@ -46,5 +46,5 @@ def import_ply(ply_path: str | None, scene: Scene, scene_dir: Path, out_dir: Pat
                   "n_gaussians": int(len(g["means"])), "train_time_s": None,
                   "test_psnr": ev["psnr"], "test_ssim": ev["ssim"], "test_lpips": None,
                   "sh_degree": sh_deg, "sh_degree_final": sh_deg})
-    write_train_output(out_dir, scene, g, iterations or 0, sh_deg, stats, [], scene_id, scene_dir)
+    write_train_output(out_dir, scene, g, iterations or 0, sh_deg, stats, [], scene_id, scene_dir, view_sizes)
     return stats

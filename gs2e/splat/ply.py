@@ -132,9 +132,9 @@ def cameras_json_entries(scene) -> list[dict]:
     for i, f in enumerate(scene.frames):
         if f.c2w is None:
             raise InputError(f"frame {f.name} has no pose")
+        w, h = scene.frame_size(i)
         entries.append({
-            "id": i, "img_name": Path(f.name).stem, "width": int(scene.width),
-            "height": int(scene.height), "position": f.c2w[:3, 3].tolist(),
+            "id": i, "img_name": Path(f.name).stem, "width": w, "height": h, "position": f.c2w[:3, 3].tolist(),
             "rotation": f.c2w[:3, :3].tolist(), "fx": float(f.camera.fx), "fy": float(f.camera.fy),
         })
     return entries

@@ -36,7 +36,7 @@ from gs2e.splat.output import write_train_output
 from gs2e.splat.rasterize import NonFiniteError
 from gs2e.splat.scene_stats import choose_sh_degree, detail_budget, view_dependence
 from gs2e.splat.strategy import PARAMS, Adam, DensifyStrategy, GrowingBudget
-from gs2e.splat.views import View, load_views, scene_extent, split_views
+from gs2e.splat.views import View, load_views, scene_extent, split_views, train_sizes
 
 log = get_logger("gs2e.splat")
 
@@ -99,7 +99,8 @@ def make_optimizer(cfg: dict, extent: float) -> Adam:
 def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
           threads: int | None = None, scene_id: str | None = None,
           checkpoint_dir: str | Path | None = None, resume: bool = True,
-          interrupt_after: int | None = None) -> dict[str, Any]:
+          interrupt_after: int | None = None,
+          target_size: tuple[int, int] | None = None) -> dict[str, Any]:
     """Train (or, with ``model_source: ply``, import) a Gaussian model of the
     scene in ``scene_dir`` (an sfm output: PINHOLE views with poses and
     points3d.npz; its ``sparse/0`` tracks are used to choose the SH degree).
@@ -113,6 +114,10 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     A resumed run continues exactly where the interrupted one stopped (view
     order, densification statistics, random states), so it writes the same
     model bytes as an uninterrupted run.
+
+    ``target_size``: (W, H) of the largest image the outputs need (the event
+    sensor's array): with ``max_side: auto`` the views train at the smallest
+    size that covers it (:func:`gs2e.splat.views.train_sizes`).
 
     ``interrupt_after``: stop after that many steps in total, leaving a
     checkpoint and writing no output (time-sliced jobs; tests of resume).
@@ -128,17 +133,24 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     scene = read_scene(scene_dir)
     t0 = time.perf_counter()
     schedule = cfg["resolution_schedule"]
-    views = load_views(scene_dir, scene, [1] + [int(f) for _, f in schedule])
+    sizes = train_sizes(scene, cfg["max_side"], target_size)
+    views = load_views(scene_dir, scene, [1] + [int(f) for _, f in schedule], sizes)
     train_v, test_v = split_views(views, cfg["test_every"])
     extent = scene_extent(train_v)
     bg = torch.tensor(cfg["background"], dtype=torch.float32)
     timings: dict[str, float] = {}
     stats: dict[str, Any] = {"backend": backend, "n_views": len(views), "n_train_views": len(train_v),
                              "n_test_views": len(test_v), "extent": extent,
-                             "test_every": cfg["test_every"], "background": list(cfg["background"])}
+                             "test_every": cfg["test_every"], "background": list(cfg["background"]),
+                             "train_width": sizes[scene.main_frame()][0],
+                             "train_height": sizes[scene.main_frame()][1]}
+    view_sizes = {v.name: list(sz) for v, sz in zip(views, sizes)}
+    log.info("training at %dx%d (views %dx%d%s)", *sizes[scene.main_frame()], scene.width, scene.height,
+             "" if target_size is None else f", event sensor {target_size[0]}x{target_size[1]}")
 
     if cfg["model_source"] == "ply":
-        stats = import_ply(cfg.get("ply_path"), scene, scene_dir, out_dir, test_v, bg, stats, scene_id)
+        stats = import_ply(cfg.get("ply_path"), scene, scene_dir, out_dir, test_v, bg, stats, scene_id,
+                           view_sizes)
         stats["time_total_s"] = time.perf_counter() - t0
         return stats
 
@@ -164,7 +176,8 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     order: list[int] = []  # views left in the current epoch (popped from the end)
     it0, curve, best, bad_evals, train_time, cpu_time = 0, [], -math.inf, 0, 0.0, 0.0
 
-    ckpt = Checkpoint(checkpoint_dir or out_dir.with_name(out_dir.name + ".ckpt"), cfg, scene_dir, seed)
+    ckpt = Checkpoint(checkpoint_dir or out_dir.with_name(out_dir.name + ".ckpt"),
+                      {**cfg, "view_sizes": view_sizes}, scene_dir, seed)
     st = ckpt.load() if resume else None
     if st is not None:
         p, it0, curve, best, bad_evals, train_time = (st["params"], st["iteration"], st["curve"],
@@ -269,7 +282,8 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
                   "n_gaussians": int(p["means"].shape[0]), "train_time_s": train_s, "train_cpu_s": cpu_s,
                   "test_psnr": final["psnr"], "test_ssim": final["ssim"], "test_lpips": None,
                   "sh_degree_final": sh_final, **{f"time_{k.replace(' ', '_')}_s": t for k, t in timings.items()}})
-    write_train_output(out_dir, scene, from_params(p), n_iters, sh_final, stats, curve, scene_id, scene_dir)
+    write_train_output(out_dir, scene, from_params(p), n_iters, sh_final, stats, curve, scene_id, scene_dir,
+                       view_sizes)
     ckpt.remove()
     stats["time_total_s"] = time.perf_counter() - t0
     log.info("trained %d iterations (%s): %d Gaussians, held-out PSNR %.2f dB SSIM %.4f, %.1f s",

@@ -51,23 +51,57 @@ def downscale_area(img: np.ndarray, downscale: int) -> np.ndarray:
     return cv2.resize(img, (max(1, w // downscale), max(1, h // downscale)), interpolation=cv2.INTER_AREA)
 
 
-def load_views(scene_dir: Path, scene: Scene, downscales: list[int]) -> list[View]:
+def train_sizes(scene: Scene, max_side: int | str | None,
+                target: tuple[int, int] | None = None) -> list[tuple[int, int]]:
+    """(W, H) each view trains at (``splat.max_side``).
+
+    The scene's own size (:func:`gs2e.io.scene.main_size`) is shrunk to a
+    longer side of ``max_side`` px, or with ``"auto"`` to the smallest size
+    that still covers ``target`` (the event sensor's array; None: no shrink).
+    Every view then keeps the angular resolution of those views: view i is
+    scaled by s * f_main / f_i (f: geometric mean focal length, px), so a
+    portrait view of the same camera shrinks exactly as the landscape ones and
+    a sharper camera's views shrink more. Never enlarges.
+    """
+    from gs2e.io.images import cover_max_side, scaled_size
+
+    W, H = int(scene.width), int(scene.height)
+    side = cover_max_side(W, H, target) if max_side == "auto" else max_side
+    if side is None or side >= max(W, H):
+        return [scene.frame_size(i) for i in range(len(scene.frames))]
+    s = side / max(W, H)
+    c = scene.frames[scene.main_frame()].camera
+    f_main = float(np.sqrt(c.fx * c.fy))
+    sizes = []
+    for i, f in enumerate(scene.frames):
+        w, h = scene.frame_size(i)
+        s_i = min(1.0, s * f_main / float(np.sqrt(f.camera.fx * f.camera.fy)))
+        sizes.append(scaled_size(w, h, 1, max(1, int(np.ceil(s_i * max(w, h) - 1e-9)))))
+    return sizes
+
+
+def load_views(scene_dir: Path, scene: Scene, downscales: list[int],
+               sizes: list[tuple[int, int]] | None = None) -> list[View]:
     """Every frame of ``scene`` (read from ``scene_dir``) with its image at the
-    given downscale factors (area-averaged). Raises InputError naming the frame
-    when it has no pose or a distorted camera."""
-    from gs2e.io.images import read_image
+    given downscale factors (area-averaged), first resized to ``sizes[i]``
+    (W, H) with its intrinsics rescaled exactly (None: the stored size; see
+    :func:`train_sizes`). Raises InputError naming the frame when it has no
+    pose or a distorted camera."""
+    from gs2e.io.images import read_image, resize_with_camera
 
     views = []
-    for f in progress(scene.frames, desc="loading views"):
+    for i, f in enumerate(progress(scene.frames, desc="loading views")):
         if f.c2w is None:
             raise InputError(f"{scene_dir}: frame {f.name} has no pose; run sfm first")
         if f.camera.model not in ("PINHOLE", "SIMPLE_PINHOLE"):
             raise InputError(f"{scene_dir}: frame {f.name} has a {f.camera.model} camera; "
                              "training needs undistorted PINHOLE views (gs2e sfm output)")
-        rgb = read_image(scene_dir / IMAGES_DIR / f.name)
+        rgb, cam = read_image(scene_dir / IMAGES_DIR / f.name), f.camera
+        if sizes is not None:
+            rgb, cam, _ = resize_with_camera(rgb, cam, tuple(sizes[i]))
         imgs = {d: torch.from_numpy(downscale_area(rgb, d).astype(np.float32) / 255.0)
                 for d in sorted(set(downscales))}
-        views.append(View(f.name, f.c2w, f.camera.fx, f.camera.fy, f.camera.cx, f.camera.cy, imgs))
+        views.append(View(f.name, f.c2w, cam.fx, cam.fy, cam.cx, cam.cy, imgs))
     return views
 
 

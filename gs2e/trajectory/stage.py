@@ -34,10 +34,24 @@ class StageResult:
 
 
 def _intrinsics(scene: Scene) -> list[np.ndarray]:
-    Ks = [f.camera.K for f in scene.frames]
+    """(3, 3) K per input frame, as the virtual camera uses it: the frame's own
+    when it has the scene's size (W, H: the most common view size and
+    orientation), else that of the scene's first such frame (a portrait view of
+    a landscape-dominated capture lends its pose, not its camera)."""
+    main = scene.frames[scene.main_frame()].camera.K
+    size = (int(scene.width), int(scene.height))
+    Ks = [f.camera.K if scene.frame_size(i) == size else main for i, f in enumerate(scene.frames)]
     if any(f.camera.dist and any(abs(x) > 0 for x in f.camera.dist) for f in scene.frames):
         log.warning("input cameras have distortion; trajectories use their pinhole part")
     return Ks
+
+
+def camera_choice(scene: Scene) -> dict:
+    """How the virtual camera was chosen (recorded in every trajectory's meta)."""
+    size = (int(scene.width), int(scene.height))
+    n_main = sum(scene.frame_size(i) == size for i in range(len(scene.frames)))
+    return {"camera_size": list(size), "camera_frame": scene.frames[scene.main_frame()].name,
+            "camera_rule": f"the most common view size and orientation ({n_main} of {len(scene.frames)} views)"}
 
 
 def _nearest_input(base: SampledPath, j: int) -> int:
@@ -96,7 +110,7 @@ def generate(scene: Scene, cfg: dict, seed: int, timings: dict | None = None) ->
               "fps_base": float(cfg["fps_base"])}
     out: dict[str, Trajectory] = {}
     base_meta = {k: v for k, v in base.info.items() if k != "v"}
-    base_meta.update(common, kind="base", method=cfg["interpolation"], view_order=method,
+    base_meta.update(common, **camera_choice(scene), kind="base", method=cfg["interpolation"], view_order=method,
                      view_order_names=[scene.frames[i].name for i in order],
                      velocity=None if cfg.get("speed_list") else cfg["velocity"],
                      speed_list=cfg.get("speed_list"), **_speed_meta(base, alpha, beta_n))
@@ -126,7 +140,7 @@ def generate(scene: Scene, cfg: dict, seed: int, timings: dict | None = None) ->
             dur = preset_duration_s(path.c2w, preset, scale, cfg["fps_base"], image_steps(path.c2w, Ks[src]))
             t_us = timestamps_us(dur, len(path.s))
             meta = {k: v for k, v in path.info.items() if k != "v"}
-            meta.update(common, kind="mini", group=g, seed=int(seed), preset=cfg["mini_preset"],
+            meta.update(common, **camera_choice(scene), kind="mini", group=g, seed=int(seed), preset=cfg["mini_preset"],
                         preset_values=dict(preset), intrinsics_from_frame=src,
                         **_speed_meta(path, alpha, beta_n))
             out[f"mini{g:02d}_{cfg['mini_preset']}"] = timed_trajectory(

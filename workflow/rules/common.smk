@@ -138,12 +138,14 @@ def sensor_size(sid):
     return f"{w}x{h}"
 
 
-def ingest_target_arg(wc):
-    """--target-size for ingest.max_side=auto: the event sensor's array, the
+def train_target_arg(wc):
+    """--target-size for splat.max_side=auto: the event sensor's array, the
     largest image a scene's outputs need ('' when there is no sensor, or
-    max_side is set: then the sensor does not change the ingest job)."""
+    max_side is set: then the sensor does not change the train job). Ingest
+    and SfM never see the sensor: choosing one cannot change which views
+    register."""
     size = sensor_size(wc.scene)
-    if SCENE_CFG[wc.scene]["ingest"]["max_side"] != "auto" or size is None:
+    if SCENE_CFG[wc.scene]["splat"]["max_side"] != "auto" or size is None:
         return ""
     return f"--target-size {size}"
 

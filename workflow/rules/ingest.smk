@@ -22,7 +22,6 @@ rule ingest:
         directory(res("{scene}", "ingest")),
     params:
         layout=scene_layout,
-        target=ingest_target_arg,
         cfg=stage_cfg("ingest"),
         code=code_version("ingest"),
     conda:
@@ -34,4 +33,4 @@ rule ingest:
     threads: 1
     shell:
         "{GS2E} ingest --layout {params.layout} --src {input:q} --out {output:q}"
-        " {params.target} --config-json {params.cfg:q} 2> {log:q}"
+        " --config-json {params.cfg:q} 2> {log:q}"

@@ -8,6 +8,7 @@ rule train:
         seed=stage_seed("train"),
         code=code_version("train"),
         ckpt=res("{scene}", ".splat.ckpt"),
+        target=train_target_arg,
     conda:
         ENV
     log:
@@ -20,5 +21,5 @@ rule train:
         runtime=train_runtime_min,
     shell:
         "{GS2E} train --scene {input:q} --out {output:q} --seed {params.seed}"
-        " --threads {threads} --scene-id {wildcards.scene} --checkpoint-dir {params.ckpt:q}"
+        " --threads {threads} --scene-id {wildcards.scene} --checkpoint-dir {params.ckpt:q} {params.target}"
         " --config-json {params.cfg:q} 2> {log:q}"
