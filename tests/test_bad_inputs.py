@@ -8,8 +8,8 @@ stderr that names the file or config key, no traceback, and no partial output
 events, one frame, negative timestamps, frames numbered 1..12) are checked to
 give valid results instead.
 
-``python tests/test_bad_inputs.py`` prints the probe table of the README's
-"Reliability" section (each probe with the message a user sees).
+``python tests/test_bad_inputs.py`` prints the probe table of docs/reliability.md,
+"What a user sees" (each probe with the message a user sees).
 """
 
 from __future__ import annotations
@@ -152,7 +152,7 @@ def _empty_ply(tmp: Path) -> Path:
 @dataclass
 class Probe:
     id: str
-    what: str                                  # the careless thing (README table)
+    what: str                                  # the careless thing (docs/reliability.md table)
     make: Callable[[Path], list]               # builds inputs in a folder, returns argv
     needles: tuple[str, ...]                   # the message names these (file, key)
     out: str | None = "out"                    # output (under the folder) that must not appear
@@ -586,7 +586,7 @@ def test_ingest_and_training_split_use_the_same_natural_order(tmp_path):
     assert [v.name for v in test] == ["img1.png", "img3.png", "img11.png"]
 
 
-# ---------------------------------------------------------------- the README table
+# ---------------------------------------------------------------- the docs table
 def probe_table() -> str:
     """Markdown table: every probe and the line a user sees (paths shortened)."""
     import tempfile

@@ -345,19 +345,20 @@ def test_export_needs_covered_frames(tiny_pipeline, tmp_path):
 
 
 # ---------------------------------------------------------------- gs2e.data
-def _readme_example() -> str:
+def _docs_example() -> str:
+    """The DataLoader example of docs/export.md (moved there from the README)."""
     from tests.conftest import REPO
 
-    text = (REPO / "README.md").read_text()
-    block = text.split("**A torch Dataset.**", 1)[1].split("```python\n", 1)[1].split("```", 1)[0]
+    text = (REPO / "docs" / "export.md").read_text()
+    block = text.split("## A torch Dataset", 1)[1].split("```python\n", 1)[1].split("```", 1)[0]
     assert "EventWindowDataset" in block and "DataLoader" in block
     return block
 
 
-def test_readme_dataloader_example_runs(export_scene, source):
-    code = _readme_example().replace('"results"', repr(str(export_scene.parent)))
+def test_docs_dataloader_example_runs(export_scene, source):
+    code = _docs_example().replace('"results"', repr(str(export_scene.parent)))
     ns: dict = {}
-    exec(compile(code, "README.md", "exec"), ns)
+    exec(compile(code, "docs/export.md", "exec"), ns)
     B = ns["voxels"].shape[0]
     assert tuple(ns["voxels"].shape) == (B, 5, source.height, source.width)
     assert tuple(ns["rgb"].shape) == (B, 3, source.height, source.width)
