@@ -93,6 +93,20 @@ def _frames(tmp: Path, n: int = 4, names: list[str] | None = None, size=(16, 12)
     return d
 
 
+def _huge_png(p: Path) -> Path:
+    """A PNG whose header declares 100000x100000 RGB pixels (no pixel data): a
+    decoder would try to allocate 30 GB."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    ihdr = struct.pack(">IIBBBBB", 100000, 100000, 8, 2, 0, 0, 0)
+    _write(p, b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IEND", b""))
+    return p.parent
+
+
 def _model(tmp: Path) -> Path:
     from tests.test_render import _plane_model
 
@@ -269,6 +283,10 @@ PROBES = [
           lambda t: ["ingest", "--layout", "folder", "--src",
                      _frames(_frames(t, n=2).parent, names=["z.png"], size=(20, 12), values=[9]),
                      "--out", t / "out"], ("mixed resolutions", "z.png")),
+    Probe("ingest-huge-image", "a PNG whose header declares 100000x100000 pixels",
+          lambda t: ["ingest", "--layout", "folder", "--src",
+                     _huge_png(_frames(t, n=2) / "z.png"), "--out", t / "out"],
+          ("z.png", "100000x100000", "beyond")),
     Probe("ingest-duplicate", "the same photo twice",
           lambda t: ["ingest", "--layout", "folder", "--src",
                      _frames(t, names=["a.png", "b.png", "c.png"], values=[5, 5, 9]),

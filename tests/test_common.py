@@ -211,3 +211,18 @@ def test_write_metrics_types_missing_values_and_no_pandas(tmp_path):
             f"write_metrics({str(p)!r}, {{'a': 1.0}}); print('pandas' in sys.modules)")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert r.stdout.strip() == "False"
+
+
+def test_render_scale_beyond_the_size_limit_is_a_config_error():
+    """render.scale x the camera's size is checked before any frame buffer:
+    a one-line error naming the key; sizes at the limit pass."""
+    from gs2e.common.camera import MAX_SIDE_PX, render_camera
+    from gs2e.common.errors import ConfigError
+
+    K = np.array([[3000.0, 0, 1600], [0, 3000.0, 1200], [0, 0, 1]])
+    with pytest.raises(ConfigError, match=r"render.scale=8 on the 3200x2400 camera.*25600x19200"):
+        render_camera(K, 3200, 2400, 8.0)
+    _, W, H = render_camera(K, 3200, 2400, MAX_SIDE_PX / 3200 * 0.5)
+    assert (W, H) == (MAX_SIDE_PX // 2, 3 * MAX_SIDE_PX // 8)
+    # with a sensor, scale does not apply and the sensor's own check governs
+    assert render_camera(K, 3200, 2400, 8.0, ((346, 260), "cover"))[1:] == (346, 260)

@@ -46,13 +46,18 @@ def render_camera(K: np.ndarray, width: int, height: int, scale: float = 1.0,
 
     With ``sensor`` = ((W, H), fit), the sensor's array fitted to the (width,
     height) camera K (:func:`fit_camera`; ``scale`` does not apply); else K
-    scaled to ``scale`` x its size (rounded to whole pixels, at least 1)."""
+    scaled to ``scale`` x its size (rounded to whole pixels, at least 1);
+    ConfigError naming ``render.scale`` when that size is beyond
+    :func:`size_problem`'s limit."""
     K = np.asarray(K, np.float64)
     if sensor is not None:
         (W, H), fit = sensor
         return fit_camera(K, width, height, W, H, fit), int(W), int(H)
     W = max(1, int(round(width * scale)))
     H = max(1, int(round(height * scale)))
+    why = size_problem(W, H)
+    if why:  # before any frame buffer is allocated
+        raise ConfigError(f"render.scale={scale:g} on the {width}x{height} camera: the frames' size {why}")
     sx, sy = W / width, H / height
     return np.array([[K[0, 0] * sx, 0, K[0, 2] * sx], [0, K[1, 1] * sy, K[1, 2] * sy],
                      [0, 0, 1.0]]), W, H

@@ -87,6 +87,26 @@ def read_image_bytes(path: str | os.PathLike) -> bytes:
         raise InputError(f"cannot read image file {p}: {exc.strerror or exc}") from exc
 
 
+def check_image_size(path: str | os.PathLike) -> None:
+    """InputError naming ``path`` when its header declares a pixel array beyond
+    gs2e's limit (:func:`gs2e.common.camera.size_problem`): read from the header
+    (Pillow opens lazily), before a decoder allocates the image. Files Pillow
+    cannot parse are left to the decoder's own error."""
+    from PIL import Image, UnidentifiedImageError
+
+    from gs2e.common.camera import size_problem
+
+    Image.MAX_IMAGE_PIXELS = None  # the limit is gs2e's, checked below
+    try:
+        with Image.open(path) as im:
+            w, h = im.size
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError):
+        return
+    why = size_problem(int(w), int(h))
+    if why:
+        raise InputError(f"image file {path}: its size {why}")
+
+
 def read_image(path: str | os.PathLike) -> np.ndarray:
     """Read an image file as uint8 RGB (H, W, 3); InputError naming the file on failure."""
     return decode_image(read_image_bytes(path), str(path))

@@ -57,7 +57,7 @@ from gs2e.common.log import timed
 from gs2e.common.progress import progress
 from gs2e.io import colmap as colmap_io
 from gs2e.io import nerf as nerf_io
-from gs2e.io.images import (IMAGE_EXTS, decode_image, is_image_file, list_images, read_image_bytes,
+from gs2e.io.images import (IMAGE_EXTS, check_image_size, decode_image, is_image_file, list_images, read_image_bytes,
                             resize_with_camera, scaled_size, write_png)
 from gs2e.io.scene import (IMAGES_DIR, SCENE_JSON, Camera, Frame, Scene, main_size, read_scene,
                            with_frame_sizes, write_scene_json)
@@ -408,9 +408,10 @@ def ingest_scene(src: str | os.PathLike, layout: str, out_dir: str | os.PathLike
     log.info("%d views in the source, %d selected", n_src, len(views))
     if len(views) < 2:
         raise InputError(f"scene {src} has {len(views)} usable view(s); at least 2 are needed")
-    for v in views:  # fail before decoding anything if a file is missing
+    for v in views:  # fail before decoding anything if a file is missing or absurdly large
         if not v.path.is_file():
             raise InputError(f"image file {v.path} does not exist")
+        check_image_size(v.path)
     out_names = unique_png_names([v.name for v in views])
 
     frames: list[Frame] = []
