@@ -31,8 +31,8 @@ sys.path.insert(0, str(ROOT))
 from _results import RESULTS, pyplot, write_csv  # noqa: E402
 
 FORMATS = ("eventnerf", "e2nerf", "evdeblurnerf", "inceventgs", "event3dgs")
-CFG = {"formats": [], "eventnerf_fit": "pad", "eventnerf_holdout_every": 8, "e2nerf_loader": "e2gs",
-       "evdeblurnerf_llffhold": 8, "evdeblurnerf_pose_rate_hz": 1000.0,
+CFG = {"formats": [], "eventnerf_fit": "pad", "eventnerf_holdout_every": 8, "eventnerf_winsize": None,
+       "e2nerf_loader": "e2gs", "evdeblurnerf_llffhold": 8, "evdeblurnerf_pose_rate_hz": 1000.0,
        "event3dgs_intensity": "integrate", "inceventgs_jpeg_quality": 95}
 
 

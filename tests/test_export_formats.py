@@ -23,10 +23,13 @@ from gs2e.common.errors import InputError
 from gs2e.export.run import export_trajectory
 from gs2e.export.source import TrajectorySource
 from tests.conftest import run_cli
+from tests.test_export_loaders import (EVENTNERF_ARG_DEFAULTS, e2gs_test_entries, e2nerf_test_entries,
+                                       event3dgs_index_range, eventnerf_config, eventnerf_samplers,
+                                       evdeblurnerf_edi_events, evdeblurnerf_event_times, inceventgs_chunks)
 
 TRAJ = "mini00_medium"
-DEFAULTS = {"formats": [], "eventnerf_fit": "pad", "eventnerf_holdout_every": 4, "e2nerf_loader": "e2gs",
-            "evdeblurnerf_llffhold": 4, "evdeblurnerf_pose_rate_hz": 1000.0,
+DEFAULTS = {"formats": [], "eventnerf_fit": "pad", "eventnerf_holdout_every": 4, "eventnerf_winsize": None,
+            "e2nerf_loader": "e2gs", "evdeblurnerf_llffhold": 4, "evdeblurnerf_pose_rate_hz": 1000.0,
             "event3dgs_intensity": "integrate", "inceventgs_jpeg_quality": 95}
 
 
@@ -75,6 +78,8 @@ def _parse_txt(path, shape):
 
 def test_eventnerf_reads_back(export_scene, source, tmp_path_factory):
     out, man = _export(export_scene, tmp_path_factory, "eventnerf")
+    cfg = {**EVENTNERF_ARG_DEFAULTS, **eventnerf_config((out / "eventnerf.txt").read_text())}
+    assert cfg["is_cycled"] == "False" and int(cfg["winsize"]) == man["winsize"] >= 1
     norm = man["normalisation"]
     fit = man["sensor_fit"]
     ev_all = source.events()
@@ -103,24 +108,30 @@ def test_eventnerf_reads_back(export_scene, source, tmp_path_factory):
                                         Ks[1, 2] - fit["offset_y"]], rtol=1e-6)
         z = np.load(evf[0])
         xs, ys, ts, ps = z["x"], z["y"], z["t"], z["p"]
-        assert set(np.unique(ps)) <= {-1, 1} and ts.min() >= 0
+        assert set(np.unique(ps[:-1])) <= {-1, 1} and ps[-1] == 0 and ts.min() >= 0  # closing p = 0 event
         assert xs.max() < 346 and ys.max() < 260
-        # the loader's window of pose i: [(i-1)/(N-1), i/(N-1)) x t.max(), events accumulated as p
-        N = len(poses)
         t_src = source.frames["t_us"].to_numpy()[frames]
         sel = (ev_all.t >= t_src[0]) & (ev_all.t < t_src[-1])
-        src_t, src_p = ev_all.t[sel], ev_all.p[sel].astype(np.int64) * 2 - 1
-        assert len(ts) == len(src_t) and ps.sum() == src_p.sum()
-        gap = man["splits"][split]["alignment_gap_us"]
-        for i in range(2, N):  # start_range = 1 + max_winsize (winsize 1)
-            a = np.searchsorted(ts, (i - 1) / (N - 1) * ts.max())
-            b = np.searchsorted(ts, i / (N - 1) * ts.max())
-            exact = _counts_in(src_t, t_src[i - 1], t_src[i])
-            # the loader's boundaries sit at most `gap` us before the true frame times
-            slack = sum(_counts_in(src_t, tb - gap - 1, tb + 1) for tb in (t_src[i - 1], t_src[i]))
-            assert abs((b - a) - exact) <= slack
-            if split == "train":
-                assert exact == source.window_counts("inter", [frames[i]])[0]
+        src_t, src_x = ev_all.t[sel], ev_all.x[sel].astype(np.int64) - fit["offset_x"]
+        src_p = ev_all.p[sel].astype(np.int64) * 2 - 1
+        assert len(ts) == len(src_t) + 1 and ps.sum() == src_p.sum()
+        # the loader as ddp_train_nerf.py calls it (L440-451) with the exported config
+        N = len(poses)
+        skip = int(cfg["trainskip"] if split == "train" else cfg["testskip"])
+        max_win = int(cfg["winsize"]) if split == "train" else 1
+        sizes = range(1, max_win + 1) if split == "train" else [1]  # use_random_window_len: 1 .. winsize
+        samplers = [eventnerf_samplers(ts, N, skip, max_win, w) for w in sizes]
+        assert all(len(s) > 0 for s in samplers), (split, skip, max_win, N)
+        assert [i for i, _, _ in samplers[0]] == list(range(1 + max_win, N))
+        assert frames[1 + max_win:].tolist() == man["splits"][split]["loader_views"]
+        for w, sampler in zip(sizes, samplers):
+            for i, a, b in sampler:  # exactly gs2e's events of [t_{i-w}, t_i)
+                lo, hi = np.searchsorted(src_t, [t_src[i - w], t_src[i]])
+                assert (a, b) == (lo, hi)
+                np.testing.assert_array_equal(xs[a:b], src_x[lo:hi])
+                np.testing.assert_array_equal(ps[a:b], src_p[lo:hi])
+                if split == "train" and w == 1:
+                    assert b - a == source.window_counts("inter", [frames[i]])[0]
 
 
 def test_eventnerf_sensor_size_is_an_error_by_default(export_scene, tmp_path):
@@ -167,11 +178,22 @@ def test_e2nerf_e2gs_reads_back(export_scene, source, tmp_path_factory):
         np.testing.assert_array_equal(events[num].sum(0).numpy().ravel(), net)
         assert events[num][0].view(H, W).shape == (H, W)  # event_loss_call's view
     test = json.load(open(out / "transform_test.json"))["frames"]
-    for num, (fr, i) in enumerate(zip(test[0:200], frames)):
+    # E2GS keeps frames[::2]: exactly gs2e's test views, in order, with their images
+    views = e2gs_test_entries(test)
+    assert [v["gs2e_frame"] for v in views] == list(frames)
+    for v, i in zip(views, frames):
+        assert os.path.exists(os.path.join(out, v["file_path"] + ".png"))
+        for j in range(5):  # readNCamerasFromTransforms reads entries 1, 5, .., 17
+            c2w = np.array(v["transform_matrix"])[j * 4 + 1]
+            c2w[:3, 1:3] *= -1
+            np.testing.assert_allclose(c2w, source.c2w([i])[0], atol=1e-12)
+    # E2NeRF reads every entry with ./test/r_{count}.png: each view twice, same images
+    for num, fr in enumerate(e2nerf_test_entries(test)):
         c2w = np.array(fr["transform_matrix"][1])   # E2NeRF tests with entry 1
         c2w[:3, 1:3] *= -1
-        np.testing.assert_allclose(c2w, source.c2w([i])[0], atol=1e-12)
-        assert imageio.imread(out / "test" / f"r_{num}.png").shape[:2] == (H, W)
+        np.testing.assert_allclose(c2w, source.c2w([frames[num // 2]])[0], atol=1e-12)
+        np.testing.assert_array_equal(imageio.imread(out / "test" / f"r_{num}.png"),
+                                      source.image("rgb", frames[num // 2]))
     import pycolmap
     rec = pycolmap.Reconstruction(str(out / "sparse" / "0"))
     assert rec.num_points3D() == len(source.points()[0]) > 0
@@ -216,16 +238,26 @@ def test_evdeblurnerf_reads_back(export_scene, source, tmp_path_factory):
     np.testing.assert_array_equal(tms["timestamps"] + origin, source.frames["t_us"].to_numpy()[frames])
     f = h5py.File(out / "events.h5", "r")
     ev = {k: f[k][:] for k in "xytp"}
-    t_us = ev["t"] * 1e-3  # events_tms_unit = ns
+    txt = eventnerf_config((out / "evdeblurnerf.txt").read_text())
+    t_us = evdeblurnerf_event_times(ev["t"], txt["events_tms_unit"])
+    assert t_us.dtype == np.int64
     all_t = np.load(out / "all_timestamps.npy")
-    keep = (t_us >= all_t.min()) & (t_us <= all_t.max())
+    keep = (t_us >= all_t.min()) & (t_us <= all_t.max())  # loader_events.py L193
     assert keep.all() and set(np.unique(ev["p"])) == {0, 1}
+    np.testing.assert_array_equal(t_us + origin, source.events(int(t_us[0] + origin), int(t_us[-1] + origin) + 1).t)
+    # training batches: events with a successor at their pixel, drop_last (run_nerf.py L89-90)
+    n_rand = int(txt.get("events_N_rand", 2048))
+    assert man["n_event_samples"] >= n_rand
     w = source.windows
     for k, i in enumerate(frames):
         if sharp[k]:
             continue
         n = _counts_in(t_us, tms["timestamps_start"][k], tms["timestamps_end"][k])
         assert n == int(w["exp_i1"].iloc[i] - w["exp_i0"].iloc[i])
+        # the EDI prior's window includes its end: gs2e's window plus events at exp_t1_us
+        a, b = evdeblurnerf_edi_events(t_us, tms["timestamps_start"][k], tms["timestamps_end"][k])
+        at_end = int((t_us == tms["timestamps_end"][k]).sum())
+        assert b - a == n + at_end
     # the loader interpolates all_poses_bounds (Slerp + cubic) at event times
     allp = np.load(out / "all_poses_bounds.npy")[:, :-2].reshape(-1, 3, 5)[:, :3, :4]
     rot = Slerp(all_t, Rotation.from_matrix(allp[:, :3, :3]))
@@ -246,15 +278,17 @@ def test_inceventgs_reads_back(export_scene, source, tmp_path_factory):
     frames = np.array(man["gs2e_frames"])
     assert len(img_files) == len(gt_poses) == len(poses_ts) == len(frames)
     np.testing.assert_allclose(gt_poses.reshape(-1, 4, 4), source.c2w(frames), atol=1e-12)
-    delta_t = poses_ts[1] - poses_ts[0]
     raw = np.load(out / "event_threshold_0.1" / "gray_events_data.npy")
-    sel = (raw[:, 2] >= poses_ts[0] - delta_t) & (raw[:, 2] < poses_ts[-1] + delta_t)  # get_event_chunk
-    events = raw[sel].astype(np.float32)
-    assert set(np.unique(events[:, 3])) <= {-1.0, 1.0}
-    counts = source.window_counts("inter", frames[1:])
-    for idx in range(1, len(frames)):
-        chunk = (events[:, 2] >= poses_ts[idx - 1]) & (events[:, 2] < poses_ts[idx])
-        assert chunk.sum() == counts[idx - 1]
+    assert set(np.unique(raw[:, 3])) <= {-1.0, 1.0}
+    ev_all = source.events()
+    w = source.windows.iloc[frames[1:]]
+    for numpy2 in (True, False):  # exactly gs2e's windows, whichever NumPy the method runs on
+        chunks = inceventgs_chunks(raw, poses_ts, numpy2)
+        assert len(chunks) == len(frames) - 1  # __len__ = num_frames - 1: every image has a sample
+        for chunk, (_, r) in zip(chunks, w.iterrows()):
+            a, b = int(r["inter_i0"]), int(r["inter_i1"])
+            np.testing.assert_array_equal(chunk[:, 0], ev_all.x[a:b])
+            np.testing.assert_array_equal(chunk[:, 3], ev_all.p[a:b] * 2.0 - 1)
     cfg = yaml.safe_load(open(out / "gs2e_inceventgs.yaml"))
     K = source.K(0)
     assert (cfg["cam"]["H"], cfg["cam"]["W"]) == (source.height, source.width)
@@ -302,6 +336,8 @@ def test_event3dgs_reads_back(export_scene, source, tmp_path_factory):
         assert sorted(os.listdir(out / folder)) == names  # one-to-one with COLMAP names
     frames = man["gs2e_frames"]
     assert len(names) == len(frames) >= 7
+    assert len(event3dgs_index_range(len(names))) > 0  # train.py draws a training pair
+    assert man["heldout_frames"] == [frames[k] for k in (5, 25, 45, 65, 85) if k < len(frames)]
     for name, i in zip(names, frames):
         q, t, cid = imgs[name]
         R = np.transpose(_qvec2rotmat(q))  # readColmapCameras: R = qvec2rotmat(q).T, T = tvec

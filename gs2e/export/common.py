@@ -204,6 +204,37 @@ class SensorFit:
                         "positive offset crops, negative pads (padded pixels have no events)"}
 
 
+# ------------------------------------------------------------------ loader time axes
+def check_increasing_bounds(bounds: np.ndarray, where: str) -> np.ndarray:
+    """A loader's window boundaries must be strictly increasing in its dtype
+    (frames closer than its time resolution cannot be told apart)."""
+    if bounds.size > 1 and np.any(np.diff(bounds) <= 0):
+        raise InputError(f"{where}: frame times collapse in the loader's {bounds.dtype} time axis "
+                         "(frames closer than its resolution)")
+    return bounds
+
+
+def times_in_loader_windows(t_us: np.ndarray, t_frames_us: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+    """Event times (int us) on a loader's time axis (seconds from the first
+    frame, in ``bounds.dtype``) such that the loader's test ``bounds[k-1] <= t <
+    bounds[k]`` selects exactly the events gs2e's windows table puts in
+    ``[t_frames_us[k-1], t_frames_us[k])``.
+
+    Each time is its offset in seconds, rounded to the dtype and clipped into
+    its window's loader bounds: a shift no larger than the rounding between
+    gs2e's frame times and the loader's boundaries. Every event must lie in
+    ``[t_frames_us[0], t_frames_us[-1])``."""
+    t_us = np.asarray(t_us, np.int64)
+    t_frames_us = np.asarray(t_frames_us, np.int64)
+    k = np.searchsorted(t_frames_us, t_us, side="right")  # t_{k-1} <= t < t_k
+    if t_us.size and (k.min() < 1 or k.max() > len(t_frames_us) - 1):
+        raise ValueError("events outside the exported frames' span")
+    dtype = bounds.dtype
+    s = ((t_us - t_frames_us[0]) * 1e-6).astype(dtype)
+    below_next = np.nextafter(bounds[k], dtype.type(-np.inf))  # largest value < bounds[k]
+    return np.minimum(np.maximum(s, bounds[k - 1]), below_next)
+
+
 def angle_x(K: np.ndarray, width: int) -> float:
     """Horizontal field of view (radians) of a centred pinhole camera."""
     return 2.0 * math.atan(0.5 * width / K[0, 0])

@@ -9,9 +9,13 @@ readBlurNerfSyntheticInfo) synthetic layout::
                                   evenly over the exposure (start .. end); odd frame
                                   entries are skipped by both (gs2e repeats view k)
     <scene>/train/r_{2k}.png      the blurred frame of view k
-    <scene>/transform_test.json   frames[j]: "./test/r_{j}", 18 copies of the pose of
-                                  sharp frame j (E2NeRF tests with entry 1)
-    <scene>/test/r_{j}.png        the sharp frames of the same views
+    <scene>/transform_test.json   frames[2k] = frames[2k + 1] = test view k ("./test/r_{2k}",
+                                  "./test/r_{2k+1}"), 18 copies of the pose of sharp
+                                  frame k: E2GS reads frames[::2] (dataset_readers.py
+                                  L272, L316), E2NeRF every entry with the image
+                                  ./test/r_{j}.png (load_blender.py L60-64), so each
+                                  view is tested once by E2GS, twice by E2NeRF (same mean)
+    <scene>/test/r_{j}.png        the sharp frame of test view j // 2
     <scene>/events.pt             torch float32 (views, 4, H, W): bin b = ON minus OFF
                                   count between exposure poses b and b + 1
     <scene>/sparse/0/             COLMAP model with the SfM points (E2GS reads
@@ -101,9 +105,11 @@ def export_e2nerf(src, out: ExportOut, cfg: dict) -> None:
         for b in range(N_BINS):
             bins[k, b] = event_frame(ev, shape, int(edges[b]), int(edges[b + 1]), mode="signed")
         sharp = opencv_to_opengl(norm.apply_c2w(src.c2w([i])[0]))
-        test.append({"file_path": f"./test/r_{k}", "transform_matrix": [sharp.tolist()] * N_SUBPOSES,
-                     "gs2e_frame": int(i), "t_us": int(t[i])})
-        out.png(f"test/r_{k}.png", src.image("rgb", int(i)))
+        rgb = src.image("rgb", int(i))
+        for j in (2 * k, 2 * k + 1):  # E2GS keeps frames[::2]; E2NeRF reads all (see module docstring)
+            test.append({"file_path": f"./test/r_{j}", "transform_matrix": [sharp.tolist()] * N_SUBPOSES,
+                         "gs2e_frame": int(i), "t_us": int(t[i])})
+            out.png(f"test/r_{j}.png", rgb)
     fov = angle_x(K, src.width)
     out.text("transform_train.json", json.dumps({"camera_angle_x": fov, "frames": train}, indent=1))
     out.text("transform_test.json", json.dumps({"camera_angle_x": fov, "frames": test}, indent=1))
@@ -116,6 +122,7 @@ def export_e2nerf(src, out: ExportOut, cfg: dict) -> None:
         "target": "iCVTEAM/E2NeRF load_blender.py + run_nerf_exp.py; deguchihiroyuki/E2GS "
                   "readBlurNerfSyntheticInfo",
         "loader": cfg["e2nerf_loader"], "gs2e_frames": frames.tolist(), "n_events": n_events,
+        "test_views": "transform_test.json frames[2k] and frames[2k + 1] are gs2e_frames[k]",
         "time": "exposure bins: [exp_t0_us, exp_t1_us) of the windows table, split in 4 equal parts",
         "polarity": "events.pt: ON count minus OFF count per bin",
         "poses": "transform_*.json: camera-to-world, NeRF/OpenGL axes (y up, z backward)",

@@ -11,13 +11,23 @@
                                        (H, W, focal)] + near, far per image
     <scene>/all_poses_bounds.npy       the same for dense poses (interpolation), with
     <scene>/all_timestamps.npy         their times (us)
-    <scene>/events.h5                  datasets x, y, t (ns), p (0 OFF / 1 ON) at the root
+    <scene>/events.h5                  datasets x, y, t (int64 us), p (0 OFF / 1 ON) at the root
 
-Times are microseconds (files) and nanoseconds (events.h5) measured from
-``time_origin_us`` = 1 s before the first exported exposure (absolute gs2e
-time; the loader's EDI prior asserts exposure starts > 0). Train with
-``factor = 1``, ``llffhold`` as exported, ``events_tms_unit = ns``,
-``events_tms_files_unit = us`` (``evdeblurnerf.txt``). The loader builds
+Times are integer microseconds measured from ``time_origin_us`` = 1 s before
+the first exported exposure (absolute gs2e time; the loader's EDI prior
+asserts exposure starts > 0). With ``events_tms_unit = us`` the loader scales
+them by 1 and keeps them integers (utils/events.py L32-37), so its event times
+equal gs2e's. Train with ``factor = 1``, ``llffhold`` as exported,
+``events_tms_unit = us``, ``events_tms_files_unit = us`` (``evdeblurnerf.txt``).
+Its training batches are ``events_N_rand`` events that have a later event at
+the same pixel, dropping an incomplete batch (run_nerf.py L86-90,
+data/loader_events.py L255, L306-307): with fewer such events than its default
+2048 the file sets ``events_N_rand`` to their count. One documented
+difference from gs2e's windows: the optional EDI prior
+(``use_pts0_prior = edi``) sums a blurred image's events over
+[timestamps_start, timestamps_end] including the end (searchsorted left /
+right, data/loader_events.py L111-121), gs2e's exposure window is
+[exp_t0_us, exp_t1_us): events stamped exactly exp_t1_us are added. The loader builds
 K from one focal with the principal point at the image centre (checked) and
 asserts that the events hold both polarities (a warning names a one-sided
 stream). Near/far bounds are the 0.1 / 99.9 % depth percentiles of each frame,
@@ -33,6 +43,13 @@ from gs2e.export.common import ExportOut, check_centred_square_pixels
 from gs2e.export.conventions import check_polarity01
 
 LEAD_US = 1_000_000  # time origin: this long before the first exposure start
+EVENTS_N_RAND = 2048  # options.py: events_N_rand default 32 * 32 * 4 // 2
+
+
+def n_with_successor(x: np.ndarray, y: np.ndarray, width: int) -> int:
+    """Events followed by a later event at the same pixel (the loader's
+    training samples): all events but each pixel's last."""
+    return int(len(x) - len(np.unique(y.astype(np.int64) * width + x)))
 
 
 def llff_rows(c2w: np.ndarray, height: int, width: int, focal: float, bounds: np.ndarray) -> np.ndarray:
@@ -89,18 +106,29 @@ def export_evdeblurnerf(src, out: ExportOut, cfg: dict) -> None:
         comp = {"compression": "gzip", "compression_opts": 4, "shuffle": True} if len(ev) else {}
         f.create_dataset("x", data=ev.x.astype(np.uint16), **comp)
         f.create_dataset("y", data=ev.y.astype(np.uint16), **comp)
-        f.create_dataset("t", data=(ev.t - origin) * 1000, **comp)
+        f.create_dataset("t", data=(ev.t - origin).astype(np.int64), **comp)
         f.create_dataset("p", data=check_polarity01(ev.p, str(src.events_file)), **comp)
     if len(ev) == 0 or ev.p.min() == ev.p.max():
         out.warn("the events hold a single polarity (or none): the loader asserts both ON and OFF exist")
+    n_samples = n_with_successor(ev.x, ev.y, src.width)
+    if n_samples == 0:
+        raise InputError(f"{src.events_file}: no pixel has two events in the exported span; EvDeblurNeRF "
+                         "trains on pairs of consecutive events at a pixel")
+    batch = ""
+    if n_samples < EVENTS_N_RAND:
+        out.warn(f"{n_samples} events have a successor at their pixel, fewer than EvDeblurNeRF's "
+                 f"events_N_rand = {EVENTS_N_RAND}: evdeblurnerf.txt sets events_N_rand = {n_samples}")
+        batch = f"events_N_rand = {n_samples}\n"
     out.text("evdeblurnerf.txt",
              f"# settings for EvDeblurNeRF's config (datadir = this folder)\ndataset_type = llff\n"
-             f"factor = 1\nllffhold = {hold}\nevents_tms_unit = ns\nevents_tms_files_unit = us\n")
+             f"factor = 1\nllffhold = {hold}\nevents_tms_unit = us\nevents_tms_files_unit = us\n" + batch)
     out.manifest.update({
         "target": "uzh-rpg/EvDeblurNeRF data/loader.py + data/loader_events.py",
         "time_origin_us": origin, "gs2e_frames": frames.tolist(), "sharp_images": np.nonzero(sharp)[0].tolist(),
-        "time": "timestamps*.npz, all_timestamps.npy: int64 us; events.h5 t: int64 ns; both from "
-                "time_origin_us (absolute gs2e time)",
+        "time": "timestamps*.npz, all_timestamps.npy, events.h5 t: int64 us from time_origin_us "
+                "(absolute gs2e time)",
+        "edi_prior_window": "[timestamps_start, timestamps_end] (end included; gs2e: [exp_t0_us, exp_t1_us))",
+        "n_event_samples": n_samples,
         "polarity": "events.h5 p: 1 ON, 0 OFF (the loader maps 0 to -1)",
         "poses": "LLFF [down, right, back] columns of camera-to-world, gs2e world frame",
         "n_events": len(ev), "n_dense_poses": len(t_dense), "llffhold": hold,

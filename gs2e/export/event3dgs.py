@@ -20,6 +20,15 @@ thresholds of events.h5; DVS-Voltmeter: log(L * scale + k2) in the preset's
 intensity unit, step theta / k1, its bright-pixel limit, leak ignored).
 ``sharp`` writes the rendered sharp frames in grey instead (an oracle
 reconstruction, for upper-bound experiments).
+
+Its train.py (--event) draws a view index in [2, N - 4] and pairs images
+index and index + 1 (L116-118, L149-152), so image k - 1 to image k is
+exactly gs2e's inter-frame window of frame k. It never draws the sorted
+positions 5, 25, 45, 65, 85 (L128-131, "test on 5,25,45,65,85"; it takes
+the view before): those are its held-out views (``heldout_frames`` in the
+manifest; their images still enter as the second of the pair before them),
+scored against renders/, which holds every view's sharp frame
+(dataset_readers.py L176-179).
 """
 
 from __future__ import annotations
@@ -33,7 +42,8 @@ from gs2e.common.errors import InputError
 from gs2e.events.represent import event_frame
 from gs2e.export.common import ExportOut
 
-MIN_VIEWS = 7  # train.py draws index = randint(2, len(views) - 4) and uses index + 1
+MIN_VIEWS = 7  # train.py L118: index = randint(2, len(views) - 4), and index + 1 (L152)
+HELDOUT_POSITIONS = (5, 25, 45, 65, 85)  # train.py L128-131: never drawn as the training view
 
 
 class LogSignal:
@@ -128,6 +138,7 @@ def export_event3dgs(src, out: ExportOut, cfg: dict) -> None:
     out.manifest.update({
         "target": "lanpokn/Event-3DGS scene/dataset_readers.py readColmapSceneInfo",
         "intensity": mode, "gs2e_frames": frames.tolist(), "images": names,
+        "heldout_frames": [int(frames[k]) for k in HELDOUT_POSITIONS if k < len(frames)],
         "t_us": [int(t[i]) for i in frames],
         "n_events": int(sum(src.window_counts("inter", frames[1:]))),
         "poses": "sparse/0: COLMAP world-to-camera (OpenCV axes), gs2e world frame",

@@ -10,16 +10,26 @@ What its loader reads, per split ``train``, ``validation``, ``test``::
     <scene>/<split>/events/events.npz      exactly one file: x, y (int16), t (float64),
                                            p (int8, -1 OFF / +1 ON)
 
-The loader assumes the poses are evenly spaced in time over [0, t.max()] of
-the events (pose i at i / (N - 1) * t.max()) and hard-codes H, W = 260, 346.
-gs2e frames are evenly spaced (render.fps) but for the trajectory's last
-frame, which sits at its end time and is left out; t is written in seconds from the
-first exported frame, so pose i sits at t_i exactly and the loader's only
-approximation is that t.max() is the last event, not the last frame: the
-manifest records that gap (``alignment_gap_us``) and a warning is raised when
-it exceeds 1 % of a frame interval. Frames of another size are an error
-unless ``eventnerf_fit`` crops or pads them onto the 346x260 sensor (padded
-pixels have no events, which EventNeRF reads as "no brightness change").
+The loader places pose i of a split at i / (N - 1) * t.max() and takes the
+events of [start, end) with ``np.searchsorted`` (data_loader_split.py
+L101-124), so gs2e writes each split's times (float64 seconds from its first
+frame) on that axis: every event is clipped into its window's loader bounds
+(a shift no larger than a frame's distance from the even grid, under 1 us
+for render.fps frames; the manifest's ``max_shift_us``) and the file ends
+with one zero-polarity event at the last frame's time, which sets t.max()
+and lies in no window. The loader's windows then hold
+exactly gs2e's windows (gs2e's last, off-grid frame is left out). It
+hard-codes H, W = 260, 346: frames of another size are an error unless
+``eventnerf_fit`` crops or pads them onto the 346x260 sensor (padded pixels
+have no events, which EventNeRF reads as "no brightness change").
+
+``eventnerf.txt`` holds the config keys the layout needs: ``testskip = 1``
+(the default 8 keeps one view of a short validation split and no sampler;
+ddp_train_nerf.py L446-447, L673), ``is_cycled = False`` and a ``winsize``
+that leaves training windows (non-cycled, the loader trains on views
+1 + winsize .. N - 1; data_loader_split.py L86-87): ``eventnerf_winsize``,
+or min(50, (N - 1) // 2) views. Validation and test views start at their
+third view (winsize 1: L86).
 
 Poses are normalised as NeRF++ does (EventNeRF renders only inside the unit
 sphere): centre = mean camera centre, radius = 1.1 x the largest distance to a
@@ -32,12 +42,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from gs2e.export.common import ExportOut, SensorFit, matrix_text, scene_points, unit_sphere
+from gs2e.common.errors import ConfigError, InputError
+from gs2e.events.models import Events
+from gs2e.export.common import (ExportOut, SensorFit, check_increasing_bounds, matrix_text, scene_points,
+                                times_in_loader_windows, unit_sphere)
 from gs2e.export.conventions import signed_polarity
 
-SENSOR_W, SENSOR_H = 346, 260  # data_loader_split.py: H, W = 260, 346
+SENSOR_W, SENSOR_H = 346, 260  # data_loader_split.py L137: H, W = 260, 346
 SPLITS = ("train", "validation", "test")
-MIN_VIEWS = 3  # the loader skips the first 1 + winsize views (winsize >= 1)
+MIN_VIEWS = 3  # the loader skips the first 1 + winsize views (winsize >= 1; L86)
+WINSIZE_CAP = 50  # EventNeRF's configs/nerf/*.txt and configs/ablation/full.txt: winsize = 50
 
 
 def intrinsics_matrix(K: np.ndarray) -> np.ndarray:
@@ -67,6 +81,39 @@ def split_frames(frames: np.ndarray, holdout_every: int) -> dict[str, np.ndarray
     return {"train": frames, "validation": held, "test": held}
 
 
+def loader_bounds_s(n_views: int, t_max_s: float) -> np.ndarray:
+    """The loader's window boundaries of a split with ``n_views`` poses:
+    (i / (N - 1)) * t.max() in float64, as data_loader_split.py L102-124
+    computes them (a Python float times a numpy float64)."""
+    return np.array([i / (n_views - 1) for i in range(n_views)]) * np.float64(t_max_s)
+
+
+def choose_winsize(n_train_views: int, winsize: int | None) -> int:
+    """``winsize`` for a non-cycled train split of ``n_train_views`` poses: the
+    loader trains on views 1 + winsize .. N - 1, so winsize <= N - 2; ``None``
+    picks min(50, (N - 1) // 2), leaving half the views as window ends."""
+    if winsize is None:
+        return max(1, min(WINSIZE_CAP, (n_train_views - 1) // 2))
+    if winsize > n_train_views - 2:
+        raise ConfigError(f"export.eventnerf_winsize = {winsize} leaves no EventNeRF training window: the "
+                          f"train split has {n_train_views} views and the loader (is_cycled = False) trains "
+                          f"on views 1 + winsize .. {n_train_views - 1}; use at most {n_train_views - 2} "
+                          "(or null to choose)")
+    return int(winsize)
+
+
+def loader_events(ev: Events, t_split_us: np.ndarray, where: str) -> dict[str, np.ndarray]:
+    """events.npz arrays of one split: times on the loader's axis (see module
+    docstring) and a closing zero-polarity event at the last frame's time."""
+    t_max_s = (int(t_split_us[-1]) - int(t_split_us[0])) * 1e-6
+    bounds = check_increasing_bounds(loader_bounds_s(len(t_split_us), t_max_s), where)
+    t = times_in_loader_windows(ev.t, t_split_us, bounds)
+    return {"x": np.append(ev.x.astype(np.int16), np.int16(0)),
+            "y": np.append(ev.y.astype(np.int16), np.int16(0)),
+            "t": np.append(t, bounds[-1]),
+            "p": np.append(signed_polarity(ev.p, where), np.int8(0))}
+
+
 def export_eventnerf(src, out: ExportOut, cfg: dict) -> None:
     t_frames = src.frames["t_us"].to_numpy()
     frames = src.covered_frames()
@@ -75,41 +122,47 @@ def export_eventnerf(src, out: ExportOut, cfg: dict) -> None:
         out.warn(f"{len(frames) - len(on_grid)} last frame(s) off the render.fps grid (the "
                  f"trajectory's end) are not exported: the loader assumes evenly spaced poses")
         frames = on_grid
+    if len(frames) < MIN_VIEWS:
+        raise InputError(f"{src.events_file}: events cover {len(frames)} evenly spaced frames; EventNeRF's "
+                         f"loader needs at least {MIN_VIEWS} (it trains on views 1 + winsize ..)")
     fit = SensorFit.centred(src.width, src.height, SENSOR_W, SENSOR_H, cfg["eventnerf_fit"],
                             "EventNeRF (data_loader_split.py)")
     c2w_all = src.c2w(frames)
     norm = unit_sphere(c2w_all[:, :3, 3], scene_points(src, frames))
-    dt_frame = float(np.median(np.diff(t_frames[frames])))
     splits = split_frames(frames, int(cfg["eventnerf_holdout_every"]))
+    winsize = choose_winsize(len(splits["train"]), cfg["eventnerf_winsize"])
     info = {}
     for split, idx in splits.items():
         t0, t1 = int(t_frames[idx[0]]), int(t_frames[idx[-1]])
-        ev = src.events(t0, t1)
-        ev, dropped = fit.events(ev)
+        ev, dropped = fit.events(src.events(t0, t1))
         for k, i in enumerate(idx):
             name = f"{k:06d}"
             out.text(f"{split}/pose/{name}.txt", matrix_text(norm.apply_c2w(src.c2w([i])[0])))
             out.text(f"{split}/intrinsics/{name}.txt", matrix_text(intrinsics_matrix(fit.K(src.K(i)))))
             out.png(f"{split}/rgb/{name}.png", fit.image(src.image("rgb", i)))
-        np.savez(out.path(f"{split}/events/events.npz"),
-                 x=ev.x.astype(np.int16), y=ev.y.astype(np.int16),
-                 t=(ev.t - t0).astype(np.float64) * 1e-6,
-                 p=signed_polarity(ev.p, str(src.events_file)))
-        gap = (t1 - int(ev.t[-1])) if len(ev) else None
+        arrays = loader_events(ev, t_frames[idx], f"EventNeRF {split} split of {src.events_file}")
+        np.savez(out.path(f"{split}/events/events.npz"), **arrays)
+        shift_us = np.abs(arrays["t"][:-1] - (ev.t - t0) * 1e-6) * 1e6
         if len(ev) == 0:
-            out.warn(f"{split}: no events in the exported span; EventNeRF cannot place windows")
-        elif gap > 0.01 * dt_frame * (len(idx) > 1):
-            out.warn(f"{split}: the last event is {gap} us before the last frame; the loader's "
-                     f"window boundaries (i/(N-1) x t.max) shift by up to that")
+            out.warn(f"{split}: no events in the exported span")
+        first = 1 + (winsize if split == "train" else 1)  # data_loader_split.py L86
         info[split] = {"gs2e_frames": idx.tolist(), "t0_us": t0, "t1_us": t1, "n_events": len(ev),
-                       "events_dropped_off_sensor": dropped, "alignment_gap_us": gap}
+                       "events_dropped_off_sensor": dropped, "loader_t_max_s": (t1 - t0) * 1e-6,
+                       "max_shift_us": float(shift_us.max()) if len(ev) else 0.0,
+                       "loader_views": idx[first:].tolist()}
+    place = (f"datadir = {out.final.parent}\nscene = {out.final.name}\n" if out.final
+             else "# datadir = this folder's parent, scene = its name\n")
     out.text("eventnerf.txt",
-             "# settings for EventNeRF's config (datadir = this folder's parent, scene = its name)\n"
-             "is_colored = False\npolarity_offset = 0.0\nis_cycled = False\n")
+             "# EventNeRF config keys for this export (add your experiment's keys)\n" + place +
+             "is_colored = False\npolarity_offset = 0.0\nis_cycled = False\n"
+             f"trainskip = 1\ntestskip = 1\nwinsize = {winsize}\n")
     out.manifest.update({
         "target": "r00tman/EventNeRF data_loader_split.py",
-        "time": "events.npz t: float64 seconds from the split's first frame (t0_us, absolute)",
-        "polarity": "events.npz p: int8, +1 ON, -1 OFF",
+        "time": "events.npz t: float64 seconds from the split's first frame (t0_us, absolute), each "
+                "clipped into its loader window [j/(N-1), (j+1)/(N-1)) x t.max() (< 1 us shift)",
+        "polarity": "events.npz p: int8, +1 ON, -1 OFF; the last event (p = 0, x = y = 0) sits at the "
+                    "last frame's time: it sets t.max() and is in no loader window",
+        "winsize": winsize,
         "poses": "pose/*.txt: camera-to-world, OpenCV axes, after the normalisation",
         "normalisation": norm.to_dict(), "sensor_fit": fit.to_dict(), "splits": info,
     })

@@ -10,11 +10,17 @@
                                                     p = -1 OFF / +1 ON (summed into event maps)
     <scene>/gs2e_inceventgs.yaml                    the cam: and data: keys of its config
 
-The loader slices events[t in [poses_ts[i-1], poses_ts[i])) for image i and
-casts the array to float32: times are seconds from the first exported frame,
-so float32 keeps microseconds for sequences up to ~16 s (a warning names
-longer ones). Intrinsics come from the YAML config; note that its BaseDataset
-floors cam.fx/fy/cx/cy with ``//`` for some code paths (a warning names
+The loader reads poses_ts.txt as float64 (np.loadtxt), casts the events to
+float32 (datasets/dataset.py L382) and takes image i's events with
+``poses_ts[i-1] <= t < poses_ts[i]`` (L133-139, L458): a float32 array against
+a float64 scalar, compared in float32 by NumPy 1 and in float64 by NumPy 2.
+gs2e writes every time as a float32 value (seconds from the first exported
+frame; poses_ts.txt with enough digits to read back exactly), each event
+clipped into its window's bounds, so both comparisons select exactly gs2e's
+windows. Past 8 s a float32 second is coarser than 0.5 us, so event times
+move by up to one float32 step (a warning gives the resolution).
+Intrinsics come from the YAML config; note that its BaseDataset floors
+cam.fx/fy/cx/cy with ``//`` for some code paths (a warning names
 non-integer intrinsics).
 """
 
@@ -23,10 +29,16 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from gs2e.export.common import ExportOut
+from gs2e.export.common import ExportOut, check_increasing_bounds, times_in_loader_windows
 from gs2e.export.conventions import signed_polarity
 
-FLOAT32_EXACT_US = 1 << 24  # float32 seconds resolve 1 us up to 2^24 us
+FLOAT32_FINE_US = 8_000_000  # float32 seconds have steps <= 0.5 us below 8 s
+
+
+def pose_times_s(t_frames_us: np.ndarray) -> np.ndarray:
+    """float32 seconds of the frames from the first one (the loader's time axis)."""
+    t = np.asarray(t_frames_us, np.int64)
+    return ((t - t[0]) * 1e-6).astype(np.float32)
 
 
 def export_inceventgs(src, out: ExportOut, cfg: dict) -> None:
@@ -44,15 +56,19 @@ def export_inceventgs(src, out: ExportOut, cfg: dict) -> None:
         names.append(name)
     c2w = src.c2w(frames)
     np.savetxt(out.path("traj.txt"), c2w.reshape(len(frames), 16), fmt="%.17g")
-    np.savetxt(out.path("poses_ts.txt"), (t_frames - t0) * 1e-6, fmt="%.6f")
+    poses_ts = check_increasing_bounds(pose_times_s(t_frames), f"IncEventGS poses_ts of {src.events_file}")
+    # shortest float64 repr of each float32 value: np.loadtxt reads it back exactly
+    out.text("poses_ts.txt", "".join(f"{float(v)!r}\n" for v in poses_ts))
     ev = src.events(t0, t1)
-    arr = np.stack([ev.x.astype(np.float64), ev.y.astype(np.float64), (ev.t - t0) * 1e-6,
+    arr = np.stack([ev.x.astype(np.float64), ev.y.astype(np.float64),
+                    times_in_loader_windows(ev.t, t_frames, poses_ts).astype(np.float64),
                     signed_polarity(ev.p, str(src.events_file)).astype(np.float64)], 1)
     np.save(out.path("event_threshold_0.1/gray_events_data.npy"), arr.reshape(-1, 4))
     K = src.K(int(frames[0]))
-    if t1 - t0 > FLOAT32_EXACT_US:
-        out.warn(f"sequence is {(t1 - t0) / 1e6:.1f} s long: the loader's float32 cast rounds event "
-                 "times to more than 1 us")
+    if t1 - t0 > FLOAT32_FINE_US:
+        step_us = float(np.spacing(np.float32((t1 - t0) * 1e-6))) * 1e6
+        out.warn(f"sequence is {(t1 - t0) / 1e6:.1f} s long: the loader's float32 seconds resolve "
+                 f"{step_us:.2f} us at its end (event times rounded to that; windows stay exact)")
     if any(v != np.floor(v) for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2])):
         out.warn("non-integer intrinsics: IncEventGS's BaseDataset floors cam.fx/fy/cx/cy (//) "
                  "for some of its ray computations")
@@ -75,8 +91,8 @@ def export_inceventgs(src, out: ExportOut, cfg: dict) -> None:
     out.text("gs2e_inceventgs.yaml", yaml_text)
     out.manifest.update({
         "target": "WU-CVGL/IncEventGS datasets/dataset.py ReplicaEventDataset",
-        "time": f"poses_ts.txt and events t: float seconds from the first exported frame "
-                f"(absolute t0_us = {t0})",
+        "time": f"poses_ts.txt and events t: float32-exact seconds from the first exported frame "
+                f"(absolute t0_us = {t0}), each event inside its window [poses_ts[i-1], poses_ts[i])",
         "polarity": "gray_events_data.npy p: +1 ON, -1 OFF",
         "poses": "traj.txt: camera-to-world (row-major 16 floats), OpenCV axes, gs2e world frame",
         "gs2e_frames": frames.tolist(), "t0_us": t0, "t1_us": t1, "n_events": len(ev),
