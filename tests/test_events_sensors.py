@@ -202,16 +202,20 @@ def test_training_resolution_follows_the_sensor_ingest_does_not(tmp_path):
               "--target-size", "346x260"])
 
     land, port = Camera(500.0, 500.0, 320.0, 240.0), Camera(500.0, 500.0, 240.0, 320.0)
-    sharp = Camera(1000.0, 1000.0, 640.0, 480.0)  # twice the angular resolution
+    zoom = Camera(1000.0, 1000.0, 640.0, 480.0)  # twice the angular resolution
+    wide = Camera(250.0, 250.0, 320.0, 240.0)  # half: an outlier that must not set the reference
     eye = np.eye(4)
-    scene = Scene(640, 480, [Frame("a", land, eye), Frame("b", port, eye), Frame("c", land, eye),
-                             Frame("d", sharp, eye)],
-                  extra={"frame_sizes": [[640, 480], [480, 640], [640, 480], [1280, 960]]})
-    assert train_sizes(scene, "auto", (346, 260)) == [(347, 260), (260, 347), (347, 260), (347, 260)]
-    assert train_sizes(scene, "auto", None) == [(640, 480), (480, 640), (640, 480), (1280, 960)]
-    assert train_sizes(scene, None, (346, 260)) == [(640, 480), (480, 640), (640, 480), (1280, 960)]
-    assert train_sizes(scene, 200, (346, 260)) == [(200, 150), (150, 200), (200, 150), (200, 150)]
-    assert train_sizes(scene, "auto", (1280, 720)) == [(640, 480), (480, 640), (640, 480), (1280, 960)]
+    scene = Scene(640, 480, [Frame("w", wide, eye), Frame("a", land, eye), Frame("b", port, eye),
+                             Frame("c", land, eye), Frame("d", zoom, eye)],
+                  extra={"frame_sizes": [[640, 480], [640, 480], [480, 640], [640, 480], [1280, 960]]})
+    native = [(640, 480), (640, 480), (480, 640), (640, 480), (1280, 960)]
+    assert train_sizes(scene, "auto", (346, 260)) == \
+        ((347, 260), [(640, 480), (347, 260), (260, 347), (347, 260), (347, 260)])
+    assert train_sizes(scene, "auto", None) == ((640, 480), native)
+    assert train_sizes(scene, None, (346, 260)) == ((640, 480), native)
+    assert train_sizes(scene, 200, (346, 260)) == \
+        ((200, 150), [(400, 300), (200, 150), (150, 200), (200, 150), (200, 150)])
+    assert train_sizes(scene, "auto", (1280, 720)) == ((640, 480), native)
     with pytest.raises(SystemExit):
         main(["train", "--scene", str(tmp_path / "ing"), "--out", str(tmp_path / "t"),
               "--target-size", "346by260"])

@@ -291,7 +291,7 @@ def test_mixed_orientation_views_keep_their_orientation(tmp_path, layout):
     for i in (1, 3):
         write_images(tmp_path / "src" / "images", [ref.frames[i].name], 32, 48, seed=20 + i)
     scene = ingest_scene(tmp_path / "src", layout, tmp_path / "out", {})
-    assert (scene.width, scene.height) == (48, 32) and scene.main_frame() == 0
+    assert (scene.width, scene.height) == (48, 32) and scene.main_frames() == [0, 2, 4]
     assert [list(scene.frame_size(i)) for i in range(5)] == sizes
     assert [f.camera for f in scene.frames] == [land, port, land, port, land]
     for i, f in enumerate(scene.frames):

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from gs2e.config import load_section
@@ -51,9 +52,12 @@ def test_both_layouts_keep_each_views_orientation(mouse, tmp_path):
         for i, f in enumerate(s.frames):
             w, h = s.frame_size(i)
             assert read_image(folder / IMAGES_DIR / f.name).shape == (h, w, 3)
-            # square pixels and a centred principal point in both orientations
-            assert f.camera.fx == pytest.approx(f.camera.fy, rel=2e-3)
-            assert f.camera.cx == pytest.approx(w / 2, abs=1.0) and f.camera.cy == pytest.approx(h / 2, abs=1.0)
+            # the capture's own camera, scaled the same along both axes (not squeezed)
+            c = rec.cameras[rec.find_image_with_name(names[i]).camera_id]
+            fx, fy, cx, cy = c.params
+            assert (c.width, c.height) == (6 * w, 6 * h)
+            assert [f.camera.fx, f.camera.fy, f.camera.cx, f.camera.cy] == \
+                pytest.approx([fx / 6, fy / 6, cx / 6, cy / 6], rel=1e-9)
     assert [f.camera for f in mv.frames] == [f.camera for f in scene.frames]
     assert mv.extra.get("sequential") is True
 
@@ -71,12 +75,24 @@ def test_sfm_training_and_evaluation_keep_each_views_size(mouse, tmp_path):
     st = train(root / "sfm", tmp_path / "splat", cfg, threads=2, target_size=(160, 120))
     assert (st["train_width"], st["train_height"]) == (160, 120)
     sizes = json.loads((tmp_path / "splat" / "model.json").read_text())["view_sizes"]
-    for i, f in enumerate(sfm.frames):  # each view at half its own size, orientation kept
+    focal = {f.name: np.sqrt(f.camera.fx * f.camera.fy) for f in sfm.frames}
+    f_ref = np.median([focal[sfm.frames[i].name] for i in sfm.main_frames()])
+    for i, f in enumerate(sfm.frames):
+        # orientation kept; every view at the angular resolution of a 160x120 main view
+        # (this phone changes its focal length by up to 1.6x between shots)
         w, h = sfm.frame_size(i)
-        assert tuple(sizes[f.name]) == (w // 2, h // 2)
+        tw, th = sizes[f.name]
+        assert (tw > th) == (w > h)
+        assert max(tw, th) == pytest.approx(min(1.0, 0.5 * f_ref / focal[f.name]) * max(w, h), abs=1.0)
     rows = render_views(tmp_path / "splat", root / "sfm", tmp_path / "views", "all")
     assert len(rows) == len(sfm.frames)
-    for i, f in enumerate(sfm.frames):
-        w, h = sfm.frame_size(i)
+    for f in sfm.frames:
         img = read_image(tmp_path / "views" / (f.name.rsplit(".", 1)[0] + ".png"))
-        assert img.shape == (h // 2, w // 2, 3)
+        assert img.shape[:2] == tuple(sizes[f.name])[::-1]
+    # a view whose stored image disagrees with scene.json is refused, not squeezed
+    from gs2e.common.errors import InputError
+    from gs2e.splat.views import load_views
+
+    sfm.extra["frame_sizes"] = [[240, 320]] * len(sfm.frames)
+    with pytest.raises(InputError, match="is 320x240 but .*scene.json says 240x320"):
+        load_views(root / "sfm", sfm, [1])

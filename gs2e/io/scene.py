@@ -130,11 +130,16 @@ class Scene:
             return int(sizes[i][0]), int(sizes[i][1])
         return int(self.width), int(self.height)
 
-    def main_frame(self) -> int:
-        """Index of the first frame of the scene's own size: the camera virtual
-        trajectories use (see :func:`main_size`)."""
+    def main_frames(self) -> list[int]:
+        """Indices of the frames of the scene's own size (see :func:`main_size`)."""
         size = (int(self.width), int(self.height))
-        return next((i for i in range(len(self.frames)) if self.frame_size(i) == size), 0)
+        return [i for i in range(len(self.frames)) if self.frame_size(i) == size] or [0]
+
+    def main_K(self) -> np.ndarray:
+        """(3, 3) element-wise median intrinsics of the frames of the scene's own
+        size: the camera of its virtual trajectories where a frame of another size
+        or orientation lends only its pose (phones change focal length per shot)."""
+        return np.median(np.stack([self.frames[i].camera.K for i in self.main_frames()]), axis=0)
 
     def c2w_array(self) -> np.ndarray:
         """(N, 4, 4) camera-to-world poses; raises if any frame lacks one."""

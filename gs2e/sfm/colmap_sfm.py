@@ -238,7 +238,8 @@ def _write_undistorted(run: _Run, out: Path, threads: int, keep_points: bool, re
             out_scene.points_xyz, out_scene.points_rgb = scene.points_xyz, scene.points_rgb
         out_scene.layout = "sfm"
         out_scene.source = str(run.scene_dir)
-        out_scene.extra = {"input_extra": scene.extra, "registered": sorted(registered)}
+        # (frame_sizes: views of other sizes or orientations keep theirs)
+        out_scene.extra = {**out_scene.extra, "input_extra": scene.extra, "registered": sorted(registered)}
         shutil.move(str(undist / "images"), str(out / IMAGES_DIR))
         (out / "sparse").mkdir()
         shutil.move(str(undist / "sparse"), str(out / "sparse" / "0"))

@@ -133,7 +133,7 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     scene = read_scene(scene_dir)
     t0 = time.perf_counter()
     schedule = cfg["resolution_schedule"]
-    sizes = train_sizes(scene, cfg["max_side"], target_size)
+    train_size, sizes = train_sizes(scene, cfg["max_side"], target_size)
     views = load_views(scene_dir, scene, [1] + [int(f) for _, f in schedule], sizes)
     train_v, test_v = split_views(views, cfg["test_every"])
     extent = scene_extent(train_v)
@@ -142,10 +142,9 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     stats: dict[str, Any] = {"backend": backend, "n_views": len(views), "n_train_views": len(train_v),
                              "n_test_views": len(test_v), "extent": extent,
                              "test_every": cfg["test_every"], "background": list(cfg["background"]),
-                             "train_width": sizes[scene.main_frame()][0],
-                             "train_height": sizes[scene.main_frame()][1]}
+                             "train_width": train_size[0], "train_height": train_size[1]}
     view_sizes = {v.name: list(sz) for v, sz in zip(views, sizes)}
-    log.info("training at %dx%d (views %dx%d%s)", *sizes[scene.main_frame()], scene.width, scene.height,
+    log.info("training at %dx%d (views %dx%d%s)", *train_size, scene.width, scene.height,
              "" if target_size is None else f", event sensor {target_size[0]}x{target_size[1]}")
 
     if cfg["model_source"] == "ply":

@@ -52,32 +52,34 @@ def downscale_area(img: np.ndarray, downscale: int) -> np.ndarray:
 
 
 def train_sizes(scene: Scene, max_side: int | str | None,
-                target: tuple[int, int] | None = None) -> list[tuple[int, int]]:
-    """(W, H) each view trains at (``splat.max_side``).
+                target: tuple[int, int] | None = None) -> tuple[tuple[int, int], list[tuple[int, int]]]:
+    """The size training works at (``splat.max_side``): (the scene's own size
+    after shrinking, (W, H) of each view).
 
     The scene's own size (:func:`gs2e.io.scene.main_size`) is shrunk to a
     longer side of ``max_side`` px, or with ``"auto"`` to the smallest size
     that still covers ``target`` (the event sensor's array; None: no shrink).
-    Every view then keeps the angular resolution of those views: view i is
-    scaled by s * f_main / f_i (f: geometric mean focal length, px), so a
-    portrait view of the same camera shrinks exactly as the landscape ones and
-    a sharper camera's views shrink more. Never enlarges.
+    Every view then gets the angular resolution of those views: view i is
+    scaled by s * f_ref / f_i (f: geometric mean focal length in px; f_ref its
+    median over the views of the scene's size), so a portrait view of the
+    same camera shrinks exactly as the landscape ones and a narrower view
+    (a phone's zoom) shrinks less. Never enlarges.
     """
     from gs2e.io.images import cover_max_side, scaled_size
 
     W, H = int(scene.width), int(scene.height)
+    native = [scene.frame_size(i) for i in range(len(scene.frames))]
     side = cover_max_side(W, H, target) if max_side == "auto" else max_side
     if side is None or side >= max(W, H):
-        return [scene.frame_size(i) for i in range(len(scene.frames))]
+        return (W, H), native
     s = side / max(W, H)
-    c = scene.frames[scene.main_frame()].camera
-    f_main = float(np.sqrt(c.fx * c.fy))
+    focal = [float(np.sqrt(f.camera.fx * f.camera.fy)) for f in scene.frames]
+    f_ref = float(np.median([focal[i] for i in scene.main_frames()]))
     sizes = []
-    for i, f in enumerate(scene.frames):
-        w, h = scene.frame_size(i)
-        s_i = min(1.0, s * f_main / float(np.sqrt(f.camera.fx * f.camera.fy)))
+    for (w, h), f_i in zip(native, focal):
+        s_i = min(1.0, s * f_ref / f_i)
         sizes.append(scaled_size(w, h, 1, max(1, int(np.ceil(s_i * max(w, h) - 1e-9)))))
-    return sizes
+    return scaled_size(W, H, 1, side), sizes
 
 
 def load_views(scene_dir: Path, scene: Scene, downscales: list[int],
@@ -97,6 +99,9 @@ def load_views(scene_dir: Path, scene: Scene, downscales: list[int],
             raise InputError(f"{scene_dir}: frame {f.name} has a {f.camera.model} camera; "
                              "training needs undistorted PINHOLE views (gs2e sfm output)")
         rgb, cam = read_image(scene_dir / IMAGES_DIR / f.name), f.camera
+        if (rgb.shape[1], rgb.shape[0]) != scene.frame_size(i):  # never squeeze a view silently
+            raise InputError(f"{scene_dir / IMAGES_DIR / f.name} is {rgb.shape[1]}x{rgb.shape[0]} but "
+                             f"{scene_dir / 'scene.json'} says %dx%d" % scene.frame_size(i))
         if sizes is not None:
             rgb, cam, _ = resize_with_camera(rgb, cam, tuple(sizes[i]))
         imgs = {d: torch.from_numpy(downscale_area(rgb, d).astype(np.float32) / 255.0)

@@ -36,10 +36,10 @@ class StageResult:
 def _intrinsics(scene: Scene) -> list[np.ndarray]:
     """(3, 3) K per input frame, as the virtual camera uses it: the frame's own
     when it has the scene's size (W, H: the most common view size and
-    orientation), else that of the scene's first such frame (a portrait view of
-    a landscape-dominated capture lends its pose, not its camera)."""
-    main = scene.frames[scene.main_frame()].camera.K
+    orientation), else the median of those frames' (a portrait view of a
+    landscape-dominated capture lends its pose, not its camera)."""
     size = (int(scene.width), int(scene.height))
+    main = scene.main_K()
     Ks = [f.camera.K if scene.frame_size(i) == size else main for i, f in enumerate(scene.frames)]
     if any(f.camera.dist and any(abs(x) > 0 for x in f.camera.dist) for f in scene.frames):
         log.warning("input cameras have distortion; trajectories use their pinhole part")
@@ -48,10 +48,10 @@ def _intrinsics(scene: Scene) -> list[np.ndarray]:
 
 def camera_choice(scene: Scene) -> dict:
     """How the virtual camera was chosen (recorded in every trajectory's meta)."""
-    size = (int(scene.width), int(scene.height))
-    n_main = sum(scene.frame_size(i) == size for i in range(len(scene.frames)))
-    return {"camera_size": list(size), "camera_frame": scene.frames[scene.main_frame()].name,
-            "camera_rule": f"the most common view size and orientation ({n_main} of {len(scene.frames)} views)"}
+    n_main, n = len(scene.main_frames()), len(scene.frames)
+    return {"camera_size": [int(scene.width), int(scene.height)],
+            "camera_rule": f"the most common view size and orientation ({n_main} of {n} views); "
+                           "views of other sizes lend their poses with those views' median intrinsics"}
 
 
 def _nearest_input(base: SampledPath, j: int) -> int:
