@@ -15,10 +15,18 @@ headline is the CPU-hours for N scenes and the largest job's memory.
 
     python benchmarks/bench_cost_model.py [--results DIR ...] [--scenes 1050]
                                           [--trajectories 4] [--scale train=405 ...] [--quick]
+    python benchmarks/bench_cost_model.py --run temple_ring llff_fern --sensor davis346
+    python benchmarks/bench_cost_model.py --run mouse_colmap --sensor imx636
 
-Default results: the repository's results/ (after `make demo`).
+Default results: the repository's results/ (after `make demo`). ``--run`` first
+runs the workflow (2 cores) on real scenes of ``../shared/data`` with the paper's
+selection of trajectories and its trajectory and event settings
+(``config/paper.yaml`` without its 30k training steps: the default recipe with
+its plateau stop) at the ``--sensor`` chosen, into
+``benchmarks/results/cost_<sensor>/``, then models what it measured.
 Writes benchmarks/results/bench_cost_model.csv (per stage), bench_cost_model_jobs.csv
-(per job) and bench_cost_model.png; the last line printed is the headline.
+(per job) and bench_cost_model.png (``bench_cost_model_<sensor>*`` with ``--run``);
+the last line printed is the headline.
 """
 
 from __future__ import annotations
@@ -35,13 +43,57 @@ from _results import RESULTS, pyplot, write_csv  # noqa: E402
 from gs2e.report.io import read_results_benchmarks  # noqa: E402
 
 DEFAULT_RESULTS = REPO / "results"
-STAGES = ("demo_scene", "ingest", "sfm", "train", "trajectory", "render", "events", "metrics", "summary")
-PER_TRAJECTORY = ("render", "events")
+STAGES = ("demo_scene", "ingest", "sfm", "train", "trajectory", "render", "events", "windows", "export",
+          "bench", "metrics", "summary")
+PER_TRAJECTORY = ("render", "events", "windows", "export", "bench")
 NOT_SCALED = ("demo_scene", "summary")
 
 
+# Real scenes of ../shared/data: layout and input path for the scenes table.
+SHARED = REPO.parent / "shared" / "data"
+SHARED_SCENES = {"temple_ring": ("folder", "temple_ring"), "llff_fern": ("folder", "llff_fern/images"),
+                 "mouse_colmap": ("colmap", "mouse_colmap")}
+
+
+def run_workflow(scenes: list[str], sensor: str, cores: int) -> Path:
+    """Run the workflow on real scenes with config/paper.yaml's trajectory, render
+    and event settings (training: the default recipe) at ``sensor``; returns
+    the results dir. Finished jobs are kept (Snakemake reruns nothing)."""
+    import subprocess
+
+    import yaml
+
+    work = RESULTS / f"cost_{sensor}"
+    work.mkdir(parents=True, exist_ok=True)
+    rows = ["scene_id\tlayout\tpath\toverrides"]
+    for sc in scenes:
+        layout, rel = SHARED_SCENES[sc]
+        if not (SHARED / rel).exists():
+            raise SystemExit(f"{SHARED / rel} is absent")
+        rows.append(f"{sc}\t{layout}\t{SHARED / rel}\t")
+    (work / "scenes.tsv").write_text("\n".join(rows) + "\n")
+    paper = yaml.safe_load((REPO / "config" / "paper.yaml").read_text())
+    cfg = {k: v for k, v in paper.items() if k not in ("splat", "scenes", "results_dir")}
+    cfg["events"] = {**cfg.get("events", {}), "sensor": sensor}
+    cfg.update(scenes=str(work / "scenes.tsv"), results_dir=str(work / "results"))
+    (work / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
+    cmd = [str(REPO / ".venv" / "bin" / "snakemake"),
+           *[str(work / "results" / sc / "metrics.parquet") for sc in scenes],
+           "--cores", str(cores), "--rerun-incomplete", "--snakefile", str(REPO / "Snakefile"),
+           "--directory", str(REPO),
+           "--configfile", str(REPO / "config" / "config.yaml"), str(work / "config.yaml")]
+    print("running:", " ".join(cmd), flush=True)
+    with open(work / "snakemake.log", "w") as log:
+        proc = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT)
+    if proc.returncode:
+        raise SystemExit(f"the workflow failed (exit {proc.returncode}); see {work / 'snakemake.log'}")
+    return work / "results"
+
+
 def stage_of(job: str) -> str:
-    """Benchmark file stem -> stage (render_<traj> -> render)."""
+    """Benchmark file stem -> stage (render_<traj> -> render, export_<fmt> -> export)."""
+    if job == "bench_summary":
+        return "summary"
     for s in PER_TRAJECTORY:
         if job.startswith(s + "_"):
             return s
@@ -67,8 +119,9 @@ def scene_info(results: Path, scene: str) -> str:
 
         r = pd.read_parquet(p).iloc[0]
         w, h = r.get("events_width"), r.get("events_height")
-        return (f"{int(r['sfm_n_views'])} views {int(w)}x{int(h)}, {int(r['train_iterations'])} steps, "
-                f"{int(r['train_n_gaussians'])} Gaussians")
+        psnr = r.get("train_test_psnr", math.nan)
+        return (f"{int(r['sfm_n_views'])} views, events {int(w)}x{int(h)}, {int(r['train_iterations'])} "
+                f"steps, {int(r['train_n_gaussians'])} Gaussians, held-out {psnr:.2f} dB")
     except Exception as exc:  # a partial or older table: describe nothing rather than fail
         return f"(metrics unreadable: {exc.__class__.__name__})"
 
@@ -103,8 +156,11 @@ def round_up(x: float, step: int) -> int:
     return int(math.ceil(x / step) * step) if math.isfinite(x) else 0
 
 
-def model(jobs: list[dict], n_traj: int, n_scenes: int, at_mp: float = 2.07) -> list[dict]:
-    """Per-stage cost model (see the module docstring)."""
+def model(jobs: list[dict], n_traj: int, n_scenes: int, at_mp: float = 2.07,
+          measured_traj: int | None = None) -> list[dict]:
+    """Per-stage cost model (see the module docstring): jobs per scene as
+    measured (mean over the scenes that ran the stage), per-trajectory stages
+    scaled from ``measured_traj`` to ``n_traj`` trajectories."""
     scenes = sorted({(j["results"], j["scene"]) for j in jobs if j["scene"] != "(dataset)"})
     out = []
     for stage in STAGES:
@@ -113,7 +169,11 @@ def model(jobs: list[dict], n_traj: int, n_scenes: int, at_mp: float = 2.07) -> 
             continue
         per_job_cpu = sum(j["cpu_s"] for j in sj) / len(sj)
         per_job_wall = sum(j["wall_s"] for j in sj) / len(sj)
-        jobs_per_scene = n_traj if stage in PER_TRAJECTORY else 1
+        ran = {(j["results"], j["scene"]) for j in sj}
+        jobs_per_scene = len(sj) / len(ran)
+        if stage in PER_TRAJECTORY and measured_traj:
+            jobs_per_scene *= n_traj / measured_traj
+        jobs_per_scene = round(jobs_per_scene, 2)
         if stage == "summary":
             jobs_per_scene = 0  # once per dataset
         cpu_min_scene = per_job_cpu * jobs_per_scene / 60
@@ -154,7 +214,15 @@ def main() -> int:
                     help="image size for the memory prediction (linear fit of peak RSS in megapixels "
                          "when scenes of different sizes were measured); default 1920x1080")
     ap.add_argument("--quick", action="store_true", help="accepted for uniformity (always quick)")
+    ap.add_argument("--run", nargs="+", default=None, choices=sorted(SHARED_SCENES), metavar="SCENE",
+                    help=f"first run the workflow on these scenes of ../shared/data ({', '.join(SHARED_SCENES)})")
+    ap.add_argument("--sensor", default=None,
+                    help="events.sensor for --run (default davis346); names the output files")
+    ap.add_argument("--cores", type=int, default=2, help="snakemake --cores for --run")
     args = ap.parse_args()
+    if args.run:
+        args.sensor = args.sensor or "davis346"
+        args.results = [run_workflow(args.run, args.sensor, args.cores)]
     asked = args.results or [DEFAULT_RESULTS]
     jobs = [j for d in asked if d.is_dir() for j in read_jobs(d)]
     if not jobs:
@@ -183,11 +251,13 @@ def main() -> int:
         if key not in mp_cache:
             mp_cache[key] = scene_megapixels(Path(j["results"]), j["scene"])
         j["megapixels"] = mp_cache[key]
-    write_csv("bench_cost_model_jobs", jobs)  # as measured
+    name = f"bench_cost_model_{args.sensor}" if args.sensor else "bench_cost_model"
+    write_csv(f"{name}_jobs", jobs)  # as measured
     jobs = [{**j, "cpu_s": j["cpu_s"] * factors.get(j["stage"], 1.0),
              "wall_s": j["wall_s"] * factors.get(j["stage"], 1.0)} for j in jobs]
-    rows = model(jobs, n_traj, args.scenes, args.at_megapixels)
-    csv_path = write_csv("bench_cost_model", rows)
+    measured_traj = max((len(v) for v in per_scene_traj.values()), default=None)
+    rows = model(jobs, n_traj, args.scenes, args.at_megapixels, measured_traj)
+    csv_path = write_csv(name, rows)
 
     scenes = sorted({(j["results"], j["scene"]) for j in jobs if j["scene"] != "(dataset)"})
     print("measured scenes:")
@@ -212,7 +282,7 @@ def main() -> int:
     peak = max(r["peak_rss_mb"] for r in scaled)
     peak_stage = max(scaled, key=lambda r: r["peak_rss_mb"])["stage"]
     print(f"per scene: {cpu_min_scene:.1f} CPU-min; peak job memory {peak:.0f} MB ({peak_stage})")
-    print(f"wrote {csv_path}, {RESULTS / 'bench_cost_model_jobs.csv'} and {RESULTS / 'bench_cost_model.png'}")
+    print(f"wrote {csv_path}, {RESULTS / (name + '_jobs.csv')} and {RESULTS / (name + '.png')}")
 
     plt = pyplot()
     fig, ax = plt.subplots(1, 2, figsize=(10, 3.8))
@@ -226,7 +296,7 @@ def main() -> int:
     for a in ax:
         a.tick_params(axis="x", rotation=45)
     fig.tight_layout()
-    fig.savefig(RESULTS / "bench_cost_model.png", dpi=100)
+    fig.savefig(RESULTS / f"{name}.png", dpi=100)
     wall_min_scene = sum(r["wall_s_per_job"] * r["jobs_per_scene"] for r in scaled) / 60
     print(f"cost model: {cpu_min_scene:.1f} CPU-min per scene x {args.scenes} scenes = {total_h:.0f} CPU-hours "
           f"(CPU/wall {cpu_min_scene / wall_min_scene:.2f} over the measured jobs, run one after another "

@@ -12,9 +12,10 @@ serves two rules: then only that function's and ``register``'s imports and the
 module-level ones are followed), then every gs2e module they import,
 transitively, read from the sources with ``ast``: module-level and
 function-level imports alike (a stage's heavy imports sit inside its
-functions), the packages' ``__init__.py`` on the way, and, in modules that
-import by name with ``importlib``, the gs2e modules their string constants
-name (lazy import tables). Not followed: the dispatcher's list of the other
+functions), the packages' ``__init__.py`` on the way (their module level: a
+package's lazy ``__getattr__`` runs only when a name is imported from the
+package itself), and, in modules that import by name with ``importlib``, the
+gs2e modules their string constants name (lazy import tables). Not followed: the dispatcher's list of the other
 stages' CLI modules, which ``gs2e`` imports only to declare their subcommands'
 arguments. No list is kept by hand, so a new import is covered the moment it is
 written (tests/test_codeversion.py runs each stage and checks that every gs2e
@@ -113,6 +114,12 @@ def _imported_names(tree: ast.AST, module: str, is_package: bool, strings: bool)
     return out
 
 
+# ``import_closure``'s mark for a package that runs only as the parent of an
+# imported submodule: its module level runs, its functions (a lazy
+# ``__getattr__`` and its table of names) do not.
+ON_THE_WAY = "<parent>"
+
+
 def _entry_nodes(tree: ast.Module, function: str) -> list[ast.AST]:
     """A CLI module's statements that run for one command: the module level,
     ``register`` (declares the arguments) and ``function``."""
@@ -126,7 +133,8 @@ def _file_imports(f: Path, stamp: tuple[int, int], name: str, function: str) -> 
     file's mtime and size: the workflow asks for every stage's version)."""
     tree = ast.parse(f.read_bytes(), filename=str(f))
     nodes = _entry_nodes(tree, function) if function else [tree]
-    by_name = name != DISPATCHER and "importlib" in _imported_names(tree, name, False, strings=False)
+    by_name = (name != DISPATCHER and function != ON_THE_WAY
+               and "importlib" in _imported_names(tree, name, False, strings=False))
     out: set[str] = set()
     for node in nodes:
         out |= _imported_names(node, name, f.name == "__init__.py", strings=by_name)
@@ -136,7 +144,8 @@ def _file_imports(f: Path, stamp: tuple[int, int], name: str, function: str) -> 
 def import_closure(roots: tuple[str, ...], pkg: Path | None = None) -> dict[str, Path]:
     """Every gs2e module reachable from ``roots`` by imports, with its parent
     packages: {module name: source file}. A root ``module:function`` follows
-    only what that function of the module runs (see :func:`_entry_nodes`)."""
+    only what that function of the module runs (see :func:`_entry_nodes`); a
+    package reached only as a submodule's parent, only its module level."""
     pkg = PKG if pkg is None else pkg
     modules = package_modules(pkg)
     found: dict[str, Path] = {}
@@ -155,7 +164,9 @@ def import_closure(roots: tuple[str, ...], pkg: Path | None = None) -> dict[str,
         else:
             partial.discard(name)
         parts = name.split(".")
-        todo.extend(".".join(parts[:i]) for i in range(1, len(parts)))  # parent packages run first
+        # parent packages run first, their module level only (a lazy table's
+        # targets load when one of its names is imported from the package)
+        todo.extend(f"{'.'.join(parts[:i])}:{ON_THE_WAY}" for i in range(1, len(parts)))
         st = f.stat()
         todo.extend(_file_imports(f, (st.st_mtime_ns, st.st_size), name, function))
     return found

@@ -190,6 +190,11 @@ def test_an_edit_reruns_the_stages_that_load_it(tmp_path):
     # stages write their tables with metrics/table.py; the scene tables are metrics' own
     assert edit_and_diff("metrics/collect.py") == {"metrics"}
     assert edit_and_diff("metrics/table.py") == set(stages) - {"demo", "ingest", "trajectory"}
+    # the trajectory builders run in the stages that read trajectories, not in
+    # those before: gs2e.config loads trajectory/velocity.py only, and the
+    # package's lazy table of names runs only when a name is imported from it
+    assert edit_and_diff("trajectory/trajectory.py") == {"trajectory", "render", "events", "windows",
+                                                         "export", "bench"}
     # every command loads gs2e.config, which checks trajectory.velocity by parsing it
     for rel in ("common/__init__.py", "config.py", "trajectory/velocity.py"):
         assert edit_and_diff(rel) == set(stages)

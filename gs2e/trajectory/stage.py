@@ -20,6 +20,7 @@ from gs2e.trajectory.trajectory import (SampledPath, Trajectory, achieved_steps_
                                         build_base_path,
                                         build_mini_paths, check_config, hermite_eval,
                                         preset_duration_s, image_steps_width, timed_trajectory,
+                                        points_in_view_fraction,
                                         timestamps_us)
 from gs2e.trajectory.velocity import make_profile
 
@@ -133,7 +134,15 @@ def generate(scene: Scene, cfg: dict, seed: int, timings: dict | None = None) ->
         out[f"base_{name}"] = timed_trajectory(base, t_us, Ks[0], scene.width, scene.height, meta)
     with timed("mini-trajectories", log, timings):
         rng = np.random.default_rng(int(seed))
-        minis = build_mini_paths(base, cfg, rng, alpha, beta_n)
+        sees, min_sees = None, 0.0
+        if points is not None and int(cfg["mini_groups"]) > 0:
+            def sees(c2w: np.ndarray) -> np.ndarray:
+                return points_in_view_fraction(points, c2w, Ks[0], scene.width, scene.height)
+
+            # the base path's poorest view (at most 256 of its poses) sets the bar
+            stride = max(1, len(base.c2w) // 256)
+            min_sees = float(cfg["mini_min_view"]) * float(sees(base.c2w[::stride]).min())
+        minis = build_mini_paths(base, cfg, rng, alpha, beta_n, sees, min_sees)
         preset = cfg["presets"][cfg["mini_preset"]]
         for g, (path, j0) in enumerate(minis):
             src = _nearest_input(base, j0)

@@ -210,8 +210,24 @@ def build_base_path(c2w_in: np.ndarray, cfg: dict, profile: Callable[[np.ndarray
     return SampledPath(curve, arc, s, dense, keep, info)
 
 
+def points_in_view_fraction(points_w: np.ndarray, c2w: np.ndarray, K: np.ndarray, width: int,
+                            height: int, near: float = 1e-3) -> np.ndarray:
+    """(M,) fraction of the scene points each pose sees: in front of the camera
+    (z > ``near``, scene units) and projected inside the ``width`` x ``height``
+    image. points_w : (P, 3); c2w : (M, 4, 4); K : (3, 3)."""
+    from gs2e.common.motion import project_points
+
+    out = np.empty(len(c2w))
+    for j, T in enumerate(c2w):
+        uv, z = project_points(points_w, T, K, near)
+        out[j] = np.mean((z > near) & (uv[:, 0] >= 0) & (uv[:, 0] < width) & (uv[:, 1] >= 0)
+                         & (uv[:, 1] < height))
+    return out
+
+
 def build_mini_paths(base: SampledPath, cfg: dict, rng: np.random.Generator, alpha: float,
-                     beta_n: float) -> list[tuple[SampledPath, int]]:
+                     beta_n: float, sees: Callable[[np.ndarray], np.ndarray] | None = None,
+                     min_sees: float = 0.0, max_draws: int = 100) -> list[tuple[SampledPath, int]]:
     """Novel-view mini-trajectories (paper section 3.4.2).
 
     G groups of K keyframes are drawn without replacement from the dense base
@@ -221,6 +237,11 @@ def build_mini_paths(base: SampledPath, cfg: dict, rng: np.random.Generator, alp
     by path order; each group is fitted by a cubic B-spline or a least-squares
     Bezier of random degree d in ``mini_degrees`` (capped at K-1) over its local
     cumulative displacement, and sampled at F poses uniform in true arc length.
+
+    With ``sees`` (poses (F, 4, 4) -> (F,) fraction of the scene each sees), a
+    group whose path has a pose seeing less than ``min_sees`` is drawn again
+    (same curve family and degree), up to ``max_draws`` draws: keyframes from
+    far apart on a ring of views join through the object or look past it.
     Returns (path, index of the group's first keyframe in the base path).
     """
     G, K, F = int(cfg["mini_groups"]), int(cfg["mini_keyframes"]), int(cfg["mini_frames"])
@@ -235,20 +256,22 @@ def build_mini_paths(base: SampledPath, cfg: dict, rng: np.random.Generator, alp
             groups = rng.choice(M, size=G * K, replace=False).reshape(G, K)
         else:
             groups = np.stack([rng.choice(M, size=K, replace=False) for _ in range(G)])
-    else:  # keyframes from a random stretch of the path: stays near the input views
-        W = min(M, max(K, int(round(window * M))))
+    W = min(M, max(K, int(round(window * M))))
+    if window < 1.0:  # keyframes from a random stretch of the path: stays near the input views
         groups = np.stack([rng.integers(0, M - W + 1) + rng.choice(W, size=K, replace=False)
                            for _ in range(G)])
-    out = []
-    for g in range(G):
-        idx = np.sort(groups[g])
-        use_bspline = rng.random() < float(cfg["mini_bspline_probability"])
-        degree = int(rng.choice(np.asarray(cfg["mini_degrees"], dtype=np.int64)))
+
+    def redraw() -> np.ndarray:
+        if window >= 1.0:
+            return rng.choice(M, size=K, replace=False)
+        return rng.integers(0, M - W + 1) + rng.choice(W, size=K, replace=False)
+
+    def fit(idx: np.ndarray, use_bspline: bool, degree: int):
         kf = base.c2w[idx]
-        method = "bspline" if use_bspline else "bezier"
         try:
             curve, arc, keep = fit_path_curve(kf, alpha, beta_n, "bspline",
                                               None if use_bspline else degree)
+            method = "bspline" if use_bspline else "bezier"
         except InputError:
             if use_bspline:
                 raise
@@ -257,8 +280,28 @@ def build_mini_paths(base: SampledPath, cfg: dict, rng: np.random.Generator, alp
             curve, arc, keep = fit_path_curve(kf, alpha, beta_n, "bspline")
             method = "bspline (bezier fallback)"
         s = np.linspace(0.0, arc.total, F)
-        c2w = eval_at_s(curve, arc, s)
-        info = {"keyframes": idx.tolist(), "method": method,
+        return curve, arc, keep, method, s, eval_at_s(curve, arc, s)
+
+    out = []
+    for g in range(G):
+        idx = np.sort(groups[g])
+        use_bspline = rng.random() < float(cfg["mini_bspline_probability"])
+        degree = int(rng.choice(np.asarray(cfg["mini_degrees"], dtype=np.int64)))
+        curve, arc, keep, method, s, c2w = fit(idx, use_bspline, degree)
+        draws, seen = 1, None
+        if sees is not None:
+            seen = float(sees(c2w).min())
+            while seen < min_sees and draws < max_draws:
+                idx = np.sort(redraw())
+                curve, arc, keep, method, s, c2w = fit(idx, use_bspline, degree)
+                seen, draws = float(sees(c2w).min()), draws + 1
+            if seen < min_sees:
+                raise InputError(
+                    f"mini-trajectory {g}: none of {max_draws} draws keeps the scene in view (the last "
+                    f"sees {seen:.0%} of the points at worst, need {min_sees:.0%}); lower trajectory.mini_window "
+                    f"or trajectory.mini_min_view")
+        info = {"keyframes": idx.tolist(), "method": method, "draws": draws,
+                "min_points_in_view": seen,
                 "degree": 3 if method.startswith("bspline") else int(min(degree, len(keep) - 1)),
                 "degree_drawn": degree, "n_poses": F, "length_curve": arc.total,
                 "v": np.ones(F)}
@@ -358,6 +401,6 @@ def check_config(cfg: dict) -> None:
                               f"trajectory.presets ({', '.join(sorted(presets))})")
 
 
-__all__ = ["Trajectory", "SampledPath", "build_base_path", "build_mini_paths", "eval_at_s",
+__all__ = ["Trajectory", "SampledPath", "build_base_path", "build_mini_paths", "points_in_view_fraction", "eval_at_s",
            "preset_duration_s", "image_steps_width", "timestamps_us", "timed_trajectory", "achieved_steps", "achieved_steps_fine", "check_config",
            "hermite_eval"]
