@@ -6,6 +6,11 @@ import csv
 from pathlib import Path
 
 RESULTS = Path(__file__).resolve().parent / "results"
+# Real scenes of ../shared/data as scenes-table rows: name -> (layout, input path).
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
+SHARED_SCENES = {"temple_ring": ("folder", SHARED / "temple_ring"),
+                 "llff_fern": ("folder", SHARED / "llff_fern" / "images"),
+                 "mouse_colmap": ("colmap", SHARED / "mouse_colmap")}
 
 
 def write_csv(name: str, rows: list[dict]) -> Path:

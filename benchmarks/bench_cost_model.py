@@ -39,7 +39,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from _results import RESULTS, pyplot, write_csv  # noqa: E402
+from _results import RESULTS, SHARED_SCENES, pyplot, write_csv  # noqa: E402
 from gs2e.report.io import read_results_benchmarks  # noqa: E402
 
 DEFAULT_RESULTS = REPO / "results"
@@ -47,12 +47,6 @@ STAGES = ("demo_scene", "ingest", "sfm", "train", "trajectory", "render", "event
           "bench", "metrics", "summary")
 PER_TRAJECTORY = ("render", "events", "windows", "export", "bench")
 NOT_SCALED = ("demo_scene", "summary")
-
-
-# Real scenes of ../shared/data: layout and input path for the scenes table.
-SHARED = REPO.parent / "shared" / "data"
-SHARED_SCENES = {"temple_ring": ("folder", "temple_ring"), "llff_fern": ("folder", "llff_fern/images"),
-                 "mouse_colmap": ("colmap", "mouse_colmap")}
 
 
 def run_workflow(scenes: list[str], sensor: str, cores: int) -> Path:
@@ -67,17 +61,17 @@ def run_workflow(scenes: list[str], sensor: str, cores: int) -> Path:
     work.mkdir(parents=True, exist_ok=True)
     rows = ["scene_id\tlayout\tpath\toverrides"]
     for sc in scenes:
-        layout, rel = SHARED_SCENES[sc]
-        if not (SHARED / rel).exists():
-            raise SystemExit(f"{SHARED / rel} is absent")
-        rows.append(f"{sc}\t{layout}\t{SHARED / rel}\t")
+        layout, path = SHARED_SCENES[sc]
+        if not path.exists():
+            raise SystemExit(f"{path} is absent")
+        rows.append(f"{sc}\t{layout}\t{path}\t")
     (work / "scenes.tsv").write_text("\n".join(rows) + "\n")
     paper = yaml.safe_load((REPO / "config" / "paper.yaml").read_text())
     cfg = {k: v for k, v in paper.items() if k not in ("splat", "scenes", "results_dir")}
     cfg["events"] = {**cfg.get("events", {}), "sensor": sensor}
     cfg.update(scenes=str(work / "scenes.tsv"), results_dir=str(work / "results"))
     (work / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
-    cmd = [str(REPO / ".venv" / "bin" / "snakemake"),
+    cmd = [str(Path(sys.executable).parent / "snakemake"),
            *[str(work / "results" / sc / "metrics.parquet") for sc in scenes],
            "--cores", str(cores), "--rerun-incomplete", "--snakefile", str(REPO / "Snakefile"),
            "--directory", str(REPO),

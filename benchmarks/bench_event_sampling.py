@@ -49,14 +49,13 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "benchmarks"))
 
-from _results import RESULTS, pyplot  # noqa: E402
+from _results import RESULTS, SHARED_SCENES, pyplot  # noqa: E402
 
 from gs2e.config import load_config  # noqa: E402
 from gs2e.events.models import Events, TileBatch, make_model  # noqa: E402
 from gs2e.events.rendered import RenderedSource  # noqa: E402
 
 CACHE = RESULTS / "bench_event_sampling_cache"
-SHARED = REPO.parent / "shared" / "data"
 THETA_IDEAL = 0.2
 REF_FPS = 24000.0
 FIXED = (600.0, 1200.0, 2400.0, 4800.0)
@@ -64,10 +63,8 @@ BOUNDS = (0.25, 0.5, 1.0, 2.0, 4.0)
 LEGACY_S_PER_S = 160.0  # issue 11: today's event stage on the demo, s per simulated second
 SCENES = {
     "demo": ("demo", "", "splat.max_iterations=2000"),
-    "temple_ring": ("folder", str(SHARED / "temple_ring"),
-                    "ingest.max_side=320;splat.max_iterations=2000"),
-    "llff_fern": ("folder", str(SHARED / "llff_fern" / "images"),
-                  "ingest.max_side=320;splat.max_iterations=2000"),
+    **{n: (SHARED_SCENES[n][0], str(SHARED_SCENES[n][1]), "ingest.max_side=320;splat.max_iterations=2000")
+       for n in ("temple_ring", "llff_fern")},
 }
 
 

@@ -15,8 +15,8 @@ function-level imports alike (a stage's heavy imports sit inside its
 functions), the packages' ``__init__.py`` on the way (their module level: a
 package's lazy ``__getattr__`` runs only when a name is imported from the
 package itself), and, in modules that import by name with ``importlib``, the
-gs2e modules their string constants name (lazy import tables). Not followed: the dispatcher's list of the other
-stages' CLI modules, which ``gs2e`` imports only to declare their subcommands'
+gs2e modules their string constants name (lazy import tables). Not followed:
+the dispatcher's list of the other stages' CLI modules, which ``gs2e`` imports only to declare their subcommands'
 arguments. No list is kept by hand, so a new import is covered the moment it is
 written (tests/test_codeversion.py runs each stage and checks that every gs2e
 module it loaded is covered).

@@ -251,20 +251,19 @@ def build_mini_paths(base: SampledPath, cfg: dict, rng: np.random.Generator, alp
     if M < K:
         raise InputError(f"mini-trajectories need at least mini_keyframes={K} base poses, got {M}")
     window = float(cfg["mini_window"])
-    if window >= 1.0:  # the paper: keyframes from anywhere on the base path
-        if M >= G * K:
-            groups = rng.choice(M, size=G * K, replace=False).reshape(G, K)
-        else:
-            groups = np.stack([rng.choice(M, size=K, replace=False) for _ in range(G)])
     W = min(M, max(K, int(round(window * M))))
-    if window < 1.0:  # keyframes from a random stretch of the path: stays near the input views
-        groups = np.stack([rng.integers(0, M - W + 1) + rng.choice(W, size=K, replace=False)
-                           for _ in range(G)])
 
-    def redraw() -> np.ndarray:
+    def draw() -> np.ndarray:
+        """One group's keyframes: from anywhere on the base path (the paper), or
+        from a random stretch of it (stays near the input views)."""
         if window >= 1.0:
             return rng.choice(M, size=K, replace=False)
         return rng.integers(0, M - W + 1) + rng.choice(W, size=K, replace=False)
+
+    if window >= 1.0 and M >= G * K:  # all G*K keyframes distinct
+        groups = rng.choice(M, size=G * K, replace=False).reshape(G, K)
+    else:
+        groups = np.stack([draw() for _ in range(G)])
 
     def fit(idx: np.ndarray, use_bspline: bool, degree: int):
         kf = base.c2w[idx]
@@ -292,7 +291,7 @@ def build_mini_paths(base: SampledPath, cfg: dict, rng: np.random.Generator, alp
         if sees is not None:
             seen = float(sees(c2w).min())
             while seen < min_sees and draws < max_draws:
-                idx = np.sort(redraw())
+                idx = np.sort(draw())
                 curve, arc, keep, method, s, c2w = fit(idx, use_bspline, degree)
                 seen, draws = float(sees(c2w).min()), draws + 1
             if seen < min_sees:
@@ -401,6 +400,6 @@ def check_config(cfg: dict) -> None:
                               f"trajectory.presets ({', '.join(sorted(presets))})")
 
 
-__all__ = ["Trajectory", "SampledPath", "build_base_path", "build_mini_paths", "points_in_view_fraction", "eval_at_s",
-           "preset_duration_s", "image_steps_width", "timestamps_us", "timed_trajectory", "achieved_steps", "achieved_steps_fine", "check_config",
+__all__ = ["Trajectory", "SampledPath", "build_base_path", "build_mini_paths", "points_in_view_fraction",
+           "eval_at_s", "preset_duration_s", "image_steps_width", "timestamps_us", "timed_trajectory", "achieved_steps", "achieved_steps_fine", "check_config",
            "hermite_eval"]
