@@ -10,6 +10,21 @@ in ``--work``). Settings, each a fresh process on ``--threads`` threads:
 - ``baseline`` (with ``--baseline-repo``): ``auto`` with another checkout's
   code, e.g. a worktree of an older commit, measured in the same run.
 
+``--setting NAME=JSON`` (repeatable) adds a setting of splat overrides, e.g.
+``--setting late_fine='{"resolution_schedule": [[0, 4], [1000, 2], [2500, 1]]}'``.
+
+``--cost-run SENSOR`` trains instead on the scenes of
+``bench_cost_model.py --run … --sensor SENSOR`` (their SfM outputs under
+``benchmarks/results/cost_<sensor>/``) at that sensor's training size, with the
+configured plateau stop (``--iterations`` 0 = the configured max_iterations):
+the cost model's training, with and without a change. The table then also
+gives, per setting, the CPU-minutes to come within 0.2 dB of the first
+setting's final held-out PSNR (issue 32's bar) and its own final PSNR, and
+replays the plateau stop (the configured rule and each ``--replay-stop
+PATIENCE,DELTA_DB``) on the recorded curves: where each rule would have
+stopped, its PSNR and CPU against patience 3 / 0.1 dB (the rule before
+2026-11-26); written to bench_train_budget_stop_rules_<sensor>.csv.
+
 Every run trains ``--iterations`` steps (schedule as configured) and records
 held-out PSNR/SSIM (every 8th view) against CPU seconds (all threads) every
 ``eval_every`` steps. The table gives, per scene and setting, the last
@@ -41,14 +56,17 @@ MARKS_MIN = (5, 10, 20)
 
 
 def child(repo: str, scene_dir: str, out: str, overrides: str, threads: int) -> None:
-    """Train in this process with ``repo``'s code; print the statistics as JSON."""
+    """Train in this process with ``repo``'s code; print the statistics as JSON.
+    ``overrides`` may hold ``_target_size`` [W, H] (the event sensor's array)."""
     sys.path.insert(0, repo)
     import gs2e  # noqa: F401  (first: thread settings before torch loads)
     from gs2e.config import load_section
     from gs2e.splat.train import train
 
-    st = train(scene_dir, out, load_section("splat", overrides), seed=0, threads=threads,
-               resume=False)
+    over = json.loads(overrides)
+    target = over.pop("_target_size", None)
+    st = train(scene_dir, out, load_section("splat", json.dumps(over)), seed=0, threads=threads,
+               resume=False, **({"target_size": tuple(target)} if target else {}))
     print(json.dumps({k: st.get(k) for k in ("iterations", "stop_reason", "train_cpu_s",
                                               "n_gaussians", "budget", "test_psnr", "test_ssim")}))
 
@@ -63,6 +81,26 @@ def run(repo: Path, scene_dir: Path, out: Path, overrides: dict, threads: int):
                        capture_output=True)
     stats = json.loads((out / "train_stats.json").read_text())
     return stats, pd.read_parquet(out / "curve.parquet")
+
+
+def replay_stop(curve, cfg: dict, patience: int, delta_db: float):
+    """The evaluation at which the plateau stop of ``gs2e.splat.train`` (that
+    logic, replayed) would have ended this run with ``patience`` and
+    ``delta_db``: the run is deterministic, so stopping earlier keeps the same
+    curve up to there, and the final model is the one of that evaluation.
+    Exact while no opacity reset happened (opacity_reset_every beyond the run)."""
+    from gs2e.splat.train import downscale_at
+
+    best, bad = -float("inf"), 0
+    for r in curve.sort_values("iteration").itertuples():
+        full = downscale_at(cfg["resolution_schedule"], int(r.iteration)) == 1
+        if r.psnr > best + delta_db:
+            best, bad = r.psnr, 0
+        elif full:
+            bad += 1
+        if full and r.iteration >= cfg["min_iterations"] and bad >= patience:
+            return r
+    return curve.sort_values("iteration").iloc[-1]
 
 
 def at_marks(curve, stats) -> list[dict]:
@@ -93,7 +131,7 @@ def plot(df, path: Path) -> None:
             axes[1, j].plot(g["cpu_time_s"] / 60, g["n_gaussians"], "o-", ms=3, label=name)
         for m in MARKS_MIN:
             axes[0, j].axvline(m, ls=":", c="gray")
-        axes[0, j].set_title(f"{scene} (640 px)")
+        axes[0, j].set_title(scene)
         axes[0, j].set_ylabel("held-out PSNR (dB)")
         axes[1, j].set_ylabel("Gaussians")
         axes[1, j].set_xlabel("CPU-minutes (all threads)")
@@ -108,7 +146,14 @@ def main() -> int:
     ap.add_argument("--child", nargs=5, help=argparse.SUPPRESS)
     ap.add_argument("--scenes", default="temple_ring,llff_fern")
     ap.add_argument("--settings", default="auto,adaptive")
-    ap.add_argument("--iterations", type=int, default=3000)
+    ap.add_argument("--setting", action="append", default=[], metavar="NAME=JSON",
+                    help="a setting of splat overrides (repeatable)")
+    ap.add_argument("--cost-run", metavar="SENSOR", default=None,
+                    help="train the cost model's scenes at SENSOR's training size (plateau stop)")
+    ap.add_argument("--replay-stop", action="append", default=[], metavar="PATIENCE,DELTA_DB",
+                    help="with --cost-run: also replay this plateau stop rule on the curves")
+    ap.add_argument("--iterations", type=int, default=None,
+                    help="steps per run (default 3000; with --cost-run the configured max_iterations)")
     ap.add_argument("--max-side", type=int, default=640)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--baseline-repo", type=Path, default=None,
@@ -122,38 +167,113 @@ def main() -> int:
         return 0
     import pandas as pd
 
-    a.work.mkdir(parents=True, exist_ok=True)
-    runs = [(s, REPO, SETTINGS[s]) for s in a.settings.split(",")]
+    settings = dict(SETTINGS)
+    for item in a.setting:
+        name, _, js = item.partition("=")
+        settings[name] = json.loads(js)
+        a.settings += f",{name}"
+    runs = [(s, REPO, settings[s]) for s in a.settings.split(",") if s]
     if a.baseline_repo:
-        runs.append(("baseline", a.baseline_repo.resolve(), {}))
+        runs.insert(0, ("baseline", a.baseline_repo.resolve(), {}))
+    if a.iterations is None:
+        a.iterations = 0 if a.cost_run else 3000
+    base = {"max_iterations": a.iterations} if a.iterations else {}
+    if a.cost_run:
+        from gs2e.config import load_config
+        import yaml
+
+        from gs2e.events.sensors import get_sensor
+
+        cost = RESULTS / f"cost_{a.cost_run}"
+        if a.work == RESULTS / "work_train_budget":
+            a.work = RESULTS / f"work_train_cost_{a.cost_run}"
+        ev = load_config(yaml.safe_load((cost / "config.yaml").read_text()))["events"]
+        base["_target_size"] = list(get_sensor(ev).size)
+        if a.scenes == "temple_ring,llff_fern" and not (cost / "results" / "llff_fern").exists():
+            a.scenes = ",".join(p.name for p in sorted((cost / "results").iterdir()) if (p / "sfm").is_dir())
+    a.work.mkdir(parents=True, exist_ok=True)
+    for _, repo, _ in runs:  # compile each checkout's numba kernels outside the timings
+        if not (a.work / f"warm_{repo.name}").exists():
+            sdir = (RESULTS / f"cost_{a.cost_run}" / "results" / a.scenes.split(",")[0] / "sfm"
+                    if a.cost_run else prepare(a.work, a.scenes.split(",")[0], a.data, a.max_side))
+            run(repo, sdir, a.work / f"warm_{repo.name}", {"max_iterations": 30, "min_iterations": 1,
+                                                            "eval_every": 10}, a.threads)
     points, table = [], []
     for scene in a.scenes.split(","):
-        if not (a.data / PHOTOS[scene]).exists():
+        if a.cost_run:
+            sdir = RESULTS / f"cost_{a.cost_run}" / "results" / scene / "sfm"
+            if not (sdir / "scene.json").exists():
+                print(f"skipping {scene}: {sdir} is absent (run bench_cost_model.py --run first)")
+                continue
+        elif not (a.data / PHOTOS[scene]).exists():
             print(f"skipping {scene}: {a.data / PHOTOS[scene]} is absent")
             continue
-        sdir = prepare(a.work, scene, a.data, a.max_side)
+        else:
+            sdir = prepare(a.work, scene, a.data, a.max_side)
+        ref_psnr = None
         for name, repo, over in runs:
-            stats, curve = run(repo, sdir, a.work / f"model_{scene}_{name}",
-                               {"max_iterations": a.iterations, **over}, a.threads)
+            stats, curve = run(repo, sdir, a.work / f"model_{scene}_{name}", {**base, **over}, a.threads)
+            if ref_psnr is None:
+                ref_psnr = stats["test_psnr"]
+            near = curve[curve["psnr"] >= ref_psnr - 0.2]
+            to_ref = float(near["cpu_time_s"].iloc[0]) / 60 if len(near) else float("nan")
             points += [{"scene": scene, "setting": name, **r} for r in curve.to_dict("records")]
             for r in at_marks(curve, stats):
                 table.append({"scene": scene, "setting": name, **r,
                               "final_gaussians": stats["n_gaussians"], "budget": stats["budget"],
-                              "run_cpu_min": stats["train_cpu_s"] / 60})
+                              "run_cpu_min": stats["train_cpu_s"] / 60, "iterations": stats["iterations"],
+                              "final_psnr": stats["test_psnr"], "cpu_min_near_first": to_ref})
             print(f"[{scene}/{name}] {stats['iterations']} it ({stats['stop_reason']}), "
                   f"{stats['train_cpu_s'] / 60:.1f} CPU-min, {stats['n_gaussians']} Gaussians "
                   f"(budget {stats['budget']}): PSNR {stats['test_psnr']:.2f} dB "
                   f"SSIM {stats['test_ssim']:.4f}", flush=True)
-    if not table:
+    if a.cost_run:  # the cost model's own training runs (the workflow's seeds), replayed below
+        for curve_path in sorted((RESULTS / f"cost_{a.cost_run}" / "results").glob("*/splat/curve.parquet")):
+            curve = pd.read_parquet(curve_path)
+            points += [{"scene": curve_path.parents[1].name, "setting": "workflow", **r}
+                       for r in curve.to_dict("records")]
+    if not table and not points:
         print("train budget: nothing to run")
         return 0
     df, tab = pd.DataFrame(points), pd.DataFrame(table)
     RESULTS.mkdir(parents=True, exist_ok=True)
     df.to_csv(RESULTS / "bench_train_budget.csv", index=False)
-    tab.to_csv(RESULTS / "bench_train_budget_at.csv", index=False)
     plot(df, RESULTS / "bench_train_budget.png")
-    with pd.option_context("display.width", 160):
-        print(tab.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+    if len(tab):
+        tab.to_csv(RESULTS / "bench_train_budget_at.csv", index=False)
+        with pd.option_context("display.width", 160):
+            print(tab.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+    if a.cost_run:
+        from gs2e.config import load_section
+
+        cfg = load_section("splat")
+        rules = list(dict.fromkeys([(float(cfg["plateau_patience"]), float(cfg["plateau_min_delta_db"]))] + [
+            tuple(float(v) for v in r.split(",")) for r in a.replay_stop]))
+        rows = []
+        for (scene, name), g in df.groupby(["scene", "setting"], sort=False):
+            ref = replay_stop(g, cfg, 3, 0.1)  # the rule of the runs measured before 2026-11-26
+            for pat, dl in rules:
+                r = replay_stop(g, cfg, int(pat), dl)
+                rows.append({"scene": scene, "setting": name, "patience": int(pat), "min_delta_db": dl,
+                             "stop_iteration": int(r.iteration), "psnr": r.psnr,
+                             "psnr_gain_db": r.psnr - ref.psnr, "cpu_min": r.cpu_time_s / 60,
+                             "cpu_ratio": r.cpu_time_s / ref.cpu_time_s})
+        rep = pd.DataFrame(rows)
+        rep.to_csv(RESULTS / f"bench_train_budget_stop_rules_{a.cost_run}.csv", index=False)
+        print("plateau stop rules replayed on the curves (against patience 3, 0.1 dB):")
+        with pd.option_context("display.width", 160):
+            print(rep.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+        if not len(tab):
+            last = rep[(rep.patience == rules[-1][0]) & (rep.min_delta_db == rules[-1][1])]
+            print(f"stop rule patience {int(rules[-1][0])}, {rules[-1][1]:g} dB against patience 3, 0.1 dB: " + "; ".join(
+                f"{r.scene}/{r.setting} {r.psnr_gain_db:+.2f} dB at {r.cpu_ratio:.2f}x the CPU" for r in last.itertuples()))
+            return 0
+        one = tab[tab.cpu_min == MARKS_MIN[0]]
+        print(f"training at {a.cost_run}'s size, plateau stop; CPU-min to within 0.2 dB of the first "
+              "setting's final PSNR / whole run, final PSNR: " + "; ".join(
+                  f"{r.scene}/{r.setting} {r.cpu_min_near_first:.2f} / {r.run_cpu_min:.2f} CPU-min, "
+                  f"{r.final_psnr:.2f} dB ({r.iterations} it)" for r in one.itertuples()))
+        return 0
     ten = tab[tab.cpu_min == 10]
     print("train budget: held-out PSNR at 10 CPU-min, 640 px: " + "; ".join(
         f"{r.scene}/{r.setting} {r.psnr:.2f} dB ({r.n_gaussians} G{', ended' if r.ended else ''})"

@@ -63,8 +63,13 @@ def plane_dataset(tmp_path_factory):
     traj = _fast_pan(tmp)
     _render(model, traj, tmp / "frames")
     # fault: the blur averaged on sRGB values (what a renderer without linear light does)
+    # (the render stage's blur rules convert through gs2e.render.blur's colour functions)
+    import gs2e.render.blur as RB
+
     mp = pytest.MonkeyPatch()
     mp.setattr(RD, "average_srgb", lambda frames: np.mean([np.clip(f, 0, 1) for f in frames], axis=0))
+    mp.setattr(RB, "srgb_to_linear", lambda x: np.asarray(x, dtype=np.float64))
+    mp.setattr(RB, "linear_to_srgb", lambda x: np.asarray(x, dtype=np.float64))
     try:
         _render(model, traj, tmp / "frames_srgb")
     finally:

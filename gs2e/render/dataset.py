@@ -16,7 +16,7 @@ from gs2e.common.progress import progress
 from gs2e.io.images import write_png
 from gs2e.io.nerf import write_transforms
 from gs2e.io.scene import Camera, Frame, Scene
-from gs2e.render.blur import average_srgb, subframe_times_us, subframes_needed
+from gs2e.render.blur import adaptive_blur, average_srgb, subframe_times_us, subframes_needed
 from gs2e.common.motion import pixel_motion_px
 from gs2e.trajectory import fixed_times_us
 
@@ -103,6 +103,10 @@ def render_dataset(model_dir: str | Path, trajectory_path: str | Path, out_dir: 
                 n_sub = subframes_needed(float(motion[2]), cfg["blur_max_step_px"], cfg["blur_max_subframes"])
                 if n_sub == 1:
                     blur = rgb
+                elif cfg["blur_tolerance_db"] is not None:
+                    blur, n_sub, _ = adaptive_blur(lambda tk: r.render_pose(r.pose(tk))[0], float(t), E,
+                                                   (r.t0_us, r.t1_us), cfg["blur_tolerance_db"],
+                                                   cfg["blur_max_subframes"], known={float(t): rgb})
                 else:
                     ts = np.clip(subframe_times_us(float(t), E, n_sub), r.t0_us, r.t1_us)
                     blur = average_srgb([r.render_pose(r.pose(ts_k))[0] for ts_k in ts])
