@@ -94,8 +94,10 @@ def run_events(scene_dir: Path, traj: str, events_cfg: dict, mode: str, fps: flo
 
 
 def pixel_counts(ev, width: int, height: int) -> np.ndarray:
-    key = (ev.y.astype(np.int64) * width + ev.x.astype(np.int64)) * 2 + ev.p.astype(np.int64)
-    return np.bincount(key, minlength=2 * width * height)
+    """Events per pixel and polarity (bench_event_sampling's keys)."""
+    from bench_event_sampling import _keys
+
+    return np.bincount(_keys(ev, width), minlength=2 * width * height)
 
 
 def count_distance(a: np.ndarray, b: np.ndarray) -> float:
@@ -170,8 +172,7 @@ def bench_blur(results: Path, cfg: dict, scene: str, traj: str, n_frames: int) -
             blurred[n] = u8(average_srgb([r.render_pose(r.pose(tk))[0] for tk in ts]))
             cpu[n] = time.process_time() - c0
         ref = blurred[BLUR_REF_N]
-        renders = dict.fromkeys(BLUR_N)
-        renders.update({n: n for n in BLUR_N})
+        renders = {n: n for n in BLUR_N}
         sharp = r.render_pose(r.pose(t))[0]
         for tol in BLUR_TOLERANCES_DB:  # the render stage's rule (render.blur_tolerance_db)
             c0 = time.process_time()

@@ -16,7 +16,7 @@ in ``--work``). Settings, each a fresh process on ``--threads`` threads:
 ``--cost-run SENSOR`` trains instead on the scenes of
 ``bench_cost_model.py --run … --sensor SENSOR`` (their SfM outputs under
 ``benchmarks/results/cost_<sensor>/``) at that sensor's training size, with the
-configured plateau stop (``--iterations`` 0 = the configured max_iterations):
+configured plateau stop and max_iterations (unless ``--iterations``):
 the cost model's training, with and without a change. The table then also
 gives, per setting, the CPU-minutes to come within 0.2 dB of the first
 setting's final held-out PSNR (issue 32's bar) and its own final PSNR, and
@@ -84,23 +84,22 @@ def run(repo: Path, scene_dir: Path, out: Path, overrides: dict, threads: int):
 
 
 def replay_stop(curve, cfg: dict, patience: int, delta_db: float):
-    """The evaluation at which the plateau stop of ``gs2e.splat.train`` (that
-    logic, replayed) would have ended this run with ``patience`` and
-    ``delta_db``: the run is deterministic, so stopping earlier keeps the same
-    curve up to there, and the final model is the one of that evaluation.
-    Exact while no opacity reset happened (opacity_reset_every beyond the run)."""
-    from gs2e.splat.train import downscale_at
+    """The evaluation at which the trainer's plateau stop
+    (:func:`gs2e.splat.train.plateau_step`) would have ended this run with
+    ``patience`` and ``delta_db``: the run is deterministic, so stopping earlier
+    keeps the same curve up to there, and the final model is the one of that
+    evaluation. Exact while no opacity reset happened (opacity_reset_every
+    beyond the run)."""
+    from gs2e.splat.train import plateau_step
 
+    rule = dict(cfg, plateau_patience=patience, plateau_min_delta_db=delta_db)
     best, bad = -float("inf"), 0
-    for r in curve.sort_values("iteration").itertuples():
-        full = downscale_at(cfg["resolution_schedule"], int(r.iteration)) == 1
-        if r.psnr > best + delta_db:
-            best, bad = r.psnr, 0
-        elif full:
-            bad += 1
-        if full and r.iteration >= cfg["min_iterations"] and bad >= patience:
+    rows = curve.sort_values("iteration")
+    for r in rows.itertuples():
+        best, bad, stop = plateau_step(best, bad, r.psnr, int(r.iteration), rule)
+        if stop:
             return r
-    return curve.sort_values("iteration").iloc[-1]
+    return rows.iloc[-1]
 
 
 def at_marks(curve, stats) -> list[dict]:
@@ -191,17 +190,21 @@ def main() -> int:
         base["_target_size"] = list(get_sensor(ev).size)
         if a.scenes == "temple_ring,llff_fern" and not (cost / "results" / "llff_fern").exists():
             a.scenes = ",".join(p.name for p in sorted((cost / "results").iterdir()) if (p / "sfm").is_dir())
+    def cost_scene(scene: str) -> Path:
+        """A scene's SfM output in the cost model's run."""
+        return RESULTS / f"cost_{a.cost_run}" / "results" / scene / "sfm"
+
     a.work.mkdir(parents=True, exist_ok=True)
     for _, repo, _ in runs:  # compile each checkout's numba kernels outside the timings
         if not (a.work / f"warm_{repo.name}").exists():
-            sdir = (RESULTS / f"cost_{a.cost_run}" / "results" / a.scenes.split(",")[0] / "sfm"
-                    if a.cost_run else prepare(a.work, a.scenes.split(",")[0], a.data, a.max_side))
+            first = a.scenes.split(",")[0]
+            sdir = cost_scene(first) if a.cost_run else prepare(a.work, first, a.data, a.max_side)
             run(repo, sdir, a.work / f"warm_{repo.name}", {"max_iterations": 30, "min_iterations": 1,
                                                             "eval_every": 10}, a.threads)
     points, table = [], []
     for scene in a.scenes.split(","):
         if a.cost_run:
-            sdir = RESULTS / f"cost_{a.cost_run}" / "results" / scene / "sfm"
+            sdir = cost_scene(scene)
             if not (sdir / "scene.json").exists():
                 print(f"skipping {scene}: {sdir} is absent (run bench_cost_model.py --run first)")
                 continue

@@ -52,6 +52,21 @@ def downscale_at(schedule: list[list[int]], it: int) -> int:
     return d
 
 
+def plateau_step(best: float, bad_evals: int, psnr: float, n_it: int, cfg: dict) -> tuple[float, int, bool]:
+    """One held-out evaluation (PSNR dB, after n_it steps) of the plateau stop:
+    the new (best, bad_evals) and whether training stops. An evaluation that does
+    not beat the best by ``plateau_min_delta_db`` counts against the run only at
+    full resolution; the stop comes after ``plateau_patience`` such in a row,
+    from ``min_iterations`` on. (``benchmarks/bench_train_budget.py`` replays it
+    on recorded curves.)"""
+    full_res = downscale_at(cfg["resolution_schedule"], n_it) == 1
+    if psnr > best + cfg["plateau_min_delta_db"]:
+        best, bad_evals = psnr, 0
+    elif full_res:
+        bad_evals += 1
+    return best, bad_evals, full_res and n_it >= cfg["min_iterations"] and bad_evals >= cfg["plateau_patience"]
+
+
 def position_lr(it: int, cfg: dict, extent: float) -> float:
     """Log-linear decay from lr_position_init to lr_position_final over max_iterations."""
     t = min(1.0, it / max(1, cfg["max_iterations"]))
@@ -243,12 +258,8 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
                      ev["psnr"], ev["ssim"], p["means"].shape[0], elapsed)
             if growing is not None and cfg["densify_from"] <= n_it < cfg["densify_until"]:
                 strategy.ops.budget = growing.update(n_it, ev["psnr"], ds, int(p["means"].shape[0]))
-            full_res = downscale_at(schedule, n_it) == 1
-            if ev["psnr"] > best + cfg["plateau_min_delta_db"]:
-                best, bad_evals = ev["psnr"], 0
-            elif full_res:
-                bad_evals += 1
-            if full_res and n_it >= cfg["min_iterations"] and bad_evals >= cfg["plateau_patience"]:
+            best, bad_evals, stop = plateau_step(best, bad_evals, ev["psnr"], n_it, cfg)
+            if stop:
                 stop_reason = "plateau"
                 break
         # (not after the last step: its Gaussians would go out untrained)
