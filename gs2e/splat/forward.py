@@ -227,8 +227,9 @@ class ForwardRenderer:
     sh_degree : active SH degree.
     fx, fy, cx, cy : intrinsics (px); width, height : image size (px).
     background : (3,) colour behind the Gaussians.
-    dtype : storage dtype of the compositing inputs and the image (float32:
-        what the event stage uses; float64 as the training renders at float64).
+    dtype : storage dtype of the compositing inputs and the image, and the
+        precision the compositing computes in (float32: what the event stage
+        uses, 16 pixels per vector; float64 as the training renders at float64).
     """
 
     def __init__(self, params, sh_degree: int, fx: float, fy: float, cx: float, cy: float,
@@ -312,10 +313,10 @@ class ForwardRenderer:
         offsets, gids = _raster.bin_gaussians(self.means2d, self.depths, self.radii, self.width,
                                               self.height, TILE, self.opac)
         tiles = np.arange(self.n_tiles, dtype=np.int64)
-        _raster.raster_forward_kernel(tiles, offsets, gids, self.m2_dt, self.cn_dt, self.opac_dt,
-                                      self.colors, self.bg, self.width, self.height, TILE,
-                                      self.image, self._T, self._nc,
-                                      *_raster.tile_schedule(offsets))
+        _raster.forward_kernel(self.dtype, offsets)(
+            tiles, offsets, gids, self.m2_dt, self.cn_dt, self.opac_dt, self.colors, self.bg,
+            self.width, self.height, TILE, self.image, self._T, self._nc,
+            *_raster.tile_schedule(offsets))
         self.renders += 1
         self.tiles_rendered += self.n_tiles
         return self.image
@@ -384,10 +385,10 @@ class ForwardRenderer:
         self._project(self._viewmat(c2w), idx)
         offsets, gids = _tile_lists(tiles, cand.offsets, cand.gids, self.rect, self.depths,
                                     self.width, TILE)
-        _raster.raster_forward_kernel(tiles, offsets, gids, self.m2_dt, self.cn_dt, self.opac_dt,
-                                      self.colors, self.bg, self.width, self.height, TILE,
-                                      self.image, self._T, self._nc,
-                                      *_raster.tile_schedule(offsets))
+        _raster.forward_kernel(self.dtype, offsets)(
+            tiles, offsets, gids, self.m2_dt, self.cn_dt, self.opac_dt, self.colors, self.bg,
+            self.width, self.height, TILE, self.image, self._T, self._nc,
+            *_raster.tile_schedule(offsets))
         self.renders += 1
         self.tiles_rendered += len(tiles)
         return self.image

@@ -24,10 +24,22 @@ are those of a pixel-by-pixel loop, and the exact per-pixel tests (power in
 [max(-4.5, log(1/255/opacity)), 0], alpha >= 1/255, pixel still open) still
 decide, so the spans only pre-filter and never change a result (tested).
 
+Per render, each Gaussian's set-up (opacity cut, footprint, row radius, 1/a)
+is computed once (:func:`_prepare_gaussians`), not once per tile it reaches.
+
 exp: :func:`_exp_neg`, a table of exp(-i/64) (correctly rounded, built from
 exact decimal arithmetic, so the same on every machine) times a degree-6
 polynomial; within 1.4 ulp of exp on [-4.5, 0] (tests), and vectorisable
 (libm's exp is a call per pixel).
+
+Precision: the backward and the forward it follows compute in float64 (8
+lanes). Renders that no backward follows (event stage, render stage,
+evaluations: :func:`forward_kernel`) composite in float32, 16 lanes, with
+:func:`_exp_neg_f32` (same table split, degree 3): the same rules in the same
+order, each operation rounded to float32 (tests: same bits as a float32
+pixel loop; against float64 a pixel differs by rounding, or by one
+Gaussian's weight where rounding moves it across a cut). Set-up, row ranges
+and column spans stay float64 in both.
 
 Channels: up to 4 per-Gaussian features are composited together (RGB plus
 camera depth, so expected depth comes for free).
@@ -59,14 +71,23 @@ MAX_CHANNELS = 4
 LANES = 8  # pixels per segment: one AVX-512 register of float64
 
 
-def _exp_table() -> np.ndarray:
-    """exp(-i/64), i = 0..291, correctly rounded to float64."""
+def _exp_table(dtype=np.float64) -> np.ndarray:
+    """exp(-i/64), i = 0..291, correctly rounded to ``dtype`` (from 40-digit
+    decimals: float32 entries are rounded once, not via float64)."""
     with localcontext() as ctx:
         ctx.prec = 40
-        return np.array([float((-Decimal(i) / 64).exp()) for i in range(292)])
+        vals = [(-Decimal(i) / 64).exp() for i in range(292)]
+    if np.dtype(dtype) == np.float64:
+        return np.array([float(x) for x in vals])
+    out = np.array([float(x) for x in vals], dtype=np.float32)
+    for i, x in enumerate(vals):  # fix float64 -> float32 double rounding
+        cands = [np.nextafter(out[i], np.float32(-1)), out[i], np.nextafter(out[i], np.float32(2))]
+        out[i] = min(cands, key=lambda c: abs(Decimal(float(c)) - x))
+    return out
 
 
 EXP_TAB = _exp_table()
+EXP_TAB_F32 = _exp_table(np.float32)
 
 
 @njit(inline="always", fastmath=False)
@@ -79,6 +100,23 @@ def _exp_neg(x):
     q = r * (1.0 + r * (0.5 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0
                                                                        + r * (1.0 / 720.0))))))
     e = EXP_TAB[i]
+    return e + e * q
+
+
+_F32 = np.float32
+_F32_HALF, _F32_ONE, _F32_STEP = _F32(0.5), _F32(1.0), _F32(0.015625)
+_F32_C2, _F32_C3 = _F32(0.5), _F32(1.0 / 6.0)
+
+
+@njit(inline="always", fastmath=False)
+def _exp_neg_f32(x):
+    """float32 :func:`_exp_neg`: the same table split, the float32 table and
+    the Taylor polynomial to degree 3 (truncation < 1.2e-10, under a float32
+    ulp); within 1.5 float32 ulp of exp on [-4.5, 0] (tests)."""
+    i = np.int32(x * _F32(-64.0) + _F32_HALF)  # int32: one 16-lane conversion
+    r = x + _F32(i) * _F32_STEP  # exact, as in float64
+    q = r * (_F32_ONE + r * (_F32_C2 + r * _F32_C3))
+    e = EXP_TAB_F32[i]
     return e + e * q
 
 
@@ -234,124 +272,197 @@ def _gaussian(g, means2d, conics, opac, feats):
             float(feats[g, 0]), f1, f2, f3)
 
 
+_NGEO = 15  # per-Gaussian set-up of the forward kernels: _gaussian's 13, row radius, 1 / a
+
+
 @njit(inline="always", fastmath=False)
-def _row_range(v, a, det, m2, y0, th):
-    """Rows (tile-local, inclusive) whose centre the ellipse power >= lpm
-    around centre row v can reach, slightly enlarged."""
-    ry = math.sqrt(m2 * a / det) * (1.0 + 1e-6) + 1e-3  # var_y = a / det
+def _prepare_gaussians(means2d, conics, opac, feats):
+    """(N, _NGEO) float64: per Gaussian, :func:`_gaussian`'s values, the row
+    radius of :func:`_row_range` and 1 / a, computed once per render instead
+    of once per (tile, Gaussian) pair (a Gaussian reaches ~30 tiles at HD)."""
+    n = means2d.shape[0]
+    geo = np.zeros((n, _NGEO))
+    for g in prange(n):
+        o, a, b, c, lpm, m2, det, u, v, f0, f1, f2, f3 = _gaussian(g, means2d, conics, opac, feats)
+        geo[g, 0], geo[g, 1], geo[g, 2], geo[g, 3], geo[g, 4] = o, a, b, c, lpm
+        geo[g, 5], geo[g, 6], geo[g, 7], geo[g, 8] = m2, det, u, v
+        geo[g, 9], geo[g, 10], geo[g, 11], geo[g, 12] = f0, f1, f2, f3
+        if lpm <= 0.0:
+            geo[g, 13] = math.sqrt(m2 * a / det) * (1.0 + 1e-6) + 1e-3  # var_y = a / det
+            geo[g, 14] = 1.0 / a
+    return geo
+
+
+@njit(inline="always", fastmath=False)
+def _rows_of(v, ry, y0, th):
+    """Rows (tile-local, inclusive) whose centre lies within ``ry`` of the
+    centre row v."""
     return (max(0, int(math.ceil(v - ry - 0.5)) - y0),
             min(th - 1, int(math.floor(v + ry - 0.5)) - y0))
 
 
 @njit(inline="always", fastmath=False)
-def _col_span(u, dy, a, b, det, m2, x0, tw):
+def _row_range(v, a, det, m2, y0, th):
+    """Rows (tile-local, inclusive) whose centre the ellipse power >= lpm
+    around centre row v can reach, slightly enlarged."""
+    return _rows_of(v, math.sqrt(m2 * a / det) * (1.0 + 1e-6) + 1e-3, y0, th)  # var_y = a / det
+
+
+@njit(inline="always", fastmath=False)
+def _col_span_inv(u, dy, a, b, det, m2, inv_a, x0, tw):
     """Columns (tile-local, inclusive; empty if lo > hi) of the row at offset
     dy = v - py from the centre that the ellipse reaches: a dx^2 + 2 b dx dy +
     c dy^2 <= m2 solved for dx, widened (slack, relative and absolute) so
-    that rounding never drops a pixel the exact test would keep."""
+    that rounding never drops a pixel the exact test would keep. inv_a = 1 / a
+    (a product, not a division, per row)."""
     D = a * m2 - det * dy * dy + 1e-6 * a * m2
     if D < 0.0:
         return 0, -1
-    hw = math.sqrt(D) / a * (1.0 + 1e-6) + 1e-3
-    cx = u + b * dy / a
+    hw = math.sqrt(D) * inv_a * (1.0 + 1e-6) + 1e-3
+    cx = u + b * dy * inv_a
     return (max(0, int(math.ceil(cx - hw - 0.5)) - x0),
             min(tw - 1, int(math.floor(cx + hw - 0.5)) - x0))
 
 
-# forward segment block (float64): 6 fields x LANES
-_FT, _F0, _F1, _F2, _F3, _FL = 0, 8, 16, 24, 32, 40
-_FBLK = 48
-
-
 @njit(inline="always", fastmath=False)
-def _segment_forward(s, jx, u, a, b, c, dy, lpm, o, f0, f1, f2, f3, kf, mf):
-    """Composite Gaussian k (kf = float(k)) over the 8 pixels of one segment
-    block ``s`` (columns jx .. jx + 7 at offset dy from the centre row).
-    Branch-free: every lane computes, masks decide what is stored. A pixel is
-    open while its stop index equals mf = float(list length)."""
-    for lane in range(LANES):
-        dx = u - (jx + lane + 0.5)
-        power = -0.5 * (a * dx * dx + c * dy * dy) - b * dx * dy
-        ok = (power <= 0.0) & (power >= lpm) & (power >= POWER_MIN) & (s[_FL + lane] == mf)
-        alpha = min(ALPHA_MAX, o * _exp_neg(power if ok else 0.0))
-        ok = ok & (alpha >= ALPHA_MIN)
-        T = s[_FT + lane]
-        t_next = T * (1.0 - alpha)
-        upd = ok & (t_next >= T_MIN)
-        w = alpha * T
-        s[_F0 + lane] = s[_F0 + lane] + f0 * w if upd else s[_F0 + lane]
-        s[_F1 + lane] = s[_F1 + lane] + f1 * w if upd else s[_F1 + lane]
-        s[_F2 + lane] = s[_F2 + lane] + f2 * w if upd else s[_F2 + lane]
-        s[_F3 + lane] = s[_F3 + lane] + f3 * w if upd else s[_F3 + lane]
-        s[_FT + lane] = t_next if upd else T
-        s[_FL + lane] = kf if ok & (t_next < T_MIN) else s[_FL + lane]
+def _col_span(u, dy, a, b, det, m2, x0, tw):
+    """:func:`_col_span_inv` with 1 / a computed here."""
+    return _col_span_inv(u, dy, a, b, det, m2, 1.0 / a, x0, tw)
 
 
-@njit(inline="always", fastmath=False)
-def _block_open(st, at, mf):
-    """Whether any of the LANES stop indices st[at:at + LANES] is still open
-    (== mf): a block whose pixels have all stopped is left alone, as the
-    branch-free segment would leave it (about a fifth of the blocks a trained
-    model's Gaussians reach, behind opaque surfaces)."""
-    for lane in range(LANES):
-        if st[at + lane] == mf:
-            return True
-    return False
+def _make_forward(ftype, lanes: int, exp_neg):
+    """The forward compositing kernel computing in ``ftype`` with segments of
+    ``lanes`` pixels (one AVX-512 register: 8 float64 or 16 float32) and
+    ``exp_neg`` its exp. Per-Gaussian set-up, row ranges and column spans stay
+    float64 (scalar, per row); the per-pixel tests and compositing run in
+    ``ftype``."""
+    zero, one, half = ftype(0.0), ftype(1.0), ftype(0.5)
+    a_max, a_min, t_min, p_min = ftype(ALPHA_MAX), ftype(ALPHA_MIN), ftype(T_MIN), ftype(POWER_MIN)
+    # segment block: 6 fields x lanes (T, features 0..3, stop index)
+    FT, F0, F1, F2, F3, FL = (q * lanes for q in range(6))
+    FBLK = 6 * lanes
+    lane_f = np.arange(lanes).astype(ftype)  # exact: no per-segment int conversion
 
+    @njit(inline="always", fastmath=False)
+    def segment(s, jx, u, a, b, c, dy, lpm, o, f0, f1, f2, f3, kf, mf):
+        """Composite Gaussian k (kf = k) over the ``lanes`` pixels of one
+        segment block ``s`` (columns jx .. jx + lanes - 1 at offset dy from
+        the centre row). Branch-free: every lane computes, masks decide what is
+        stored. A pixel is open while its stop index equals mf (list length)."""
+        for lane in range(lanes):
+            dx = u - ((ftype(jx) + lane_f[lane]) + half)
+            power = -half * (a * dx * dx + c * dy * dy) - b * dx * dy
+            # exp's argument is clamped to its domain, not masked by the pixel
+            # state: the exp then does not wait for the previous Gaussian's
+            # result on these pixels (a loop-carried chain; 1.1-1.2x faster)
+            alpha = min(a_max, o * exp_neg(min(max(power, p_min), zero)))
+            ok = ((power <= zero) & (power >= lpm) & (power >= p_min) & (s[FL + lane] == mf)
+                  & (alpha >= a_min))
+            T = s[FT + lane]
+            t_next = T * (one - alpha)
+            upd = ok & (t_next >= t_min)
+            w = alpha * T
+            s[F0 + lane] = s[F0 + lane] + f0 * w if upd else s[F0 + lane]
+            s[F1 + lane] = s[F1 + lane] + f1 * w if upd else s[F1 + lane]
+            s[F2 + lane] = s[F2 + lane] + f2 * w if upd else s[F2 + lane]
+            s[F3 + lane] = s[F3 + lane] + f3 * w if upd else s[F3 + lane]
+            s[FT + lane] = t_next if upd else T
+            s[FL + lane] = kf if ok & (t_next < t_min) else s[FL + lane]
 
-@njit(parallel=True, cache=True, fastmath=False)
-def raster_forward_kernel(tile_ids, offsets, gids, means2d, conics, opac, feats, bg,
-                          width, height, tile, out, out_T, n_contrib, order, bounds):
-    """Composite the tiles ``tile_ids`` (row-major tile numbers); the list of
-    tile_ids[s] is gids[offsets[s]:offsets[s + 1]]. out (H,W,C), C <= 4,
-    out_T (H,W) final transmittance, n_contrib (H,W) = number of list entries
-    processed (the backward walks [0, n_contrib)); pixels of other tiles are
-    untouched. Thread w renders positions order[bounds[w]:bounds[w + 1]] of
-    tile_ids (:func:`tile_schedule`)."""
-    tiles_x = (width + tile - 1) // tile
-    C = feats.shape[1]
-    nseg = (tile + LANES - 1) // LANES
-    for w in prange(bounds.shape[0] - 1):
-        for r in range(bounds[w], bounds[w + 1]):
-            si = order[r]
-            x0, y0, tw, th = _tile_origin(tile_ids[si], tiles_x, tile, width, height)
-            start = offsets[si]
-            m = offsets[si + 1] - start
-            mf = float(m)
-            # one block per (row, segment): lanes past the tile's width start closed
-            st = np.zeros(th * nseg * _FBLK)
-            for ii in range(th):
-                for jj in range(nseg * LANES):
-                    blk = (ii * nseg + jj // LANES) * _FBLK
-                    st[blk + _FT + jj % LANES] = 1.0
-                    st[blk + _FL + jj % LANES] = mf if jj < tw else -1.0
-            for k in range(m):
-                g = gids[start + k]
-                o, a, b, c, lpm, m2, det, u, v, f0, f1, f2, f3 = _gaussian(g, means2d, conics, opac,
-                                                                           feats)
-                if lpm > 0.0:
-                    continue
-                kf = float(k)
-                i_lo, i_hi = _row_range(v, a, det, m2, y0, th)
-                for ii in range(i_lo, i_hi + 1):
-                    dy = v - (y0 + ii + 0.5)
-                    j_lo, j_hi = _col_span(u, dy, a, b, det, m2, x0, tw)
-                    if j_lo > j_hi:
+    @njit(inline="always", fastmath=False)
+    def block_open(st, at, mf):
+        """Whether any of the stop indices st[at:at + lanes] is still open
+        (== mf): a block whose pixels have all stopped is left alone, as the
+        branch-free segment would leave it (about a fifth of the blocks a
+        trained model's Gaussians reach, behind opaque surfaces)."""
+        for lane in range(lanes):
+            if st[at + lane] == mf:
+                return True
+        return False
+
+    @njit(parallel=True, cache=True, fastmath=False)
+    def kernel(tile_ids, offsets, gids, means2d, conics, opac, feats, bg,
+               width, height, tile, out, out_T, n_contrib, order, bounds):
+        tiles_x = (width + tile - 1) // tile
+        C = feats.shape[1]
+        nseg = (tile + lanes - 1) // lanes
+        geo = _prepare_gaussians(means2d, conics, opac, feats)
+        for w in prange(bounds.shape[0] - 1):
+            for r in range(bounds[w], bounds[w + 1]):
+                si = order[r]
+                x0, y0, tw, th = _tile_origin(tile_ids[si], tiles_x, tile, width, height)
+                start = offsets[si]
+                m = offsets[si + 1] - start
+                mf = ftype(m)
+                # one block per (row, segment): lanes past the tile's width start closed
+                st = np.zeros(th * nseg * FBLK, dtype=ftype)
+                for ii in range(th):
+                    for jj in range(nseg * lanes):
+                        blk = (ii * nseg + jj // lanes) * FBLK
+                        st[blk + FT + jj % lanes] = one
+                        st[blk + FL + jj % lanes] = mf if jj < tw else -one
+                for k in range(m):
+                    g = gids[start + k]
+                    lpm = geo[g, 4]
+                    if lpm > 0.0:
                         continue
-                    for h in range(j_lo // LANES, j_hi // LANES + 1):
-                        blk = (ii * nseg + h) * _FBLK
-                        if _block_open(st, blk + _FL, mf):
-                            _segment_forward(st[blk:blk + _FBLK], x0 + h * LANES, u, a, b, c, dy,
-                                             lpm, o, f0, f1, f2, f3, kf, mf)
-            for ii in range(th):
-                for jj in range(tw):
-                    blk = (ii * nseg + jj // LANES) * _FBLK
-                    lane = jj % LANES
-                    T = st[blk + _FT + lane]
-                    for ch in range(C):
-                        out[y0 + ii, x0 + jj, ch] = st[blk + _F0 + LANES * ch + lane] + T * bg[ch]
-                    out_T[y0 + ii, x0 + jj] = T
-                    n_contrib[y0 + ii, x0 + jj] = int(st[blk + _FL + lane])
+                    a, b, m2, det, u, v = geo[g, 1], geo[g, 2], geo[g, 5], geo[g, 6], geo[g, 7], geo[g, 8]
+                    inv_a = geo[g, 14]
+                    # the segment's values, in ftype
+                    o_f, a_f, b_f, c_f, lpm_f = (ftype(geo[g, 0]), ftype(a), ftype(b),
+                                                 ftype(geo[g, 3]), ftype(lpm))
+                    u_f, v_f = ftype(u), ftype(v)
+                    f0, f1, f2, f3 = (ftype(geo[g, 9]), ftype(geo[g, 10]), ftype(geo[g, 11]),
+                                      ftype(geo[g, 12]))
+                    kf = ftype(k)
+                    i_lo, i_hi = _rows_of(v, geo[g, 13], y0, th)
+                    for ii in range(i_lo, i_hi + 1):
+                        dy = v - (y0 + ii + 0.5)
+                        j_lo, j_hi = _col_span_inv(u, dy, a, b, det, m2, inv_a, x0, tw)
+                        if j_lo > j_hi:
+                            continue
+                        dy_f = v_f - (ftype(y0 + ii) + half)
+                        for h in range(j_lo // lanes, j_hi // lanes + 1):
+                            blk = (ii * nseg + h) * FBLK
+                            if block_open(st, blk + FL, mf):
+                                segment(st[blk:blk + FBLK], x0 + h * lanes, u_f, a_f, b_f, c_f,
+                                        dy_f, lpm_f, o_f, f0, f1, f2, f3, kf, mf)
+                for ii in range(th):
+                    for jj in range(tw):
+                        blk = (ii * nseg + jj // lanes) * FBLK
+                        lane = jj % lanes
+                        T = st[blk + FT + lane]
+                        for ch in range(C):
+                            out[y0 + ii, x0 + jj, ch] = st[blk + F0 + lanes * ch + lane] + T * bg[ch]
+                        out_T[y0 + ii, x0 + jj] = T
+                        n_contrib[y0 + ii, x0 + jj] = int(st[blk + FL + lane])
+
+    kernel.__doc__ = """Composite the tiles ``tile_ids`` (row-major tile numbers), computing in
+    %s; the list of tile_ids[s] is gids[offsets[s]:offsets[s + 1]]. out (H,W,C),
+    C <= 4, out_T (H,W) final transmittance, n_contrib (H,W) = number of list
+    entries processed (the backward walks [0, n_contrib)); pixels of other tiles
+    are untouched. Thread w renders positions order[bounds[w]:bounds[w + 1]] of
+    tile_ids (:func:`tile_schedule`).""" % np.dtype(ftype).name
+    return segment, block_open, kernel
+
+
+LANES_F32 = 16  # float32 pixels per segment: one AVX-512 register
+F32_MAX_LIST = 1 << 24  # float32 holds list positions exactly up to here
+_segment_forward, _block_open, raster_forward_kernel = _make_forward(np.float64, LANES, _exp_neg)
+_segment_forward_f32, _block_open_f32, raster_forward_kernel_f32 = _make_forward(
+    np.float32, LANES_F32, _exp_neg_f32)
+
+
+def forward_kernel(compute_dtype, offsets: np.ndarray):
+    """The forward kernel computing in ``compute_dtype``: float32 (16 lanes,
+    for renders that no backward pass follows) or float64 (8 lanes; the
+    backward recomputes in float64, so a forward it follows computes so too).
+    float32 falls back to float64 for a tile list longer than float32 counts
+    exactly (2^24 entries)."""
+    if np.dtype(compute_dtype) == np.float32 and (
+            offsets.shape[0] < 2 or int(np.diff(offsets).max()) < F32_MAX_LIST):
+        return raster_forward_kernel_f32
+    return raster_forward_kernel
 
 
 # backward segment block (float64), LANES each: pixel state T, T_final, g_T,
@@ -418,6 +529,7 @@ def raster_backward_kernel(offsets, gids, means2d, conics, opac, feats,
     tiles_x = (width + tile - 1) // tile
     C = feats.shape[1]
     nseg = (tile + LANES - 1) // LANES
+    geo = _prepare_gaussians(means2d, conics, opac, feats)
     for w in prange(bounds.shape[0] - 1):
         for r in range(bounds[w], bounds[w + 1]):
             t = order[r]
@@ -453,16 +565,19 @@ def raster_backward_kernel(offsets, gids, means2d, conics, opac, feats,
                 g = gids[start + k]
                 for ch in range(6 + C):
                     pair_grad[start + k, ch] = 0.0
-                o, a, b, c, lpm, m2, det, u, v, f0, f1, f2, f3 = _gaussian(g, means2d, conics, opac,
-                                                                           feats)
+                lpm = geo[g, 4]
                 if lpm > 0.0:
                     continue
+                o, a, b, c = geo[g, 0], geo[g, 1], geo[g, 2], geo[g, 3]
+                m2, det, u, v = geo[g, 5], geo[g, 6], geo[g, 7], geo[g, 8]
+                f0, f1, f2, f3 = geo[g, 9], geo[g, 10], geo[g, 11], geo[g, 12]
+                inv_a = geo[g, 14]
                 kf = float(k)
                 n_touched = 0
-                i_lo, i_hi = _row_range(v, a, det, m2, y0, th)
+                i_lo, i_hi = _rows_of(v, geo[g, 13], y0, th)
                 for ii in range(i_lo, i_hi + 1):
                     dy = v - (y0 + ii + 0.5)
-                    j_lo, j_hi = _col_span(u, dy, a, b, det, m2, x0, tw)
+                    j_lo, j_hi = _col_span_inv(u, dy, a, b, det, m2, inv_a, x0, tw)
                     if j_lo > j_hi:
                         continue
                     for h in range(j_lo // LANES, j_hi // LANES + 1):
@@ -520,13 +635,17 @@ def _channels(feats) -> int:
     return C
 
 
-def rasterize_forward(means2d, conics, opac, feats, bg, width, height, offsets, gids, tile=16):
+def rasterize_forward(means2d, conics, opac, feats, bg, width, height, offsets, gids, tile=16,
+                      compute_dtype=np.float64):
     """Composite features front to back.
 
     Parameters
     ----------
     means2d (N,2) px; conics (N,3); opac (N,) in [0,1]; feats (N,C), 1 <= C <= 4;
     bg (C,); all of one float dtype (float32 or float64), which the outputs take.
+    compute_dtype : float64 (what :func:`rasterize_backward` recomputes in) or
+        float32 (~1.25x faster, for renders no backward follows;
+        :func:`forward_kernel`).
 
     Returns
     -------
@@ -539,9 +658,9 @@ def rasterize_forward(means2d, conics, opac, feats, bg, width, height, offsets, 
     out_T = np.empty((height, width), dtype=dt)
     n_contrib = np.empty((height, width), dtype=np.int32)
     n_tiles = ((int(width) + tile - 1) // tile) * ((int(height) + tile - 1) // tile)
-    raster_forward_kernel(np.arange(n_tiles, dtype=np.int64), offsets, gids, means2d, conics,
-                          opac, feats, bg, int(width), int(height), int(tile), out, out_T, n_contrib,
-                          *tile_schedule(offsets))
+    forward_kernel(compute_dtype, offsets)(
+        np.arange(n_tiles, dtype=np.int64), offsets, gids, means2d, conics, opac, feats, bg,
+        int(width), int(height), int(tile), out, out_T, n_contrib, *tile_schedule(offsets))
     return out, out_T, n_contrib
 
 

@@ -129,7 +129,7 @@ def _np(x: torch.Tensor) -> np.ndarray:
 class _Rasterize(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means, quats, logscales, opacity_logits, sh, background,
-                cam, sh_degree, meta):
+                cam, sh_degree, meta, forward_only):
         dt = means.dtype
         ndt = np.float64 if dt == torch.float64 else np.float32
         vm = cam.validate()
@@ -151,8 +151,10 @@ class _Rasterize(torch.autograd.Function):
         m2 = means2d.astype(ndt)
         cn = conics.astype(ndt)
         op = opac.astype(ndt)
-        out, out_T, n_contrib = _raster.rasterize_forward(m2, cn, op, feats, bg4, W, H,
-                                                          offsets, gids, TILE)
+        # float32 compositing only where no backward can follow (it recomputes in float64)
+        out, out_T, n_contrib = _raster.rasterize_forward(
+            m2, cn, op, feats, bg4, W, H, offsets, gids, TILE,
+            compute_dtype=ndt if forward_only else np.float64)
         ctx.cam = cam
         ctx.sh_degree = sh_degree
         ctx.meta = meta
@@ -216,7 +218,7 @@ class _Rasterize(torch.autograd.Function):
                 raise NonFiniteError(f"gradient of {name} holds "
                                      f"{int((~np.isfinite(arr)).sum())} non-finite value(s)")
             out.append(torch.from_numpy(np.ascontiguousarray(arr)).to(dt))
-        return (*out, None, None, None)
+        return (*out, None, None, None, None)
 
 
 def rasterize(means: torch.Tensor, quats: torch.Tensor, log_scales: torch.Tensor,
@@ -239,7 +241,10 @@ def rasterize(means: torch.Tensor, quats: torch.Tensor, log_scales: torch.Tensor
     backend : 'cpu' (this module's rasterizer) or 'gsplat' (CUDA, optional;
         see :mod:`gs2e.splat.backend`; resolve 'auto' with ``resolve_backend``).
 
-    All tensors share one dtype, float32 or float64 (outputs take it).
+    All tensors share one dtype, float32 or float64 (outputs take it). At
+    float32 the compositing computes in float32 where no gradient can be asked
+    for (grad mode off or no input requiring one), else in float64, as its
+    backward does.
 
     Returns
     -------
@@ -287,8 +292,10 @@ def rasterize(means: torch.Tensor, quats: torch.Tensor, log_scales: torch.Tensor
     if backend != "cpu":
         raise InputError(f"rasterize: backend must be 'cpu' or 'gsplat', got {backend!r}")
     meta: dict = {}
+    forward_only = not (torch.is_grad_enabled() and any(
+        x.requires_grad for x in (means, quats, log_scales, opacity_logits, sh, background)))
     image, alpha, depth_acc = _Rasterize.apply(means, quats, log_scales, opacity_logits, sh,
-                                               background, cam, int(sh_degree), meta)
+                                               background, cam, int(sh_degree), meta, forward_only)
     depth = depth_acc / alpha.clamp_min(1e-10)
     return image, alpha, depth, meta
 

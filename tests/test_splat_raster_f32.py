@@ -1,0 +1,212 @@
+"""The float32 forward compositing kernel (16 pixels per vector; renders that
+no backward follows: the event stage, the render stage, evaluations) against
+a pixel-by-pixel float32 loop of the same rules (same bits: the spans only
+pre-filter), against the float64 kernel (rounding only), and its exp within
+1.5 float32 ulp of the exact exponential."""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+from decimal import Decimal, localcontext
+
+import numpy as np
+import pytest
+import torch
+
+from gs2e.splat import raster as R
+from tests.conftest import REPO
+from tests.test_splat_raster_exact import _hard_scene
+
+f32 = np.float32
+
+
+def _pixel_loop_forward_f32(means2d, conics, opac, feats, bg, W, H, offsets, gids, tile):
+    """Pixel-major compositing in numpy float32 scalars (each operation
+    rounded to float32, in the kernel's order), every Gaussian of the tile
+    list tested at every pixel."""
+    C = feats.shape[1]
+    tiles_x = (W + tile - 1) // tile
+    out = np.zeros((H, W, C), f32)
+    out_T = np.zeros((H, W), f32)
+    n_contrib = np.zeros((H, W), np.int64)
+    one, half = f32(1.0), f32(0.5)
+    for i in range(H):
+        for j in range(W):
+            t = (i // tile) * tiles_x + j // tile
+            lst = gids[offsets[t]:offsets[t + 1]]
+            T, acc, last = one, [f32(0.0)] * C, len(lst)
+            for k, g in enumerate(lst):
+                o = float(opac[g])
+                a, b, c = (float(x) for x in conics[g])
+                if o < R.ALPHA_MIN or not a * c - b * b > 0.0:
+                    continue
+                lpm = f32(max(R.POWER_MIN, math.log(R.ALPHA_MIN / o)) - 1e-6)
+                a, b, c, o = f32(a), f32(b), f32(c), f32(o)
+                dx = f32(means2d[g, 0]) - (f32(j) + half)
+                dy = f32(means2d[g, 1]) - (f32(i) + half)
+                power = -half * (a * dx * dx + c * dy * dy) - b * dx * dy
+                if power > 0.0 or power < lpm or power < R.POWER_MIN:
+                    continue
+                alpha = min(f32(R.ALPHA_MAX), o * R._exp_neg_f32(power))
+                if alpha < f32(R.ALPHA_MIN):
+                    continue
+                t_next = T * (one - alpha)
+                if t_next < f32(R.T_MIN):
+                    last = k
+                    break
+                w = alpha * T
+                for ch in range(C):
+                    acc[ch] = acc[ch] + f32(feats[g, ch]) * w
+                T = t_next
+            for ch in range(C):
+                out[i, j, ch] = acc[ch] + T * f32(bg[ch])
+            out_T[i, j] = T
+            n_contrib[i, j] = last
+    return out, out_T, n_contrib
+
+
+@pytest.mark.parametrize("tile,W,H,C", [(16, 61, 37, 3), (16, 40, 33, 4), (8, 33, 20, 2),
+                                        (24, 70, 30, 1)])
+def test_forward_f32_same_bits_as_pixel_loop(tile, W, H, C):
+    n = W * H // 25
+    m2, cn, op, feats, bg, depth = _hard_scene(tile + C, n, W, H, f32)
+    feats, bg = np.ascontiguousarray(feats[:, :C]), np.ascontiguousarray(bg[:C])
+    offsets, gids = R.bin_gaussians(m2, depth, np.full(n, 40.0), W, H, tile, op)
+    out, out_T, nc = R.rasterize_forward(m2, cn, op, feats, bg, W, H, offsets, gids, tile,
+                                         compute_dtype=f32)
+    ref, ref_T, ref_nc = _pixel_loop_forward_f32(m2, cn, op, feats, bg, W, H, offsets, gids, tile)
+    np.testing.assert_array_equal(out, ref)
+    np.testing.assert_array_equal(out_T, ref_T)
+    np.testing.assert_array_equal(nc, ref_nc)
+    tiles_x = (W + tile - 1) // tile
+    ti = (np.arange(H)[:, None] // tile) * tiles_x + np.arange(W)[None, :] // tile
+    assert (nc < np.diff(offsets)[ti]).sum() >= 3  # some pixels stopped early
+    assert float(out_T.max()) > 0.3  # ... and some stayed open
+
+
+def test_exp_f32_within_one_and_a_half_ulp():
+    xs = np.concatenate([-np.linspace(0, 4.5, 20001), -np.arange(289) / 64 - 1 / 128,
+                         -np.arange(289) / 64 + 1 / 128, [-4.5, -1e-30, -0.0]]).astype(f32)
+    xs = xs[(xs <= 0) & (xs >= -4.5)]
+    with localcontext() as ctx:
+        ctx.prec = 40
+        worst = 0.0
+        for x in xs:
+            exact = Decimal(float(x)).exp()
+            got = R._exp_neg_f32(x)
+            assert float(f32(got)) == got  # a float32 value (numba boxes it as a float)
+            ulp = np.spacing(f32(float(exact)))
+            worst = max(worst, float(abs(Decimal(float(got)) - exact) / Decimal(float(ulp))))
+    assert worst <= 1.5, worst
+    assert R._exp_neg_f32(f32(0.0)) == 1.0
+    # the float32 table is correctly rounded from the exact values
+    with localcontext() as ctx:
+        ctx.prec = 40
+        for i in (1, 37, 100, 291):
+            exact = (-Decimal(i) / 64).exp()
+            e = R.EXP_TAB_F32[i]
+            for nb in (np.nextafter(e, f32(0)), np.nextafter(e, f32(2))):
+                assert abs(Decimal(float(e)) - exact) <= abs(Decimal(float(nb)) - exact)
+
+
+def _big_scene(seed=5, n=3000, W=197, H=131):
+    m2, cn, op, feats, bg, depth = _hard_scene(seed, n, W, H, f32)
+    feats, bg = np.ascontiguousarray(feats[:, :3]), np.ascontiguousarray(bg[:3])
+    offsets, gids = R.bin_gaussians(m2, depth, np.full(n, 40.0), W, H, 16, op)
+    return (m2, cn, op, feats, bg, W, H, offsets, gids)
+
+
+def test_forward_f32_against_float64_rounding_only():
+    """Same inputs, float32 against float64 compositing: rounding apart, the
+    same image. Where rounding moves a pixel across one of the rules' cuts
+    (alpha 1/255 or the 3-sigma rim: that Gaussian weighs ~1/255 there;
+    transmittance 1e-4: the stop moves by one Gaussian) a pixel differs by at
+    most about one such weight."""
+    args = _big_scene()
+    o32, T32, nc32 = R.rasterize_forward(*args, compute_dtype=f32)
+    o64, T64, nc64 = R.rasterize_forward(*args, compute_dtype=np.float64)
+    assert (nc32 == nc64).mean() > 0.999
+    d = np.abs(o32.astype(np.float64) - o64)
+    assert np.quantile(d, 0.999) < 2e-5, np.quantile(d, 0.999)
+    assert d.max() < 1.1 / 255 * float(np.abs(args[3]).max()), d.max()
+    assert np.quantile(np.abs(T32.astype(np.float64) - T64), 0.999) < 2e-5
+    assert (o32 != o64).any()  # it did compute in float32
+
+
+def test_forward_f32_same_bits_whatever_the_thread_count():
+    import numba
+
+    args = _big_scene(seed=9)
+    outs = []
+    n0 = numba.get_num_threads()
+    try:
+        for nt in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
+            numba.set_num_threads(nt)
+            outs.append(R.rasterize_forward(*args, compute_dtype=f32))
+    finally:
+        numba.set_num_threads(n0)
+    for a, b in zip(outs[0], outs[-1]):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_float32_falls_back_to_float64_for_lists_float32_cannot_count():
+    small = np.array([0, 5, 9], np.int64)
+    huge = np.array([0, 5, 5 + R.F32_MAX_LIST], np.int64)
+    assert R.forward_kernel(f32, small) is R.raster_forward_kernel_f32
+    assert R.forward_kernel(f32, huge) is R.raster_forward_kernel
+    assert R.forward_kernel(np.float64, small) is R.raster_forward_kernel
+
+
+def test_rasterize_computes_float32_only_where_no_gradient_can_follow(monkeypatch):
+    """The backward recomputes the forward in float64, so a render that may be
+    differentiated composites in float64; float32 only under no_grad or with
+    no input requiring a gradient (float64 inputs: always float64)."""
+    from splat_scenes import look_at_camera, random_scene
+
+    from gs2e.splat.rasterize import rasterize
+
+    asked = []
+    real = R.forward_kernel
+    monkeypatch.setattr(R, "forward_kernel", lambda dt, off: asked.append(np.dtype(dt)) or real(dt, off))
+    cam = look_at_camera()
+    p = random_scene(300, seed=5, dtype=torch.float32)
+    keys = ("means", "quats", "log_scales", "opacity_logits", "sh")
+    img_grad = rasterize(*(p[k] for k in keys), cam)[0]
+    assert any(p[k].requires_grad for k in keys) and asked[-1] == np.float64
+    img_grad.sum().backward()  # the backward still runs on that forward
+    with torch.no_grad():
+        img_nograd = rasterize(*(p[k] for k in keys), cam)[0]
+    assert asked[-1] == np.float32
+    rasterize(*(p[k].detach() for k in keys), cam)
+    assert asked[-1] == np.float32
+    p64 = random_scene(300, seed=5, dtype=torch.float64)
+    with torch.no_grad():
+        rasterize(*(p64[k] for k in keys), cam)
+    assert asked[-1] == np.float64
+    d = (img_grad.detach() - img_nograd).abs()
+    assert 0 < float(d.max()) < 1e-4
+
+
+def test_float32_kernel_same_bits_at_numba_opt_levels():
+    """As tests/test_numba_opt.py for the float64 kernels (slow tier there):
+    the float32 kernel at LLVM -O1 (the test tier) and -O3 (the pipeline)."""
+    script = (
+        "import hashlib, numpy as np\n"
+        "from tests.test_splat_raster_f32 import _big_scene\n"
+        "from gs2e.splat import raster as R\n"
+        "h = hashlib.sha256()\n"
+        "for a in R.rasterize_forward(*_big_scene(seed=11), compute_dtype=np.float32):\n"
+        "    h.update(np.ascontiguousarray(a).tobytes())\n"
+        "print('sha256', h.hexdigest())\n")
+    digests = set()
+    for opt in ("1", "3"):
+        env = {**os.environ, "NUMBA_OPT": opt, "NUMBA_CACHE_DIR": os.path.join(
+            os.environ.get("TMPDIR", "/tmp"), f"gs2e_numba_f32_O{opt}_{os.getpid()}")}
+        p = subprocess.run([sys.executable, "-c", script], cwd=REPO, env=env, capture_output=True,
+                           text=True, timeout=1800)
+        assert p.returncode == 0, p.stderr[-3000:]
+        digests.add([ln for ln in p.stdout.splitlines() if ln.startswith("sha256")][-1])
+    assert len(digests) == 1, digests
