@@ -74,8 +74,9 @@ def child_cpu_s() -> float:
 
 # ------------------------------------------------------------------ events
 def run_events(scene_dir: Path, traj: str, events_cfg: dict, mode: str, fps: float, bound: float,
-               seed: int, span_s: float, out: Path) -> dict:
-    """``gs2e events`` on the first span_s of trajectory ``traj``; stats and events."""
+               seed: int, span_s: float, out: Path, repo: Path = REPO) -> dict:
+    """``gs2e events`` on the first span_s of trajectory ``traj`` with the code of
+    checkout ``repo``; stats and events."""
     from gs2e.events.io import read_h5
 
     cfg = json.loads(json.dumps(events_cfg))
@@ -84,9 +85,9 @@ def run_events(scene_dir: Path, traj: str, events_cfg: dict, mode: str, fps: flo
     cmd = [sys.executable, "-m", "gs2e", "events", "--model", str(scene_dir / "splat"),
            "--trajectory", str(scene_dir / "trajectories" / f"{traj}.npz"), "-o", str(out),
            "--seed", str(seed), "--threads", "2", "--config-json", json.dumps(cfg)]
-    env = dict(os.environ, GS2E_PROGRESS="0", PYTHONPATH=str(REPO))
+    env = dict(os.environ, GS2E_PROGRESS="0", PYTHONPATH=str(repo))
     c0, w0 = child_cpu_s(), time.perf_counter()
-    subprocess.run(cmd, check=True, env=env, capture_output=True)
+    subprocess.run(cmd, check=True, env=env, capture_output=True, cwd=repo)
     cpu, wall = child_cpu_s() - c0, time.perf_counter() - w0
     st = json.loads((out / "stats.json").read_text())["stats"]
     ev, _ = read_h5(out / "events.h5")

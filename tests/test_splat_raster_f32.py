@@ -210,3 +210,28 @@ def test_float32_kernel_same_bits_at_numba_opt_levels():
         assert p.returncode == 0, p.stderr[-3000:]
         digests.add([ln for ln in p.stdout.splitlines() if ln.startswith("sha256")][-1])
     assert len(digests) == 1, digests
+
+
+def test_forward_kernels_load_from_numba_cache_in_a_new_process(tmp_path):
+    """The kernels are closures (one per precision); numba keys a closure's
+    cache entry by its captured values, so those must pickle the same in
+    every process or each process recompiles (seconds per stage job)."""
+    script = (
+        "import numpy as np\n"
+        "from tests.test_splat_raster_f32 import _big_scene\n"
+        "from gs2e.splat import raster as R\n"
+        "a = _big_scene(n=50, W=40, H=30)\n"
+        "for dt in (np.float32, np.float64):\n"
+        "    R.rasterize_forward(*a, compute_dtype=dt)\n"
+        "k32, k64 = R.raster_forward_kernel_f32, R.raster_forward_kernel\n"
+        "print('stats', sum(k32.stats.cache_hits.values()), sum(k32.stats.cache_misses.values()),\n"
+        "      sum(k64.stats.cache_hits.values()), sum(k64.stats.cache_misses.values()))\n")
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    runs = []
+    for _ in range(2):
+        p = subprocess.run([sys.executable, "-c", script], cwd=REPO, env=env, capture_output=True,
+                           text=True, timeout=1800)
+        assert p.returncode == 0, p.stderr[-3000:]
+        runs.append([int(x) for x in p.stdout.split("stats")[-1].split()])
+    assert runs[0][1] >= 1 and runs[0][3] >= 1  # first process: compiled (and saved)
+    assert runs[1] == [1, 0, 1, 0], runs[1]  # second: loaded, nothing compiled

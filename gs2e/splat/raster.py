@@ -35,7 +35,7 @@ polynomial; within 1.4 ulp of exp on [-4.5, 0] (tests), and vectorisable
 Precision: the backward and the forward it follows compute in float64 (8
 lanes). Renders that no backward follows (event stage, render stage,
 evaluations: :func:`forward_kernel`) composite in float32, 16 lanes, with
-:func:`_exp_neg_f32` (same table split, degree 3): the same rules in the same
+:func:`_exp_neg_f32` (the same table split and polynomial): the same rules in the same
 order, each operation rounded to float32 (tests: same bits as a float32
 pixel loop; against float64 a pixel differs by rounding, or by one
 Gaussian's weight where rounding moves it across a cut). Set-up, row ranges
@@ -91,33 +91,40 @@ EXP_TAB_F32 = _exp_table(np.float32)
 
 
 @njit(inline="always", fastmath=False)
-def _exp_neg(x):
+def _exp_neg_poly(x, ftype, tab, kx, coefs):
     """exp(x) for x in [-4.5 - 1e-5, 0] (the compositing range; others: do not
-    call). exp(-i/64) from the table times exp(r), |r| <= 1/128, by its
-    Taylor polynomial to degree 6 (truncation < 4e-19)."""
-    i = int(x * -64.0 + 0.5)
-    r = x + i * 0.015625  # exact: i / 64 and x share their last bits
-    q = r * (1.0 + r * (0.5 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0
-                                                                       + r * (1.0 / 720.0))))))
-    e = EXP_TAB[i]
-    return e + e * q
+    call), computed in x's float type: exp(-i/64) from ``tab`` (the table in
+    that type) times exp(r), |r| <= 1/128, by its Taylor polynomial to degree
+    6 with ``coefs`` (1/1!, ..., 1/6! in that type, by Horner's rule). ``kx`` =
+    (-64, 0.5, 1/64) in that type: constants of x's type keep the arithmetic
+    in it."""
+    i = np.int32(x * kx[0] + kx[1])  # int32: one conversion per vector of float32 too
+    r = x + ftype(i) * kx[2]  # exact: i / 64 and x share their last bits
+    c1, c2, c3, c4, c5, c6 = coefs
+    t = c1 + r * (c2 + r * (c3 + r * (c4 + r * (c5 + r * c6))))
+    e = tab[i]
+    return e + e * (r * t)
 
 
 _F32 = np.float32
-_F32_HALF, _F32_ONE, _F32_STEP = _F32(0.5), _F32(1.0), _F32(0.015625)
-_F32_C2, _F32_C3 = _F32(0.5), _F32(1.0 / 6.0)
+_EXP_K64 = (-64.0, 0.5, 0.015625)
+_EXP_C64 = (1.0, 0.5, 1.0 / 6.0, 1.0 / 24.0, 1.0 / 120.0, 1.0 / 720.0)  # truncation < 4e-19
+_EXP_K32 = tuple(_F32(k) for k in _EXP_K64)
+_EXP_C32 = tuple(_F32(c) for c in _EXP_C64)  # degree 3 would do; 6 costs nothing measurable
+
+
+@njit(inline="always", fastmath=False)
+def _exp_neg(x):
+    """float64 exp on the compositing range (:func:`_exp_neg_poly`):
+    within 1.4 ulp of exp on [-4.5, 0] (tests)."""
+    return _exp_neg_poly(x, np.float64, EXP_TAB, _EXP_K64, _EXP_C64)
 
 
 @njit(inline="always", fastmath=False)
 def _exp_neg_f32(x):
-    """float32 :func:`_exp_neg`: the same table split, the float32 table and
-    the Taylor polynomial to degree 3 (truncation < 1.2e-10, under a float32
-    ulp); within 1.5 float32 ulp of exp on [-4.5, 0] (tests)."""
-    i = np.int32(x * _F32(-64.0) + _F32_HALF)  # int32: one 16-lane conversion
-    r = x + _F32(i) * _F32_STEP  # exact, as in float64
-    q = r * (_F32_ONE + r * (_F32_C2 + r * _F32_C3))
-    e = EXP_TAB_F32[i]
-    return e + e * q
+    """float32 exp on the compositing range (:func:`_exp_neg_poly`):
+    within 1.5 float32 ulp of exp on [-4.5, 0] (tests)."""
+    return _exp_neg_poly(x, np.float32, EXP_TAB_F32, _EXP_K32, _EXP_C32)
 
 
 @njit(cache=True, fastmath=False)
@@ -330,55 +337,67 @@ def _col_span(u, dy, a, b, det, m2, x0, tw):
     return _col_span_inv(u, dy, a, b, det, m2, 1.0 / a, x0, tw)
 
 
-def _make_forward(ftype, lanes: int, exp_neg):
+@njit(inline="always", fastmath=False)
+def _segment_forward(s, jx, u, a, b, c, dy, lpm, o, f0, f1, f2, f3, kf, mf, lanes, lane_f, kc,
+                     ftype, tab, kx, coefs):
+    """Composite Gaussian k (kf = k) over the ``lanes`` pixels of one segment
+    block ``s`` (columns jx .. jx + lanes - 1 at offset dy from the centre
+    row; jx given in the float type), in the float type of the block and values. Branch-free: every lane
+    computes, masks decide what is stored. A pixel is open while its stop
+    index equals mf (list length). lane_f = 0 .. lanes - 1; kc = (0, 1, 0.5,
+    ALPHA_MAX, ALPHA_MIN, T_MIN, POWER_MIN); ftype, tab, kx, coefs: the exp
+    (:func:`_exp_neg_poly`); all in that type."""
+    zero, one, half, a_max, a_min, t_min, p_min = kc
+    FT, F0, F1, F2, F3, FL = 0, lanes, 2 * lanes, 3 * lanes, 4 * lanes, 5 * lanes
+    for lane in range(lanes):
+        dx = u - ((jx + lane_f[lane]) + half)
+        power = -half * (a * dx * dx + c * dy * dy) - b * dx * dy
+        # exp's argument is clamped to its domain, not masked by the pixel
+        # state: the exp then does not wait for the previous Gaussian's
+        # result on these pixels (a loop-carried chain; 1.1-1.2x faster)
+        alpha = min(a_max, o * _exp_neg_poly(min(max(power, p_min), zero), ftype, tab, kx, coefs))
+        ok = ((power <= zero) & (power >= lpm) & (power >= p_min) & (s[FL + lane] == mf)
+              & (alpha >= a_min))
+        T = s[FT + lane]
+        t_next = T * (one - alpha)
+        upd = ok & (t_next >= t_min)
+        w = alpha * T
+        s[F0 + lane] = s[F0 + lane] + f0 * w if upd else s[F0 + lane]
+        s[F1 + lane] = s[F1 + lane] + f1 * w if upd else s[F1 + lane]
+        s[F2 + lane] = s[F2 + lane] + f2 * w if upd else s[F2 + lane]
+        s[F3 + lane] = s[F3 + lane] + f3 * w if upd else s[F3 + lane]
+        s[FT + lane] = t_next if upd else T
+        s[FL + lane] = kf if ok & (t_next < t_min) else s[FL + lane]
+
+
+@njit(inline="always", fastmath=False)
+def _block_open(st, at, mf, lanes):
+    """Whether any of the stop indices st[at:at + lanes] is still open
+    (== mf): a block whose pixels have all stopped is left alone, as the
+    branch-free segment would leave it (about a fifth of the blocks a
+    trained model's Gaussians reach, behind opaque surfaces)."""
+    for lane in range(lanes):
+        if st[at + lane] == mf:
+            return True
+    return False
+
+
+def _make_forward(ftype, lanes: int, tab: np.ndarray, kx: tuple, coefs: tuple):
     """The forward compositing kernel computing in ``ftype`` with segments of
-    ``lanes`` pixels (one AVX-512 register: 8 float64 or 16 float32) and
-    ``exp_neg`` its exp. Per-Gaussian set-up, row ranges and column spans stay
-    float64 (scalar, per row); the per-pixel tests and compositing run in
-    ``ftype``."""
+    ``lanes`` pixels (one AVX-512 register: 8 float64 or 16 float32) and the
+    exp of ``tab``, ``kx``, ``coefs`` (:func:`_exp_neg_poly`). Per-Gaussian
+    set-up, row ranges and column spans stay float64 (scalar, per row); the
+    per-pixel tests and compositing run in ``ftype``.
+
+    The kernel is a closure over plain values only (type, ints, constants,
+    arrays): numba's on-disk cache keys a closure by its values, and a
+    dispatcher among them would pickle differently in every process."""
     zero, one, half = ftype(0.0), ftype(1.0), ftype(0.5)
-    a_max, a_min, t_min, p_min = ftype(ALPHA_MAX), ftype(ALPHA_MIN), ftype(T_MIN), ftype(POWER_MIN)
+    kc = (zero, one, half, ftype(ALPHA_MAX), ftype(ALPHA_MIN), ftype(T_MIN), ftype(POWER_MIN))
     # segment block: 6 fields x lanes (T, features 0..3, stop index)
-    FT, F0, F1, F2, F3, FL = (q * lanes for q in range(6))
+    FT, FL = 0, 5 * lanes
     FBLK = 6 * lanes
     lane_f = np.arange(lanes).astype(ftype)  # exact: no per-segment int conversion
-
-    @njit(inline="always", fastmath=False)
-    def segment(s, jx, u, a, b, c, dy, lpm, o, f0, f1, f2, f3, kf, mf):
-        """Composite Gaussian k (kf = k) over the ``lanes`` pixels of one
-        segment block ``s`` (columns jx .. jx + lanes - 1 at offset dy from
-        the centre row). Branch-free: every lane computes, masks decide what is
-        stored. A pixel is open while its stop index equals mf (list length)."""
-        for lane in range(lanes):
-            dx = u - ((ftype(jx) + lane_f[lane]) + half)
-            power = -half * (a * dx * dx + c * dy * dy) - b * dx * dy
-            # exp's argument is clamped to its domain, not masked by the pixel
-            # state: the exp then does not wait for the previous Gaussian's
-            # result on these pixels (a loop-carried chain; 1.1-1.2x faster)
-            alpha = min(a_max, o * exp_neg(min(max(power, p_min), zero)))
-            ok = ((power <= zero) & (power >= lpm) & (power >= p_min) & (s[FL + lane] == mf)
-                  & (alpha >= a_min))
-            T = s[FT + lane]
-            t_next = T * (one - alpha)
-            upd = ok & (t_next >= t_min)
-            w = alpha * T
-            s[F0 + lane] = s[F0 + lane] + f0 * w if upd else s[F0 + lane]
-            s[F1 + lane] = s[F1 + lane] + f1 * w if upd else s[F1 + lane]
-            s[F2 + lane] = s[F2 + lane] + f2 * w if upd else s[F2 + lane]
-            s[F3 + lane] = s[F3 + lane] + f3 * w if upd else s[F3 + lane]
-            s[FT + lane] = t_next if upd else T
-            s[FL + lane] = kf if ok & (t_next < t_min) else s[FL + lane]
-
-    @njit(inline="always", fastmath=False)
-    def block_open(st, at, mf):
-        """Whether any of the stop indices st[at:at + lanes] is still open
-        (== mf): a block whose pixels have all stopped is left alone, as the
-        branch-free segment would leave it (about a fifth of the blocks a
-        trained model's Gaussians reach, behind opaque surfaces)."""
-        for lane in range(lanes):
-            if st[at + lane] == mf:
-                return True
-        return False
 
     @njit(parallel=True, cache=True, fastmath=False)
     def kernel(tile_ids, offsets, gids, means2d, conics, opac, feats, bg,
@@ -424,16 +443,17 @@ def _make_forward(ftype, lanes: int, exp_neg):
                         dy_f = v_f - (ftype(y0 + ii) + half)
                         for h in range(j_lo // lanes, j_hi // lanes + 1):
                             blk = (ii * nseg + h) * FBLK
-                            if block_open(st, blk + FL, mf):
-                                segment(st[blk:blk + FBLK], x0 + h * lanes, u_f, a_f, b_f, c_f,
-                                        dy_f, lpm_f, o_f, f0, f1, f2, f3, kf, mf)
+                            if _block_open(st, blk + FL, mf, lanes):
+                                _segment_forward(st[blk:blk + FBLK], ftype(x0 + h * lanes), u_f, a_f, b_f,
+                                                 c_f, dy_f, lpm_f, o_f, f0, f1, f2, f3, kf, mf,
+                                                 lanes, lane_f, kc, ftype, tab, kx, coefs)
                 for ii in range(th):
                     for jj in range(tw):
                         blk = (ii * nseg + jj // lanes) * FBLK
                         lane = jj % lanes
                         T = st[blk + FT + lane]
                         for ch in range(C):
-                            out[y0 + ii, x0 + jj, ch] = st[blk + F0 + lanes * ch + lane] + T * bg[ch]
+                            out[y0 + ii, x0 + jj, ch] = st[blk + lanes * (1 + ch) + lane] + T * bg[ch]
                         out_T[y0 + ii, x0 + jj] = T
                         n_contrib[y0 + ii, x0 + jj] = int(st[blk + FL + lane])
 
@@ -443,14 +463,13 @@ def _make_forward(ftype, lanes: int, exp_neg):
     entries processed (the backward walks [0, n_contrib)); pixels of other tiles
     are untouched. Thread w renders positions order[bounds[w]:bounds[w + 1]] of
     tile_ids (:func:`tile_schedule`).""" % np.dtype(ftype).name
-    return segment, block_open, kernel
+    return kernel
 
 
 LANES_F32 = 16  # float32 pixels per segment: one AVX-512 register
 F32_MAX_LIST = 1 << 24  # float32 holds list positions exactly up to here
-_segment_forward, _block_open, raster_forward_kernel = _make_forward(np.float64, LANES, _exp_neg)
-_segment_forward_f32, _block_open_f32, raster_forward_kernel_f32 = _make_forward(
-    np.float32, LANES_F32, _exp_neg_f32)
+raster_forward_kernel = _make_forward(np.float64, LANES, EXP_TAB, _EXP_K64, _EXP_C64)
+raster_forward_kernel_f32 = _make_forward(np.float32, LANES_F32, EXP_TAB_F32, _EXP_K32, _EXP_C32)
 
 
 def forward_kernel(compute_dtype, offsets: np.ndarray):

@@ -1,0 +1,318 @@
+"""The compositing kernels on the cost model's trained real models (issue 32):
+today's against a baseline revision's, in one run.
+
+Runs on the models that ``bench_cost_model.py --run SCENE --sensor S`` trained
+(``benchmarks/results/cost_<sensor>/results/<scene>/``):
+
+* ``kernel``: along ``--poses`` poses of a trajectory, the forward kernel alone
+  (the same tile lists for all) at the event camera's size as the event stage
+  renders it (float32 storage): the baseline revision's kernel (float64
+  compute), today's float64 kernel and today's float32 one (what the event and
+  render stages now run); and at the training size the forward and backward a
+  training step runs (float64 compute), baseline against today. Per kernel: ms
+  per call (median, 2 threads), and the image against the baseline's (largest
+  difference, PSNR; 8-bit values that differ).
+* ``events``: the whole ``gs2e events`` command (paper settings, fixed 2400 fps,
+  first ``--span-s`` of the trajectory), today and in a checkout of the
+  baseline revision, seeds 0 and 1 each: CPU seconds per simulated second and
+  event statistics. DVS-Voltmeter is stochastic, so the yardstick is the spread
+  between seeds (per-pixel count distance, :mod:`bench_cost_cuts`).
+
+Usage:
+    python benchmarks/bench_compositing.py --sensor imx636 --scenes mouse_colmap
+    python benchmarks/bench_compositing.py --sensor davis346 --scenes temple_ring,llff_fern
+Writes benchmarks/results/bench_compositing_<sensor>_{kernel,events}.csv and
+bench_compositing_<sensor>.png; the last printed line is the headline.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "benchmarks"))
+
+from _results import RESULTS, pyplot  # noqa: E402
+from bench_cost_cuts import PAPER_FPS, cost_run, count_distance, pixel_counts, run_events  # noqa: E402
+
+BASELINE_REV = "468d5aa"  # main before the float32 kernel
+
+
+def baseline_module(rev: str, tmp: Path):
+    """gs2e/splat/raster.py of ``rev`` as a module of its own (compiled here)."""
+    src = subprocess.run(["git", "show", f"{rev}:gs2e/splat/raster.py"], cwd=REPO, check=True,
+                         capture_output=True, text=True).stdout
+    path = tmp / f"raster_{rev}.py"
+    path.write_text(src.replace("cache=True", "cache=False"))
+    spec = importlib.util.spec_from_file_location(f"raster_{rev}", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _median_ms(fn, reps: int) -> float:
+    fn()  # compile / warm
+    ts = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t0)
+    return 1e3 * float(np.median(ts))
+
+
+def _agreement(img: np.ndarray, ref: np.ndarray) -> dict:
+    d = np.abs(img.astype(np.float64) - ref.astype(np.float64))
+    mse = float(np.mean(d ** 2))
+    u8 = lambda x: np.floor(np.clip(x, 0, 1) * 255 + 0.5)  # noqa: E731
+    return {"max_abs": float(d.max()), "psnr_db": float("inf") if mse == 0 else -10 * np.log10(mse),
+            "frac_u8_differ": float(np.mean(u8(img) != u8(ref)))}
+
+
+def bench_kernel(results: Path, events_cfg: dict, scene: str, traj: str, n_poses: int, reps: int,
+                 base, tmp: Path) -> list[dict]:
+    import numba
+    import torch
+
+    from gs2e.events.rendered import RenderedSource
+    from gs2e.splat import raster as R
+    from gs2e.splat.forward import TILE
+    from gs2e.splat.model import load_model, render
+    from gs2e.splat.rasterize import SplatCamera
+
+    numba.set_num_threads(2)
+    src = RenderedSource(results / scene / "splat", results / scene / "trajectories" / f"{traj}.npz",
+                         events_cfg)
+    fr = src.renderer
+    rows = []
+    t_us = np.linspace(src.t0_us, src.t1_us, n_poses).astype(np.int64)
+    for k, t in enumerate(t_us):
+        fr.render(src.pose_at(int(t)))  # projects into fr's buffers
+        offsets, gids = R.bin_gaussians(fr.means2d, fr.depths, fr.radii, fr.width, fr.height, TILE,
+                                        fr.opac)
+        tiles = np.arange(fr.n_tiles, dtype=np.int64)
+        sched = R.tile_schedule(offsets)
+        imgs = {}
+        for label, kern in (("baseline", base.raster_forward_kernel),
+                            ("float64", R.raster_forward_kernel),
+                            ("float32", R.raster_forward_kernel_f32)):
+            out = np.zeros((fr.height, fr.width, 3), np.float32)
+            T = np.zeros((fr.height, fr.width), np.float32)
+            nc = np.zeros((fr.height, fr.width), np.int32)
+            ms = _median_ms(lambda: kern(tiles, offsets, gids, fr.m2_dt, fr.cn_dt, fr.opac_dt,
+                                         fr.colors, fr.bg, fr.width, fr.height, TILE, out, T, nc,
+                                         *sched), reps)
+            imgs[label] = out
+            rows.append({"scene": scene, "pass": "render forward", "kernel": label, "pose": k,
+                         "width": fr.width, "height": fr.height, "n_gaussians": fr.n_gaussians,
+                         "n_pairs": int(gids.shape[0]), "ms": ms,
+                         **_agreement(out, imgs["baseline"])})
+        print(f"  {scene} pose {k} {fr.width}x{fr.height}: "
+              + ", ".join(f"{r['kernel']} {r['ms']:.1f} ms" for r in rows[-3:])
+              + f"; float32 vs baseline {rows[-1]['psnr_db']:.1f} dB, max |d| {rows[-1]['max_abs']:.2e}",
+              flush=True)
+    # training size: forward (float64 compute) + backward, with gradients
+    stats = json.loads((results / scene / "splat" / "train_stats.json").read_text())
+    W, H = int(stats["train_width"]), int(stats["train_height"])
+    params, info = load_model(results / scene / "splat")
+    p = {key: v.detach().float().requires_grad_(True) for key, v in params.items()}
+    K = src.traj.K
+    s = W / src.traj.width
+    captured = {}
+    real_bwd = R.rasterize_backward
+
+    def spy(*a, **kw):
+        captured["args"] = a
+        return real_bwd(*a, **kw)
+
+    for k, t in enumerate(t_us[: max(1, n_poses // 2)]):
+        cam = SplatCamera.from_c2w(src.pose_at(int(t)), K[0, 0] * s, K[1, 1] * s, K[0, 2] * s,
+                                   K[1, 2] * s, W, round(src.traj.height * s))
+        R.rasterize_backward = spy
+        try:
+            img, alpha, depth, _ = render(p, cam, torch.zeros(3), int(info["sh_degree"]), "cpu")
+            (img.sum() + depth.mean()).backward()
+        finally:
+            R.rasterize_backward = real_bwd
+        m2, cn, op, feats, w, h, offsets, gids, out_T, nc, g_out, g_T, tile = captured["args"]
+        bg = np.zeros(feats.shape[1], feats.dtype)
+        res = {}
+        for label, mod in (("baseline", base), ("float64", R)):
+            ms_f = _median_ms(lambda: mod.rasterize_forward(m2, cn, op, feats, bg, w, h, offsets, gids,
+                                                             tile), reps)
+            ms_b = _median_ms(lambda: mod.rasterize_backward(m2, cn, op, feats, w, h, offsets, gids,
+                                                              out_T, nc, g_out, g_T, tile), reps)
+            res[label] = (mod.rasterize_forward(m2, cn, op, feats, bg, w, h, offsets, gids, tile)[0],
+                          mod.rasterize_backward(m2, cn, op, feats, w, h, offsets, gids, out_T, nc,
+                                                 g_out, g_T, tile))
+            same = all(np.array_equal(a, b) for a, b in zip(res[label], res["baseline"]))
+            for pss, ms in (("train forward", ms_f), ("train backward", ms_b)):
+                rows.append({"scene": scene, "pass": pss, "kernel": label, "pose": k, "width": w,
+                             "height": h, "n_gaussians": int(m2.shape[0]), "n_pairs": int(gids.shape[0]),
+                             "ms": ms, "same_bits_as_baseline": same})
+        print(f"  {scene} training size {w}x{h} pose {k}: forward {rows[-4]['ms']:.1f} -> {rows[-2]['ms']:.1f} ms, "
+              f"backward {rows[-3]['ms']:.1f} -> {rows[-1]['ms']:.1f} ms, same bits: {rows[-1]['same_bits_as_baseline']}",
+              flush=True)
+    return rows
+
+
+def bench_events(results: Path, events_cfg: dict, scene: str, traj: str, span_s: float,
+                 baseline_repo: Path) -> list[dict]:
+    rows, counts = [], {}
+    with tempfile.TemporaryDirectory(prefix="bench_compositing_") as tmp:
+        for label, repo in (("baseline", baseline_repo), ("today", REPO)):
+            # numba compiles into each checkout's cache on its first run: not timed
+            run_events(results / scene, traj, events_cfg, "fixed", PAPER_FPS, 1.0, 0, 0.002,
+                       Path(tmp) / f"warm_{label}", repo=repo)
+            for seed in (0, 1):
+                r = run_events(results / scene, traj, events_cfg, "fixed", PAPER_FPS, 1.0, seed, span_s,
+                               Path(tmp) / f"{label}_{seed}", repo=repo)
+                st = r["stats"]
+                counts[(label, seed)] = pixel_counts(r["events"], st["width"], st["height"])
+                rows.append({"scene": scene, "trajectory": traj, "code": label, "seed": seed,
+                             "width": st["width"], "height": st["height"], "span_s": st["duration_s"],
+                             "n_events": st["n_events"], "on_fraction": st["on_fraction"],
+                             "cpu_s": r["cpu_s"], "wall_s": r["wall_s"],
+                             "cpu_s_per_s": r["cpu_s"] / st["duration_s"],
+                             "source_s": st["source_s"], "model_s": st["model_s"]})
+                print(f"  {scene} {label} seed {seed}: {st['n_events']:,} events, ON {st['on_fraction']:.4f}, "
+                      f"{r['cpu_s']:.1f} CPU-s ({rows[-1]['cpu_s_per_s']:.0f} per simulated s)", flush=True)
+    for row in rows:
+        other = "today" if row["code"] == "baseline" else "baseline"
+        row.update(count_dist_seeds=count_distance(counts[(row["code"], 0)], counts[(row["code"], 1)]),
+                   count_dist_same_seed_other_code=count_distance(counts[(row["code"], row["seed"])],
+                                                                  counts[(other, row["seed"])]))
+    return rows
+
+
+def plot(kn, ev, path: Path) -> None:
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    if kn is not None and len(kn):
+        ax = axes[0]
+        m = kn.groupby(["scene", "pass", "kernel"], sort=False)["ms"].median().unstack("kernel")
+        labels = [f"{s}\n{p}" for s, p in m.index]
+        x = np.arange(len(m))
+        for i, k in enumerate(m.columns):
+            ax.bar(x + (i - 1) * 0.27, m[k], 0.27, label=k)
+        ax.set_xticks(x, labels, fontsize=6)
+        ax.set_yscale("log")
+        ax.set_ylabel("ms per call (median, 2 threads)")
+        ax.set_title("compositing kernels on trained models")
+        ax.legend(fontsize=7)
+    if ev is not None and len(ev):
+        ax = axes[1]
+        for scene, g in ev.groupby("scene", sort=False):
+            for code, h in g.groupby("code", sort=False):
+                ax.plot(h["cpu_s_per_s"], h["n_events"] / 1e6, "o" if code == "today" else "s",
+                        label=f"{scene} {code}")
+        ax.set_xlabel("CPU-s per simulated s")
+        ax.set_ylabel("events (millions), seeds 0 and 1")
+        ax.set_title("gs2e events, fixed 2400 fps")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+def report(kn, ev, stem: Path, sensor: str, rev: str) -> None:
+    plot(kn, ev, Path(f"{stem}.png"))
+    print()
+    head = []
+    if kn is not None:
+        m = kn.groupby(["scene", "pass", "kernel"], sort=False)["ms"].median().unstack("kernel")
+        print(f"ms per call, median over poses (baseline: {rev}):")
+        print(m.to_string(float_format=lambda x: f"{x:.1f}"))
+        fw = kn[(kn["pass"] == "render forward") & (kn["kernel"] == "float32")]
+        print(f"float32 render against the baseline's: worst {fw['psnr_db'].min():.1f} dB, largest "
+              f"|d| {fw['max_abs'].max():.2e}, 8-bit values differing {fw['frac_u8_differ'].max():.2e}")
+        tr = kn[kn["pass"] != "render forward"]
+        if len(tr):
+            print(f"training passes same bits as the baseline: {bool(tr['same_bits_as_baseline'].all())}")
+        for scene in m.index.get_level_values(0).unique():
+            r = m.loc[(scene, "render forward")]
+            head.append(f"{scene} render {r['baseline'] / r['float32']:.2f}x (float32), "
+                        f"{r['baseline'] / r['float64']:.2f}x (float64)")
+    if ev is not None:
+        print("gs2e events, fixed 2400 fps (mean of seeds 0 and 1):")
+        for scene, g in ev.groupby("scene", sort=False):
+            b, t = g[g["code"] == "baseline"], g[g["code"] == "today"]
+            ratio = b["cpu_s_per_s"].mean() / t["cpu_s_per_s"].mean()
+            print(f"  {scene}: {b['cpu_s_per_s'].mean():.0f} -> {t['cpu_s_per_s'].mean():.0f} CPU-s per "
+                  f"simulated s ({ratio:.2f}x); events {t['n_events'].mean() / b['n_events'].mean() - 1:+.3%} "
+                  f"(seeds differ by {abs(t['n_events'].iloc[0] - t['n_events'].iloc[1]) / t['n_events'].mean():.3%}); "
+                  f"per-pixel count distance today vs baseline at the same seed "
+                  f"{t['count_dist_same_seed_other_code'].mean():.4f}, between seeds {t['count_dist_seeds'].iloc[0]:.4f}")
+            head.append(f"{scene} events {ratio:.2f}x less CPU")
+    print(f"wrote {stem}_*.csv and {stem}.png")
+    print(f"compositing at {sensor}, today against {rev}: " + "; ".join(head))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--sensor", required=True, help="the cost run to use (cost_<sensor>)")
+    ap.add_argument("--scenes", help="comma-separated scenes of that run")
+    ap.add_argument("--parts", default="kernel,events")
+    ap.add_argument("--baseline-rev", default=BASELINE_REV)
+    ap.add_argument("--trajectory", default="mini00_medium")
+    ap.add_argument("--poses", type=int, default=6)
+    ap.add_argument("--reps", type=int, default=5)
+    ap.add_argument("--span-s", type=float, default=0.1, help="simulated span per events run (s)")
+    ap.add_argument("--report", action="store_true", help="only reprint and redraw from the CSVs")
+    ap.add_argument("--quick", action="store_true", help="2 poses, 2 reps, 20 ms of events")
+    args = ap.parse_args()
+    import pandas as pd
+
+    stem = RESULTS / f"bench_compositing_{args.sensor}"
+    if args.report:
+        kn = pd.read_csv(f"{stem}_kernel.csv") if Path(f"{stem}_kernel.csv").exists() else None
+        ev = pd.read_csv(f"{stem}_events.csv") if Path(f"{stem}_events.csv").exists() else None
+        return report(kn, ev, stem, args.sensor, args.baseline_rev)
+    if not args.scenes:
+        ap.error("--scenes is required (or --report)")
+    if args.quick:
+        args.poses, args.reps, args.span_s = 2, 2, 0.02
+    results, cfg = cost_run(args.sensor)
+    parts = set(args.parts.split(","))
+    kn_rows, ev_rows = [], []
+    with tempfile.TemporaryDirectory(prefix="bench_compositing_base_") as tmp:
+        tmp = Path(tmp)
+        base = baseline_module(args.baseline_rev, tmp) if "kernel" in parts else None
+        if "events" in parts:
+            checkout = tmp / "checkout"
+            subprocess.run(["git", "worktree", "add", "--detach", str(checkout), args.baseline_rev],
+                           cwd=REPO, check=True, capture_output=True)
+        try:
+            for scene in args.scenes.split(","):
+                if "kernel" in parts:
+                    kn_rows += bench_kernel(results, cfg["events"], scene, args.trajectory, args.poses,
+                                            args.reps, base, tmp)
+                if "events" in parts:
+                    ev_rows += bench_events(results, cfg["events"], scene, args.trajectory, args.span_s,
+                                            checkout)
+        finally:
+            if "events" in parts:
+                subprocess.run(["git", "worktree", "remove", "--force", str(checkout)], cwd=REPO,
+                               capture_output=True)
+    kn = pd.DataFrame(kn_rows) if kn_rows else None
+    ev = pd.DataFrame(ev_rows) if ev_rows else None
+    if kn is not None:
+        kn.to_csv(f"{stem}_kernel.csv", index=False)
+    if ev is not None:
+        ev.to_csv(f"{stem}_events.csv", index=False)
+    report(kn, ev, stem, args.sensor, args.baseline_rev)
+
+
+if __name__ == "__main__":
+    main()
