@@ -305,3 +305,22 @@ def test_gsplat_renderer_adapter_drives_the_tile_sampler(monkeypatch):
         assert [t for t, _ in runs[0][k]] == [t for t, _ in runs[1][k]]
         d = max(float(np.abs(a - b).max()) for (_, a), (_, b) in zip(runs[0][k], runs[1][k]))
         assert d < 1e-5, (k, d)  # float32 parameters in the adapter, float64 here: rounding
+
+
+def test_frames_to_tile_batch_layout_on_sizes_off_the_tile_grid():
+    """TileBatch.from_frames (one-pass copy into the tile layout) against the
+    padded reshape it replaced: tile-major, frame-minor, zeros past the edge."""
+    from gs2e.events.models import TILE, TileBatch
+
+    rng = np.random.default_rng(0)
+    for B, H, W in ((1, 1, 1), (3, 17, 33), (2, 32, 16), (5, 20, 47)):
+        frames = rng.random((B, H, W)).astype(np.float32)
+        ty, tx = -(-H // TILE), -(-W // TILE)
+        pad = np.zeros((B, ty * TILE, tx * TILE), np.float32)
+        pad[:, :H, :W] = frames
+        want = pad.reshape(B, ty, TILE, tx, TILE).transpose(1, 3, 0, 2, 4).reshape(-1, TILE, TILE)
+        ts = np.arange(B + 1, dtype=np.int64) * 100
+        b = TileBatch.from_frames(ts, frames, key0=7)
+        np.testing.assert_array_equal(b.lum, want)
+        assert len(b.tiles) == ty * tx and b.lum.flags.c_contiguous
+        np.testing.assert_array_equal(b.t0_us, np.tile(ts[:-1], ty * tx))

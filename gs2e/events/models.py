@@ -200,16 +200,13 @@ class TileBatch:
         frame's, (B, H, W) luminance); interval b of every tile is keyed
         ``key0 + b``."""
         B, H, W = frames.shape
-        ty, tx = -(-H // TILE), -(-W // TILE)
-        pad = np.zeros((B, ty * TILE, tx * TILE), frames.dtype)
-        pad[:, :H, :W] = frames
-        lum = pad.reshape(B, ty, TILE, tx, TILE).transpose(1, 3, 0, 2, 4).reshape(-1, TILE, TILE)
-        n_t = ty * tx
+        n_t = -(-H // TILE) * -(-W // TILE)
+        lum = np.empty((n_t * B, TILE, TILE), frames.dtype)
+        K.frames_to_tiles(np.ascontiguousarray(frames), lum)
         ts = np.asarray(ts_us, np.int64)
         return TileBatch(np.arange(n_t, dtype=np.int64), np.arange(n_t + 1, dtype=np.int64) * B,
                          np.tile(ts[:-1], n_t), np.tile(ts[1:], n_t),
-                         np.tile(np.arange(key0, key0 + B, dtype=np.int64), n_t),
-                         np.ascontiguousarray(lum))
+                         np.tile(np.arange(key0, key0 + B, dtype=np.int64), n_t), lum)
 
 
 class _StreamingModel:

@@ -152,10 +152,11 @@ class RenderedSource:
                              f"[{self.t0_us}, {self.t1_us}]")
         return self.traj.pose_at(np.array([float(t_us)]))[0]
 
-    def frame(self, t_us: int) -> np.ndarray:
-        """(H, W) float32 linear luminance of the whole image at ``t_us``."""
+    def frame(self, t_us: int, out: np.ndarray | None = None) -> np.ndarray:
+        """(H, W) float32 linear luminance of the whole image at ``t_us`` (into
+        ``out`` if given)."""
         img = self.renderer.render(self.pose_at(t_us))
-        out = np.empty(self.shape, np.float32)
+        out = np.empty(self.shape, np.float32) if out is None else out
         image_luminance(img, out)
         self.stats.renders += 1
         self.stats.tiles_rendered += self.renderer.n_tiles
@@ -185,24 +186,29 @@ class RenderedSource:
         if mode == "tile":
             yield from self._tile_batches()
             return
+        # frames go straight into one batch buffer, reused: a batch is consumed
+        # (copied to tiles) before the next is rendered
+        buf = np.empty((self.batch_frames, *self.shape), np.float32)
         if mode == "fixed":
-            frames = ((int(t), self.frame(int(t)))
+            frames = ((int(t), None)
                       for t in fixed_times_us(self.t0_us, self.t1_us, self.sc["fixed_fps"])[1:])
         else:
             frames = self._adaptive_frames()
-        ts, fs = [], []
+        ts = []
         for t, f in frames:
             if mode == "fixed":
                 self.stats.accepted += 1
+                self.frame(t, buf[len(ts)])
+            else:
+                buf[len(ts)] = f
             ts.append(t)
-            fs.append(f)
             if len(ts) == self.batch_frames:
-                self.luminance[:] = fs[-1]
-                yield np.array(ts, np.int64), np.stack(fs)
-                ts, fs = [], []
+                self.luminance[:] = buf[len(ts) - 1]
+                yield np.array(ts, np.int64), buf
+                ts = []
         if ts:
-            self.luminance[:] = fs[-1]
-            yield np.array(ts, np.int64), np.stack(fs)
+            self.luminance[:] = buf[len(ts) - 1]
+            yield np.array(ts, np.int64), buf[:len(ts)]
 
     def _adaptive_frames(self):
         cache: dict[int, np.ndarray] = {}
