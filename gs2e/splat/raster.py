@@ -285,8 +285,9 @@ _NGEO = 15  # per-Gaussian set-up of the forward kernels: _gaussian's 13, row ra
 @njit(inline="always", fastmath=False)
 def _prepare_gaussians(means2d, conics, opac, feats):
     """(N, _NGEO) float64: per Gaussian, :func:`_gaussian`'s values, the row
-    radius of :func:`_row_range` and 1 / a, computed once per render instead
-    of once per (tile, Gaussian) pair (a Gaussian reaches ~30 tiles at HD)."""
+    radius of the rows it reaches (:func:`_rows_of`; power >= lpm, slightly
+    enlarged) and 1 / a, computed once per render instead of once per (tile,
+    Gaussian) pair (a Gaussian reaches ~30 tiles at HD)."""
     n = means2d.shape[0]
     geo = np.zeros((n, _NGEO))
     for g in prange(n):
@@ -309,14 +310,7 @@ def _rows_of(v, ry, y0, th):
 
 
 @njit(inline="always", fastmath=False)
-def _row_range(v, a, det, m2, y0, th):
-    """Rows (tile-local, inclusive) whose centre the ellipse power >= lpm
-    around centre row v can reach, slightly enlarged."""
-    return _rows_of(v, math.sqrt(m2 * a / det) * (1.0 + 1e-6) + 1e-3, y0, th)  # var_y = a / det
-
-
-@njit(inline="always", fastmath=False)
-def _col_span_inv(u, dy, a, b, det, m2, inv_a, x0, tw):
+def _col_span(u, dy, a, b, det, m2, inv_a, x0, tw):
     """Columns (tile-local, inclusive; empty if lo > hi) of the row at offset
     dy = v - py from the centre that the ellipse reaches: a dx^2 + 2 b dx dy +
     c dy^2 <= m2 solved for dx, widened (slack, relative and absolute) so
@@ -332,19 +326,14 @@ def _col_span_inv(u, dy, a, b, det, m2, inv_a, x0, tw):
 
 
 @njit(inline="always", fastmath=False)
-def _col_span(u, dy, a, b, det, m2, x0, tw):
-    """:func:`_col_span_inv` with 1 / a computed here."""
-    return _col_span_inv(u, dy, a, b, det, m2, 1.0 / a, x0, tw)
-
-
-@njit(inline="always", fastmath=False)
 def _segment_forward(s, jx, u, a, b, c, dy, lpm, o, f0, f1, f2, f3, kf, mf, lanes, lane_f, kc,
                      ftype, tab, kx, coefs):
     """Composite Gaussian k (kf = k) over the ``lanes`` pixels of one segment
     block ``s`` (columns jx .. jx + lanes - 1 at offset dy from the centre
-    row; jx given in the float type), in the float type of the block and values. Branch-free: every lane
-    computes, masks decide what is stored. A pixel is open while its stop
-    index equals mf (list length). lane_f = 0 .. lanes - 1; kc = (0, 1, 0.5,
+    row; jx given in the float type), in the float type of the block and
+    values. Branch-free: every lane computes, masks decide what is stored. A
+    pixel is open while its stop index equals mf (list length). lane_f = 0 ..
+    lanes - 1; kc = (0, 1, 0.5,
     ALPHA_MAX, ALPHA_MIN, T_MIN, POWER_MIN); ftype, tab, kx, coefs: the exp
     (:func:`_exp_neg_poly`); all in that type."""
     zero, one, half, a_max, a_min, t_min, p_min = kc
@@ -437,7 +426,7 @@ def _make_forward(ftype, lanes: int, tab: np.ndarray, kx: tuple, coefs: tuple):
                     i_lo, i_hi = _rows_of(v, geo[g, 13], y0, th)
                     for ii in range(i_lo, i_hi + 1):
                         dy = v - (y0 + ii + 0.5)
-                        j_lo, j_hi = _col_span_inv(u, dy, a, b, det, m2, inv_a, x0, tw)
+                        j_lo, j_hi = _col_span(u, dy, a, b, det, m2, inv_a, x0, tw)
                         if j_lo > j_hi:
                             continue
                         dy_f = v_f - (ftype(y0 + ii) + half)
@@ -596,7 +585,7 @@ def raster_backward_kernel(offsets, gids, means2d, conics, opac, feats,
                 i_lo, i_hi = _rows_of(v, geo[g, 13], y0, th)
                 for ii in range(i_lo, i_hi + 1):
                     dy = v - (y0 + ii + 0.5)
-                    j_lo, j_hi = _col_span_inv(u, dy, a, b, det, m2, inv_a, x0, tw)
+                    j_lo, j_hi = _col_span(u, dy, a, b, det, m2, inv_a, x0, tw)
                     if j_lo > j_hi:
                         continue
                     for h in range(j_lo // LANES, j_hi // LANES + 1):
