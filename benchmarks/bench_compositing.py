@@ -74,11 +74,12 @@ def _median_ms(fn, reps: int) -> float:
 
 
 def _agreement(img: np.ndarray, ref: np.ndarray) -> dict:
+    from gs2e.io.images import to_u8
+
     d = np.abs(img.astype(np.float64) - ref.astype(np.float64))
     mse = float(np.mean(d ** 2))
-    u8 = lambda x: np.floor(np.clip(x, 0, 1) * 255 + 0.5)  # noqa: E731
     return {"max_abs": float(d.max()), "psnr_db": float("inf") if mse == 0 else -10 * np.log10(mse),
-            "frac_u8_differ": float(np.mean(u8(img) != u8(ref)))}
+            "frac_u8_differ": float(np.mean(to_u8(img) != to_u8(ref)))}
 
 
 def bench_kernel(results: Path, events_cfg: dict, scene: str, traj: str, n_poses: int, reps: int,

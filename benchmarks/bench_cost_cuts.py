@@ -149,6 +149,7 @@ def bench_blur(results: Path, cfg: dict, scene: str, traj: str, n_frames: int) -
     import pandas as pd
 
     from gs2e.events.sensors import get_sensor
+    from gs2e.io.images import to_u8
     from gs2e.render.blur import adaptive_blur, average_srgb, subframe_times_us
     from gs2e.render.renderer import TrajectoryRenderer
 
@@ -161,8 +162,8 @@ def bench_blur(results: Path, cfg: dict, scene: str, traj: str, n_frames: int) -
     E = float(cfg["render"]["exposure_us"])
     rows = []
 
-    def u8(x):
-        return np.floor(np.clip(x, 0, 1) * 255 + 0.5)
+    def u8(x):  # the 8-bit values the render stage writes, as floats for differences
+        return to_u8(x).astype(np.float64)
 
     for _, fr in frames.iterrows():
         t = float(fr["t_us"])

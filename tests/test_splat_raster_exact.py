@@ -14,43 +14,51 @@ import pytest
 from gs2e.splat import raster as R
 
 
-def _pixel_loop_forward(means2d, conics, opac, feats, bg, W, H, offsets, gids, tile):
-    """Pixel-major compositing (Python floats: IEEE double, like the kernel
-    without fast-math), every Gaussian of the tile list tested at every pixel."""
+def _pixel_loop_forward(means2d, conics, opac, feats, bg, W, H, offsets, gids, tile,
+                        ftype=float, exp_neg=R._exp_neg):
+    """Pixel-major compositing, every Gaussian of the tile list tested at every
+    pixel, each operation in ``ftype`` in the kernels' order: Python floats
+    (IEEE double, like the float64 kernel without fast-math) or numpy float32
+    scalars with ``exp_neg=R._exp_neg_f32`` (the float32 kernel). The opacity
+    and determinant cuts and lpm are computed in double, as the kernels' set-up."""
     C = feats.shape[1]
     tiles_x = (W + tile - 1) // tile
-    out = np.zeros((H, W, C))
-    out_T = np.zeros((H, W))
+    dt = np.float64 if ftype is float else ftype
+    out = np.zeros((H, W, C), dt)
+    out_T = np.zeros((H, W), dt)
     n_contrib = np.zeros((H, W), np.int64)
+    one, half, zero = ftype(1.0), ftype(0.5), ftype(0.0)
+    a_max, a_min, t_min = ftype(R.ALPHA_MAX), ftype(R.ALPHA_MIN), ftype(R.T_MIN)
     for i in range(H):
         for j in range(W):
             t = (i // tile) * tiles_x + j // tile
             lst = gids[offsets[t]:offsets[t + 1]]
-            T, acc, last = 1.0, [0.0] * C, len(lst)
+            T, acc, last = one, [zero] * C, len(lst)
             for k, g in enumerate(lst):
                 o = float(opac[g])
                 a, b, c = (float(x) for x in conics[g])
                 if o < R.ALPHA_MIN or not a * c - b * b > 0.0:
                     continue
-                lpm = max(R.POWER_MIN, math.log(R.ALPHA_MIN / o)) - 1e-6
-                dx = float(means2d[g, 0]) - (j + 0.5)
-                dy = float(means2d[g, 1]) - (i + 0.5)
-                power = -0.5 * (a * dx * dx + c * dy * dy) - b * dx * dy
+                lpm = ftype(max(R.POWER_MIN, math.log(R.ALPHA_MIN / o)) - 1e-6)
+                a, b, c, o = ftype(a), ftype(b), ftype(c), ftype(o)
+                dx = ftype(means2d[g, 0]) - (ftype(j) + half)
+                dy = ftype(means2d[g, 1]) - (ftype(i) + half)
+                power = -half * (a * dx * dx + c * dy * dy) - b * dx * dy
                 if power > 0.0 or power < lpm or power < R.POWER_MIN:
                     continue
-                alpha = min(R.ALPHA_MAX, o * R._exp_neg(power))
-                if alpha < R.ALPHA_MIN:
+                alpha = min(a_max, o * exp_neg(power))
+                if alpha < a_min:
                     continue
-                t_next = T * (1.0 - alpha)
-                if t_next < R.T_MIN:
+                t_next = T * (one - alpha)
+                if t_next < t_min:
                     last = k
                     break
                 w = alpha * T
                 for ch in range(C):
-                    acc[ch] = acc[ch] + float(feats[g, ch]) * w
+                    acc[ch] = acc[ch] + ftype(feats[g, ch]) * w
                 T = t_next
             for ch in range(C):
-                out[i, j, ch] = acc[ch] + T * float(bg[ch])
+                out[i, j, ch] = acc[ch] + T * ftype(bg[ch])
             out_T[i, j] = T
             n_contrib[i, j] = last
     return out, out_T, n_contrib

@@ -6,7 +6,6 @@ pre-filter), against the float64 kernel (rounding only), and its exp within
 
 from __future__ import annotations
 
-import math
 import os
 import subprocess
 import sys
@@ -18,54 +17,9 @@ import torch
 
 from gs2e.splat import raster as R
 from tests.conftest import REPO
-from tests.test_splat_raster_exact import _hard_scene
+from tests.test_splat_raster_exact import _hard_scene, _pixel_loop_forward
 
 f32 = np.float32
-
-
-def _pixel_loop_forward_f32(means2d, conics, opac, feats, bg, W, H, offsets, gids, tile):
-    """Pixel-major compositing in numpy float32 scalars (each operation
-    rounded to float32, in the kernel's order), every Gaussian of the tile
-    list tested at every pixel."""
-    C = feats.shape[1]
-    tiles_x = (W + tile - 1) // tile
-    out = np.zeros((H, W, C), f32)
-    out_T = np.zeros((H, W), f32)
-    n_contrib = np.zeros((H, W), np.int64)
-    one, half = f32(1.0), f32(0.5)
-    for i in range(H):
-        for j in range(W):
-            t = (i // tile) * tiles_x + j // tile
-            lst = gids[offsets[t]:offsets[t + 1]]
-            T, acc, last = one, [f32(0.0)] * C, len(lst)
-            for k, g in enumerate(lst):
-                o = float(opac[g])
-                a, b, c = (float(x) for x in conics[g])
-                if o < R.ALPHA_MIN or not a * c - b * b > 0.0:
-                    continue
-                lpm = f32(max(R.POWER_MIN, math.log(R.ALPHA_MIN / o)) - 1e-6)
-                a, b, c, o = f32(a), f32(b), f32(c), f32(o)
-                dx = f32(means2d[g, 0]) - (f32(j) + half)
-                dy = f32(means2d[g, 1]) - (f32(i) + half)
-                power = -half * (a * dx * dx + c * dy * dy) - b * dx * dy
-                if power > 0.0 or power < lpm or power < R.POWER_MIN:
-                    continue
-                alpha = min(f32(R.ALPHA_MAX), o * R._exp_neg_f32(power))
-                if alpha < f32(R.ALPHA_MIN):
-                    continue
-                t_next = T * (one - alpha)
-                if t_next < f32(R.T_MIN):
-                    last = k
-                    break
-                w = alpha * T
-                for ch in range(C):
-                    acc[ch] = acc[ch] + f32(feats[g, ch]) * w
-                T = t_next
-            for ch in range(C):
-                out[i, j, ch] = acc[ch] + T * f32(bg[ch])
-            out_T[i, j] = T
-            n_contrib[i, j] = last
-    return out, out_T, n_contrib
 
 
 @pytest.mark.parametrize("tile,W,H,C", [(16, 61, 37, 3), (16, 40, 33, 4), (8, 33, 20, 2),
@@ -77,7 +31,8 @@ def test_forward_f32_same_bits_as_pixel_loop(tile, W, H, C):
     offsets, gids = R.bin_gaussians(m2, depth, np.full(n, 40.0), W, H, tile, op)
     out, out_T, nc = R.rasterize_forward(m2, cn, op, feats, bg, W, H, offsets, gids, tile,
                                          compute_dtype=f32)
-    ref, ref_T, ref_nc = _pixel_loop_forward_f32(m2, cn, op, feats, bg, W, H, offsets, gids, tile)
+    ref, ref_T, ref_nc = _pixel_loop_forward(m2, cn, op, feats, bg, W, H, offsets, gids, tile,
+                                             ftype=f32, exp_neg=R._exp_neg_f32)
     np.testing.assert_array_equal(out, ref)
     np.testing.assert_array_equal(out_T, ref_T)
     np.testing.assert_array_equal(nc, ref_nc)

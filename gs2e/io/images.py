@@ -112,6 +112,12 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     return decode_image(read_image_bytes(path), str(path))
 
 
+def to_u8(img01: np.ndarray) -> np.ndarray:
+    """uint8 of an image in [0, 1] (clipped, rounded half up): how rendered
+    frames are written."""
+    return (np.clip(img01, 0, 1) * 255 + 0.5).astype(np.uint8)
+
+
 def encode_png(rgb: np.ndarray) -> bytes:
     """PNG bytes of a uint8 RGB (H, W, 3) image (deterministic for given pixels)."""
     rgb = np.asarray(rgb)

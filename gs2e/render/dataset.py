@@ -13,7 +13,7 @@ from gs2e.common.atomic import atomic_dir, write_json_atomic
 from gs2e.common.errors import InputError
 from gs2e.common.log import get_logger
 from gs2e.common.progress import progress
-from gs2e.io.images import write_png
+from gs2e.io.images import to_u8, write_png
 from gs2e.io.nerf import write_transforms
 from gs2e.io.scene import Camera, Frame, Scene
 from gs2e.render.blur import adaptive_blur, average_srgb, subframe_times_us, subframes_needed
@@ -24,10 +24,6 @@ log = get_logger("gs2e.render")
 # Image motion of the Gaussian centres over a blurred frame's exposure, recorded
 # per frame; the 99th percentile sets the sub-frame count.
 MOTION_PERCENTILES = (50, 90, 99)
-
-
-def _u8(img01: np.ndarray) -> np.ndarray:
-    return (np.clip(img01, 0, 1) * 255 + 0.5).astype(np.uint8)
 
 
 def check_render_config(cfg: dict) -> None:
@@ -90,8 +86,8 @@ def render_dataset(model_dir: str | Path, trajectory_path: str | Path, out_dir: 
                                  f"({coverage:.1%} of pixels covered < render.min_coverage): "
                                  "the camera left the reconstructed scene")
             name = f"{i:06d}.png"
-            write_png(out / "rgb" / name, _u8(rgb))
-            write_png(out / "alpha" / name, _u8(alpha)[..., None].repeat(3, axis=2))
+            write_png(out / "rgb" / name, to_u8(rgb))
+            write_png(out / "alpha" / name, to_u8(alpha)[..., None].repeat(3, axis=2))
             if cfg["write_depth"]:
                 np.savez_compressed(out / "depth" / f"{i:06d}.npz", depth=depth.astype(np.float32))
             n_sub, motion = 1, np.full(3, np.nan)
@@ -110,7 +106,7 @@ def render_dataset(model_dir: str | Path, trajectory_path: str | Path, out_dir: 
                 else:
                     ts = np.clip(subframe_times_us(float(t), E, n_sub), r.t0_us, r.t1_us)
                     blur = average_srgb([r.render_pose(r.pose(ts_k))[0] for ts_k in ts])
-                write_png(out / "blur" / name, _u8(blur))
+                write_png(out / "blur" / name, to_u8(blur))
                 n_sub_total += n_sub
             rows.append({"frame": i, "file": name, "t_us": int(t), "c2w": c2w.reshape(-1).tolist(),
                          "fx": r.fx, "fy": r.fy, "cx": r.cx, "cy": r.cy, "width": r.width,
