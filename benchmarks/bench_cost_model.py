@@ -2,7 +2,9 @@
 extrapolated to the paper's 1050 scenes.
 
 Reads ``<results>/<scene>/benchmarks/<job>.tsv`` (Snakemake's ``benchmark:``
-files: wall s, max_rss MB, cpu_time s) of one or more finished runs, groups
+files: wall s, max_rss MB, cpu_time s; CPU time and peak memory exact from the
+gs2e usage line of the job's log, which Snakemake's 30 s samples undercount by up
+to 30 CPU-s per job) of one or more finished runs, groups
 jobs into stages (``render_<traj>`` -> render, ``events_<traj>`` -> events),
 and gives per stage: jobs per scene (render and events: one per trajectory in
 the config given, ``render.trajectories``), wall and CPU time per job, CPU
@@ -95,11 +97,15 @@ def stage_of(job: str) -> str:
 
 
 def read_jobs(results: Path) -> list[dict]:
-    """One dict per benchmark file: scene, job, stage, wall_s, cpu_s, max_rss_mb, mean_load."""
+    """One dict per benchmark file: scene, job, stage, wall_s, cpu_s, max_rss_mb, mean_load;
+    cpu_s and max_rss_mb are exact where the job's log has gs2e's usage line
+    (``usage_exact`` 1), with Snakemake's samples beside them (``cpu_s_sampled``)."""
     return [{"results": str(results), "scene": r["scene"] or "(dataset)", "job": r["job"],
              "stage": stage_of(r["job"]), "wall_s": r.get("s", math.nan),
              "cpu_s": r.get("cpu_time", math.nan), "max_rss_mb": r.get("max_rss", math.nan),
-             "mean_load": r.get("mean_load", math.nan)}
+             "mean_load": r.get("mean_load", math.nan), "usage_exact": r.get("usage_exact", 0.0),
+             "cpu_s_sampled": r.get("cpu_time_sampled", r.get("cpu_time", math.nan)),
+             "max_rss_mb_sampled": r.get("max_rss_sampled", r.get("max_rss", math.nan))}
             for r in read_results_benchmarks(results)]
 
 
@@ -258,6 +264,11 @@ def main() -> int:
     for res, sc in scenes:
         cpu = sum(j["cpu_s"] for j in jobs if (j["results"], j["scene"]) == (res, sc)) / 60
         print(f"  {sc:16s} {cpu:7.1f} CPU-min  {scene_info(Path(res), sc)}  [{res}]")
+    n_exact = sum(j["usage_exact"] == 1.0 for j in jobs)
+    missed = sum(j["cpu_s"] - j["cpu_s_sampled"] for j in jobs if j["usage_exact"] == 1.0)
+    print(f"CPU time and peak memory exact (gs2e's getrusage line in the job's log) for {n_exact} of "
+          f"{len(jobs)} jobs; Snakemake's samples missed {missed:.0f} CPU-s of them"
+          + ("" if n_exact == len(jobs) else "; the rest are Snakemake's samples (a lower bound)"))
     print(f"trajectories per scene: {n_traj} ({traj_src})"
           + (f"; CPU and wall times scaled by {factors} (assumption, not measured)" if factors else ""))
     hdr = (f"{'stage':11s} {'jobs/scene':>10} {'wall s/job':>10} {'CPU s/job':>9} {'CPU min/scene':>13} "

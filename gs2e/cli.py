@@ -278,7 +278,12 @@ def _main(argv: list[str] | None) -> int:
     except Exception as exc:  # a bug in gs2e: still one line, traceback with --debug
         return fail("internal error", f"{type(exc).__name__}: {exc} "
                     "(please report it; rerun with --debug for the traceback)", 1)
-    log.info("gs2e %s finished in %.2f s", args.command, time.perf_counter() - t0)
+    from gs2e.common.log import process_usage
+
+    cpu_s, peak_mb = process_usage()
+    # the line gs2e.report.io.read_job_usage reads (exact CPU and peak memory per job)
+    log.info("gs2e %s finished in %.2f s (%.2f CPU-s, peak RSS %.1f MB)", args.command,
+             time.perf_counter() - t0, cpu_s, peak_mb)
     return rc
 
 

@@ -67,10 +67,36 @@ STAGE_ORDER = ("demo_scene", "ingest", "sfm", "train", "trajectory", "render", "
                "metrics", "summary", "report")
 
 
+_USAGE_LINE = re.compile(r"gs2e \S+ finished in ([0-9.]+) s \(([0-9.]+) CPU-s, peak RSS ([0-9.]+) MB\)")
+
+
+def read_job_usage(log_path: Path) -> dict[str, float] | None:
+    """Exact CPU seconds and peak memory of a job from its log: the ``gs2e ...
+    finished in W s (C CPU-s, peak RSS M MB)`` lines every gs2e command ends
+    with (:func:`gs2e.common.log.process_usage`), summed over the commands of
+    the job (peak: the largest). None if the log is absent or has no such line
+    (a failed job, or a log of an older gs2e)."""
+    try:
+        text = Path(log_path).read_text(errors="replace")
+    except OSError:
+        return None
+    hits = _USAGE_LINE.findall(text)
+    if not hits:
+        return None
+    return {"wall_s": sum(float(w) for w, _, _ in hits), "cpu_s": sum(float(c) for _, c, _ in hits),
+            "max_rss_mb": max(float(m) for _, _, m in hits)}
+
+
 def read_benchmark_file(path: Path) -> dict[str, float] | None:
     """The last row (the last repeat) of one Snakemake benchmark TSV as floats
     (s, max_rss in MB, cpu_time in s, ...; '-'/'NA' -> nan, the h:m:s text
-    column dropped); None if it has no rows."""
+    column dropped); None if it has no rows.
+
+    Snakemake samples CPU time and memory (every 0.5 s for the first 15 s, then
+    every 30 s) and loses what a job does after its last sample: up to 30 s of
+    CPU per job. Where the job's log (``../logs/<job>.log``) has gs2e's exact
+    usage, ``cpu_time`` and ``max_rss`` are those, Snakemake's samples are kept
+    as ``cpu_time_sampled`` / ``max_rss_sampled``, and ``usage_exact`` is 1."""
     try:
         df = pd.read_csv(path, sep="\t", na_values=["-", "NA"])
     except Exception as exc:
@@ -78,7 +104,13 @@ def read_benchmark_file(path: Path) -> dict[str, float] | None:
     if len(df) == 0:
         return None
     row = pd.to_numeric(df.iloc[-1].drop(labels=["h:m:s"], errors="ignore"), errors="coerce")
-    return {str(k): float(v) for k, v in row.items()}
+    out = {str(k): float(v) for k, v in row.items()}
+    usage = read_job_usage(Path(path).parent.parent / "logs" / (Path(path).stem + ".log"))
+    out["usage_exact"] = float(usage is not None)
+    if usage is not None:
+        out["cpu_time_sampled"], out["max_rss_sampled"] = out.get("cpu_time", np.nan), out.get("max_rss", np.nan)
+        out["cpu_time"], out["max_rss"] = usage["cpu_s"], usage["max_rss_mb"]
+    return out
 
 
 def read_benchmarks(bench_dir: Path) -> pd.DataFrame | None:
