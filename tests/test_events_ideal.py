@@ -98,6 +98,79 @@ def test_make_model_theta_sampling_and_mismatch():
     assert m4.th_on.min() >= 0.01 - 1e-12
 
 
+def test_noise_follows_luminance_per_interval_on_uneven_clocks_and_partial_tiles():
+    """Noise drawn by thinning per tile and time block is the Poisson process of a
+    draw per pixel and interval: counts per luminance phase, over the pixels of
+    partial tiles, ON fraction and times inside their intervals, whatever the
+    batching."""
+    H, W = 37, 45  # partial tiles on both edges
+    rng = np.random.default_rng(3)
+    ts = np.concatenate([[0], np.cumsum(rng.integers(50, 4000, 1500))]).astype(np.int64)
+    bright = (ts // 400_000) % 2 == 1  # phases of 0.4 s: dark (L = 0.1) then bright (0.9)
+    lum = np.where(bright, 0.9, 0.1).astype(np.float32)
+    fr = np.repeat(lum[:, None, None], H * W, 1).reshape(len(ts), H, W)
+    shot, leak, on_frac = 40.0, 5.0, 0.3
+    kw = dict(theta_on=50.0, theta_off=50.0, shot_noise_rate_hz=shot, leak_rate_hz=leak,
+              shot_noise_on_fraction=on_frac, seed=11)
+    ev = IdealModel((H, W), **kw).simulate(ts, fr)
+    # expected per pixel: sum over intervals of (leak + 2 shot (1 - mean L)) dt
+    mean_l = 0.5 * (lum[:-1] + lum[1:])
+    dt_s = np.diff(ts) * 1e-6
+    rate = leak + 2.0 * shot * (1.0 - mean_l)
+    expect = float((rate * dt_s).sum()) * H * W
+    assert abs(len(ev) - expect) < 5 * np.sqrt(expect), (len(ev), expect)
+    # per interval phase: the dark intervals have 1.8 / 0.2 the shot rate of the bright ones
+    iv = np.searchsorted(ts, ev.t, side="left") - 1
+    iv = np.clip(iv, 0, len(dt_s) - 1)
+    for phase in (mean_l < 0.5, mean_l > 0.5):
+        e = float((rate * dt_s)[phase].sum()) * H * W
+        got = int(phase[iv].sum())
+        assert abs(got - e) < 5 * np.sqrt(e), (got, e)
+    # uniform over pixels, partial tiles included (the last row / column of tiles)
+    n = np.bincount(ev.y.astype(np.int64) * W + ev.x, minlength=H * W).reshape(H, W)
+    per_px = expect / (H * W)
+    edge = n[32:, :].mean(), n[:, 32:].mean()
+    for m_ in (n[:32, :32].mean(), *edge):
+        assert abs(m_ - per_px) < 0.06 * per_px, (m_, per_px)
+    on_expected = float((leak + 2 * shot * (1 - mean_l) * on_frac) @ dt_s / (rate @ dt_s))
+    assert abs(ev.p.mean() - on_expected) < 5 * np.sqrt(0.25 / len(ev))
+    assert ev.t.min() >= ts[0] and ev.t.max() <= ts[-1] and np.all(np.diff(ev.t) >= 0)
+    # batching changes nothing
+    m = IdealModel((H, W), **kw)
+    parts = [m.process_batch(ts[i:i + 97], fr[i:i + 97]) for i in range(0, len(ts), 97)]
+    ev2 = Events.concat(parts + [m.flush()])
+    for f in ("t", "x", "y", "p"):
+        assert np.array_equal(getattr(ev, f), getattr(ev2, f))
+
+
+def test_poisson_draw_of_any_mean():
+    from numba import njit
+
+    from gs2e.events import _kernels as K
+
+    @njit
+    def draws(lam, n):
+        st = K.stream_state(5, 0, 0, K.SALT_NOISE)
+        out = np.empty(n, np.int64)
+        for i in range(n):
+            st, out[i] = K._poisson(st, lam)
+        return out
+
+    for lam in (0.0, 0.3, 40.0, 2500.0):  # 2500: five draws of 500 (exp(-2500) underflows)
+        ks = draws(lam, 4000)
+        assert abs(ks.mean() - lam) < 5 * np.sqrt(max(lam, 1e-9) / len(ks)) + 1e-12
+        assert abs(ks.var() - lam) < 0.15 * lam + 1e-12
+
+
+def test_noise_block_depends_on_the_rates_only():
+    from gs2e.events._kernels import noise_block_us
+
+    assert noise_block_us(0.0, 0.0, 16) == 1 << 26
+    b = noise_block_us(0.01, 0.001, 16)  # the sensor presets: ~8 candidates per tile and block
+    assert b & (b - 1) == 0 and 4 <= (0.012 * 256 * b * 1e-6) <= 16
+    assert noise_block_us(1e9, 0.0, 16) == 1
+
+
 def test_noise_off_by_default_and_calibrated_rates():
     H, W, T = 40, 50, 2_000_000
     ts = np.arange(0, T + 1, 20_000)

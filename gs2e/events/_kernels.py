@@ -674,9 +674,98 @@ def ideal_tiles(btiles, boff, t0_us, t1_us, lum, H, W, tile, log_eps, th_on, th_
     return capped.sum()
 
 
+NOISE_TILE_MEAN = 8.0  # mean candidates per (tile, block): sets the block length
+
+
+def noise_block_us(leak_rate_hz: float, shot_rate_hz: float, tile: int) -> int:
+    """Length (us, a power of two) of the time blocks noise is drawn in: about
+    :data:`NOISE_TILE_MEAN` candidates per full tile and block at the largest
+    per-pixel rate (leak + 2 x shot), between 1 us and 2^26 us (67 s). It
+    depends on the rates only, so noise never depends on batching."""
+    r_max = float(leak_rate_hz) + 2.0 * float(shot_rate_hz)
+    if r_max <= 0.0:
+        return 1 << 26
+    b = NOISE_TILE_MEAN / (r_max * tile * tile) * 1e6
+    return 1 << int(min(26, max(0, math.floor(math.log2(max(b, 1.0))))))
+
+
+@njit(cache=True)
+def _poisson(state, lam):
+    """Poisson(lam) by inversion, for any lam (sums of draws of mean <= 500,
+    whose exp(-mean) cannot underflow)."""
+    parts = max(1, int(math.ceil(lam / 500.0)))
+    total = 0
+    for _ in range(parts):
+        state, k = poisson_small(state, lam / parts)
+        total += k
+    return state, total
+
+
+@njit(cache=True)
+def _noise_slot(sl, btiles, boff, t0_us, t1_us, lum, H, W, tile, prev, seed, leak_rate_hz,
+                shot_rate_hz, shot_on_fraction, block_us, cap, base, ev_t, ev_x, ev_y, ev_p, fn):
+    """Noise events of one slot of :func:`noise_tiles` (counted in a first
+    pass, written interval by interval in a second over the same draws)."""
+    tiles_x = (W + tile - 1) // tile
+    y0, y1, x0, x1 = tile_box(btiles[sl], tiles_x, tile, H, W)
+    w = x1 - x0
+    npx = (y1 - y0) * w
+    a, b = boff[sl], boff[sl + 1]
+    ts, te = t0_us[a], t1_us[b - 1]
+    r_max = leak_rate_hz + 2.0 * shot_rate_hz
+    lam = r_max * npx * block_us * 1e-6
+    pos = np.zeros(b - a, np.int64)
+    for iv in range(a, b):
+        fn[iv] = 0
+    for write in range(2):
+        if write:
+            acc = 0
+            for j in range(b - a):
+                pos[j] = acc
+                acc += fn[a + j]
+        for blk in range(ts // block_us, (te - 1) // block_us + 1):
+            st = stream_state(seed, blk, btiles[sl], SALT_NOISE)
+            st, kk = _poisson(st, lam)
+            for _ in range(kk):
+                st, u = uniform_open(st)
+                st, upx = uniform_open(st)
+                st, ua = uniform_open(st)
+                st, upol = uniform_open(st)
+                t = float(blk * block_us) + u * block_us
+                if t < ts or t >= te:
+                    continue
+                lo, hi = a, b - 1  # the interval [t0, t1) holding t
+                while lo < hi:
+                    mid = (lo + hi) // 2
+                    if t < t1_us[mid]:
+                        hi = mid
+                    else:
+                        lo = mid + 1
+                iv = lo
+                q = min(int(upx * npx), npx - 1)
+                y = y0 + q // w
+                x = x0 + q % w
+                l0 = prev[y, x] if iv == a else float(lum[iv - 1, y - y0, x - x0])
+                lval = min(max(0.5 * (l0 + float(lum[iv, y - y0, x - x0])), 0.0), 1.0)
+                # thinning: a candidate at the largest rate is kept with rate / r_max
+                if ua * r_max >= leak_rate_hz + shot_rate_hz * 2.0 * (1.0 - lval):
+                    continue
+                if write == 0:
+                    fn[iv] += 1
+                    continue
+                idx = pos[iv - a]
+                pos[iv - a] += 1
+                if idx < cap:
+                    ev_t[base + idx] = t - t0_us[iv]
+                    ev_x[base + idx] = x
+                    ev_y[base + idx] = y
+                    # leak events are ON; shot noise ON with shot_on_fraction
+                    ev_p[base + idx] = 1 if (ua * r_max < leak_rate_hz or upol < shot_on_fraction) else -1
+
+
 @njit(cache=True, parallel=True, nogil=True)
-def noise_tiles(btiles, boff, t0_us, t1_us, key_idx, lum, H, W, tile, prev, seed, leak_rate_hz,
-                shot_rate_hz, shot_on_fraction, cap, slot0, ev_t, ev_x, ev_y, ev_p, fn):
+def noise_tiles(btiles, boff, t0_us, t1_us, lum, H, W, tile, prev, seed, leak_rate_hz,
+                shot_rate_hz, shot_on_fraction, block_us, cap, slot0, ev_t, ev_x, ev_y, ev_p, fn):
     """Noise events over a batch of tile intervals (v2e-like, Poisson per pixel).
 
     ``prev`` (H, W): luminance of each pixel's sample before the batch (the
@@ -684,46 +773,25 @@ def noise_tiles(btiles, boff, t0_us, t1_us, key_idx, lum, H, W, tile, prev, seed
     per pixel. Shot noise: rate ``shot_rate_hz`` per pixel scaled by 2 (1 - L)
     for the pixel's mean linear luminance L over the interval (more in the
     dark; the mean over a uniform histogram is the nominal rate), ON with
-    probability ``shot_on_fraction``. Times uniform in the interval. Noise
-    events are independent of the pixel model's state (they neither reset it
-    nor obey its refractory period, as they stand for activity outside the
-    modelled signal path). Slot s writes to buffer slot ``slot0 + s``;
-    otherwise as :func:`voltmeter_tiles`.
+    probability ``shot_on_fraction``. Noise events are independent of the
+    pixel model's state (they neither reset it nor obey its refractory period,
+    as they stand for activity outside the modelled signal path).
+
+    Drawn by thinning: per tile and time block of ``block_us``
+    (:func:`noise_block_us`; blocks at multiples of it, keyed by seed, block
+    and tile, so neither batching nor threads change a draw), candidates at
+    the largest per-pixel rate (leak + 2 x shot), uniform in time and over the
+    tile's pixels, each kept with the pixel's rate in its interval over that
+    largest rate: the same Poisson process as a draw per pixel and interval,
+    at the cost of one draw per tile and block instead of one per pixel and
+    interval. Slot s writes to buffer slot ``slot0 + s``, each interval's
+    events after the earlier intervals' (``fn`` counts per interval; a count
+    over ``cap`` is reported, not written, as in :func:`voltmeter_tiles`).
     """
-    m = btiles.shape[0]
-    tiles_x = (W + tile - 1) // tile
-    for sl in prange(m):
-        y0, y1, x0, x1 = tile_box(btiles[sl], tiles_x, tile, H, W)
-        n = 0
-        base = (slot0 + sl) * cap
-        for iv in range(boff[sl], boff[sl + 1]):
-            dt_us = float(t1_us[iv] - t0_us[iv])
-            dt_s = dt_us * 1e-6
-            lam_leak = leak_rate_hz * dt_s
-            n_iv0 = n
-            for y in range(y0, y1):
-                for x in range(x0, x1):
-                    st = stream_state(seed, key_idx[iv], y * W + x, SALT_NOISE)
-                    l0 = prev[y, x] if iv == boff[sl] else float(lum[iv - 1, y - y0, x - x0])
-                    lval = min(max(0.5 * (l0 + float(lum[iv, y - y0, x - x0])), 0.0), 1.0)
-                    lam_shot = shot_rate_hz * 2.0 * (1.0 - lval) * dt_s
-                    lam = lam_leak + lam_shot
-                    st, kk = poisson_small(st, lam)
-                    for _ in range(kk):
-                        st, u = uniform_open(st)
-                        st, u2 = uniform_open(st)
-                        if u2 * lam < lam_leak:
-                            sgn = 1
-                        else:
-                            st, u3 = uniform_open(st)
-                            sgn = 1 if u3 < shot_on_fraction else -1
-                        if n < cap:
-                            ev_t[base + n] = u * dt_us
-                            ev_x[base + n] = x
-                            ev_y[base + n] = y
-                            ev_p[base + n] = sgn
-                        n += 1
-            fn[iv] = n - n_iv0
+    for sl in prange(btiles.shape[0]):
+        _noise_slot(sl, btiles, boff, t0_us, t1_us, lum, H, W, tile, prev, seed, leak_rate_hz,
+                    shot_rate_hz, shot_on_fraction, block_us, cap, (slot0 + sl) * cap,
+                    ev_t, ev_x, ev_y, ev_p, fn)
     return 0
 
 

@@ -398,10 +398,11 @@ class _StreamingModel:
         while True:
             n_cap = self._run_signal(tiles, off, t0, t1, key, lum, fn)
             if self.noise_on:
-                K.noise_tiles(tiles, off, t0, t1, key, lum, H, W, TILE, self.prev, self.seed,
+                K.noise_tiles(tiles, off, t0, t1, lum, H, W, TILE, self.prev, self.seed,
                               self.leak_rate_hz, self.shot_noise_rate_hz,
-                              self.shot_noise_on_fraction, self.cap, m, self._ev_t, self._ev_x,
-                              self._ev_y, self._ev_p, fn_noise)
+                              self.shot_noise_on_fraction,
+                              K.noise_block_us(self.leak_rate_hz, self.shot_noise_rate_hz, TILE),
+                              self.cap, m, self._ev_t, self._ev_x, self._ev_y, self._ev_p, fn_noise)
             need_sig = np.add.reduceat(fn, first).max()
             need = max(need_sig, np.add.reduceat(fn_noise, first).max())
             if need <= self.cap:

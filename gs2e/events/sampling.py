@@ -48,6 +48,7 @@ from typing import Callable, Iterator
 import numpy as np
 from numba import njit, prange
 
+from gs2e.common.color import srgb_decode
 from gs2e.common.errors import ConfigError
 from gs2e.events._kernels import tile_box
 from gs2e.events.models import TILE, TileBatch
@@ -82,9 +83,7 @@ def _srgb_lum(r, g, b):
     """Rec. 709 luminance of sRGB-encoded values (clamped to [0, 1]) in linear light."""
     acc = 0.0
     for c, w in ((r, 0.2126), (g, 0.7152), (b, 0.0722)):
-        x = min(max(float(c), 0.0), 1.0)
-        lin = x / 12.92 if x <= 0.04045 else ((x + 0.055) / 1.055) ** 2.4
-        acc += w * lin
+        acc += w * srgb_decode(min(max(float(c), 0.0), 1.0))
     return acc
 
 

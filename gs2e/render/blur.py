@@ -29,7 +29,7 @@ def average_srgb(frames_srgb: list[np.ndarray]) -> np.ndarray:
     """Average sRGB-encoded frames in linear light and re-encode (float64)."""
     acc = None
     for f in frames_srgb:
-        lin = srgb_to_linear(np.clip(f, 0.0, 1.0))
+        lin = srgb_to_linear(f, clip=True)
         acc = lin if acc is None else acc + lin
     return linear_to_srgb(acc / len(frames_srgb))
 
@@ -85,7 +85,7 @@ def adaptive_blur(render_srgb: Callable[[float], np.ndarray], t_center_us: float
             img = render_srgb(t)
             if t in (t0, t1):
                 cache[t] = img
-        return srgb_to_linear(np.clip(img, 0.0, 1.0))
+        return srgb_to_linear(img, clip=True)
 
     a = t_center_us - exposure_us / 2
     n = 2

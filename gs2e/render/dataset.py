@@ -100,12 +100,12 @@ def render_dataset(model_dir: str | Path, trajectory_path: str | Path, out_dir: 
                 if n_sub == 1:
                     blur = rgb
                 elif cfg["blur_tolerance_db"] is not None:
-                    blur, n_sub, _ = adaptive_blur(lambda tk: r.render_pose(r.pose(tk))[0], float(t), E,
+                    blur, n_sub, _ = adaptive_blur(lambda tk: r.render_rgb(r.pose(tk)), float(t), E,
                                                    (r.t0_us, r.t1_us), cfg["blur_tolerance_db"],
                                                    cfg["blur_max_subframes"], known={float(t): rgb})
                 else:
                     ts = np.clip(subframe_times_us(float(t), E, n_sub), r.t0_us, r.t1_us)
-                    blur = average_srgb([r.render_pose(r.pose(ts_k))[0] for ts_k in ts])
+                    blur = average_srgb([r.render_rgb(r.pose(ts_k)) for ts_k in ts])
                 write_png(out / "blur" / name, to_u8(blur))
                 n_sub_total += n_sub
             rows.append({"frame": i, "file": name, "t_us": int(t), "c2w": c2w.reshape(-1).tolist(),

@@ -39,6 +39,7 @@ class TrajectoryRenderer:
         self.sh_degree = int(self.info["sh_degree"])
         self.t0_us, self.t1_us = int(self.traj.t_us[0]), int(self.traj.t_us[-1])
         self.renders = 0
+        self._forward = None  # built on the first render_rgb
 
     def pose(self, t_us: float) -> np.ndarray:
         if not self.t0_us <= t_us <= self.t1_us:
@@ -51,6 +52,23 @@ class TrajectoryRenderer:
             img, alpha, depth, _ = render(self.params, cam, self.bg, self.sh_degree, self.backend)
         self.renders += 1
         return (img.clamp(0, 1).double().numpy(), alpha.double().numpy(), depth.double().numpy())
+
+    def render_rgb(self, c2w: np.ndarray) -> np.ndarray:
+        """The image alone (H, W, 3), sRGB-encoded, clamped to [0, 1]: what a
+        blurred frame's sub-frames need. On the CPU backend the forward-only
+        renderer (:class:`gs2e.splat.forward.ForwardRenderer`: no alpha, depth
+        or autograd; float32, the same bits as :meth:`render_pose`'s image);
+        otherwise :meth:`render_pose`'s image."""
+        if self.backend != "cpu":
+            return self.render_pose(c2w)[0]
+        if self._forward is None:
+            from gs2e.splat.forward import ForwardRenderer
+
+            self._forward = ForwardRenderer(self.params, self.sh_degree, self.fx, self.fy, self.cx,
+                                            self.cy, self.width, self.height,
+                                            background=self.bg.tolist())
+        self.renders += 1
+        return np.clip(self._forward.render(c2w), 0.0, 1.0)  # a copy: the renderer reuses its buffer
 
     def render_at(self, t_us: float):
         return self.render_pose(self.pose(t_us))
