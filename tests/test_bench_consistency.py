@@ -68,7 +68,8 @@ def plane_dataset(tmp_path_factory):
 
     mp = pytest.MonkeyPatch()
     mp.setattr(RD, "average_srgb", lambda frames: np.mean([np.clip(f, 0, 1) for f in frames], axis=0))
-    mp.setattr(RB, "srgb_to_linear", lambda x: np.asarray(x, dtype=np.float64))
+    mp.setattr(RB, "srgb_to_linear",
+               lambda x, clip=False: np.clip(x, 0.0, 1.0) if clip else np.asarray(x, dtype=np.float64))
     mp.setattr(RB, "linear_to_srgb", lambda x: np.asarray(x, dtype=np.float64))
     try:
         _render(model, traj, tmp / "frames_srgb")

@@ -765,7 +765,7 @@ def _noise_slot(sl, btiles, boff, t0_us, t1_us, lum, H, W, tile, prev, seed, lea
 
 @njit(cache=True, parallel=True, nogil=True)
 def noise_tiles(btiles, boff, t0_us, t1_us, lum, H, W, tile, prev, seed, leak_rate_hz,
-                shot_rate_hz, shot_on_fraction, block_us, cap, slot0, ev_t, ev_x, ev_y, ev_p, fn):
+                shot_rate_hz, shot_on_fraction, block_us, cap, ev_t, ev_x, ev_y, ev_p, fn):
     """Noise events over a batch of tile intervals (v2e-like, Poisson per pixel).
 
     ``prev`` (H, W): luminance of each pixel's sample before the batch (the
@@ -784,14 +784,14 @@ def noise_tiles(btiles, boff, t0_us, t1_us, lum, H, W, tile, prev, seed, leak_ra
     tile's pixels, each kept with the pixel's rate in its interval over that
     largest rate: the same Poisson process as a draw per pixel and interval,
     at the cost of one draw per tile and block instead of one per pixel and
-    interval. Slot s writes to buffer slot ``slot0 + s``, each interval's
-    events after the earlier intervals' (``fn`` counts per interval; a count
-    over ``cap`` is reported, not written, as in :func:`voltmeter_tiles`).
+    interval. Slot s writes to entries [s cap, (s + 1) cap) of the buffers
+    (their own, not the signal's), each interval's events after the earlier
+    intervals' (``fn`` counts per interval; a count over ``cap`` is reported,
+    not written, as in :func:`voltmeter_tiles`).
     """
     for sl in prange(btiles.shape[0]):
         _noise_slot(sl, btiles, boff, t0_us, t1_us, lum, H, W, tile, prev, seed, leak_rate_hz,
-                    shot_rate_hz, shot_on_fraction, block_us, cap, (slot0 + sl) * cap,
-                    ev_t, ev_x, ev_y, ev_p, fn)
+                    shot_rate_hz, shot_on_fraction, block_us, cap, sl * cap, ev_t, ev_x, ev_y, ev_p, fn)
     return 0
 
 
@@ -809,36 +809,41 @@ def commit_tiles(tiles, H, W, tile, src_a, dst_a, src_b, dst_b, src_c, dst_c):
 
 
 @njit(cache=True, nogil=True)
-def gather_tiles(boff, t0_us, t1_us, cap, fn, fn_noise, ev_t, ev_x, ev_y, ev_p,
-                 out_t, out_x, out_y, out_p):
+def gather_tiles(boff, t0_us, t1_us, cap, fn, ev_t, ev_x, ev_y, ev_p,
+                 noise_cap, fn_noise, nz_t, nz_x, nz_y, nz_p, out_t, out_x, out_y, out_p):
     """Collect a batch's events from their slots, interval by interval (its
     signal events, then its noise events, each in emission order), as int64
     absolute times: the float offset from the interval start rounded to the
-    nearest microsecond and clamped to the interval. Noise of slot s sits in
-    buffer slot m + s. p becomes 1 (ON) / 0 (OFF). Returns the count."""
+    nearest microsecond and clamped to the interval. Slot s's signal events
+    start at s cap in ``ev_*``, its noise events at s noise_cap in ``nz_*``.
+    p becomes 1 (ON) / 0 (OFF). Returns the count."""
     m = boff.shape[0] - 1
     j = 0
     for sl in range(m):
         b_sig = sl * cap
-        b_noise = (m + sl) * cap
+        b_noise = sl * noise_cap
         for iv in range(boff[sl], boff[sl + 1]):
             t0 = t0_us[iv]
             dt = t1_us[iv] - t0
-            for src in range(2):
-                cnt = fn[iv] if src == 0 else fn_noise[iv]
-                b0 = b_sig if src == 0 else b_noise
-                for i in range(cnt):
-                    off = np.int64(math.floor(ev_t[b0 + i] + 0.5))
-                    off = min(max(off, 0), dt)
-                    out_t[j] = t0 + off
-                    out_x[j] = ev_x[b0 + i]
-                    out_y[j] = ev_y[b0 + i]
-                    out_p[j] = 1 if ev_p[b0 + i] > 0 else 0
-                    j += 1
-                if src == 0:
-                    b_sig += cnt
-                else:
-                    b_noise += cnt
+            j = _gather_run(ev_t, ev_x, ev_y, ev_p, b_sig, fn[iv], t0, dt, out_t, out_x, out_y, out_p, j)
+            b_sig += fn[iv]
+            j = _gather_run(nz_t, nz_x, nz_y, nz_p, b_noise, fn_noise[iv], t0, dt,
+                            out_t, out_x, out_y, out_p, j)
+            b_noise += fn_noise[iv]
+    return j
+
+
+@njit(inline="always", cache=True)
+def _gather_run(ev_t, ev_x, ev_y, ev_p, b0, cnt, t0, dt, out_t, out_x, out_y, out_p, j):
+    """Copy ``cnt`` events from ``b0`` of one buffer to ``j`` of the output."""
+    for i in range(cnt):
+        off = np.int64(math.floor(ev_t[b0 + i] + 0.5))
+        off = min(max(off, 0), dt)
+        out_t[j] = t0 + off
+        out_x[j] = ev_x[b0 + i]
+        out_y[j] = ev_y[b0 + i]
+        out_p[j] = 1 if ev_p[b0 + i] > 0 else 0
+        j += 1
     return j
 
 

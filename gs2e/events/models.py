@@ -209,6 +209,12 @@ class TileBatch:
                          np.tile(np.arange(key0, key0 + B, dtype=np.int64), n_t), lum)
 
 
+def _event_buffers(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per-slot event buffers of ``n`` entries: time offset (float64 us), x, y
+    (int32), polarity (int8, +1/-1)."""
+    return np.empty(n, np.float64), np.empty(n, np.int32), np.empty(n, np.int32), np.empty(n, np.int8)
+
+
 class _StreamingModel:
     """Common validation, tile batches, buffers, noise and time ordering.
 
@@ -255,7 +261,10 @@ class _StreamingModel:
         self.n_tile = np.zeros(self.n_tiles, np.int64)  # per tile: samples so far
         self.prev = np.zeros(self.shape)  # per pixel: luminance of its last sample
         self._prev2 = np.zeros(self.shape)
-        self.cap = 0
+        self.cap = 0               # signal events reserved per slot
+        self.noise_cap = 0         # noise events reserved per slot (its own buffers: far fewer)
+        self._ev_t, self._ev_x, self._ev_y, self._ev_p = _event_buffers(0)
+        self._nz_t, self._nz_x, self._nz_y, self._nz_p = _event_buffers(0)
         self.n_capped = 0
         self.intervals = 0         # tile intervals simulated
         self._carry = Events.empty()  # events at or after the horizon
@@ -271,13 +280,16 @@ class _StreamingModel:
         return np.ascontiguousarray(a)
 
     def _ensure(self, cap: int, m: int) -> None:
-        if cap > self.cap or 2 * m * max(cap, self.cap) > self._ev_t.shape[0]:
+        """Room for ``cap`` signal events in each of ``m`` slots."""
+        if cap > self.cap or m * max(cap, self.cap) > self._ev_t.shape[0]:
             self.cap = max(cap, self.cap)
-            n = 2 * m * self.cap  # signal slots then noise slots
-            self._ev_t = np.empty(n, np.float64)
-            self._ev_x = np.empty(n, np.int32)
-            self._ev_y = np.empty(n, np.int32)
-            self._ev_p = np.empty(n, np.int8)
+            self._ev_t, self._ev_x, self._ev_y, self._ev_p = _event_buffers(m * self.cap)
+
+    def _ensure_noise(self, cap: int, m: int) -> None:
+        """Room for ``cap`` noise events in each of ``m`` slots."""
+        if cap > self.noise_cap or m * max(cap, self.noise_cap) > self._nz_t.shape[0]:
+            self.noise_cap = max(cap, self.noise_cap)
+            self._nz_t, self._nz_x, self._nz_y, self._nz_p = _event_buffers(m * self.noise_cap)
 
     @property
     def noise_on(self) -> bool:
@@ -394,27 +406,33 @@ class _StreamingModel:
         fn = np.zeros(n, np.int64)
         fn_noise = np.zeros(n, np.int64)
         per_slot = int(np.diff(off).max())
+        # signal and noise each rerun (on the same input) only when their own
+        # buffer was too small
         self._ensure(max(64, per_slot * TILE * TILE // 4), m)
         while True:
             n_cap = self._run_signal(tiles, off, t0, t1, key, lum, fn)
-            if self.noise_on:
-                K.noise_tiles(tiles, off, t0, t1, lum, H, W, TILE, self.prev, self.seed,
-                              self.leak_rate_hz, self.shot_noise_rate_hz,
-                              self.shot_noise_on_fraction,
-                              K.noise_block_us(self.leak_rate_hz, self.shot_noise_rate_hz, TILE),
-                              self.cap, m, self._ev_t, self._ev_x, self._ev_y, self._ev_p, fn_noise)
-            need_sig = np.add.reduceat(fn, first).max()
-            need = max(need_sig, np.add.reduceat(fn_noise, first).max())
+            need = np.add.reduceat(fn, first).max()
             if need <= self.cap:
                 break
             self._ensure(int(need * 1.25) + 16, m)
+        while self.noise_on:
+            self._ensure_noise(16, m)
+            K.noise_tiles(tiles, off, t0, t1, lum, H, W, TILE, self.prev, self.seed,
+                          self.leak_rate_hz, self.shot_noise_rate_hz, self.shot_noise_on_fraction,
+                          K.noise_block_us(self.leak_rate_hz, self.shot_noise_rate_hz, TILE),
+                          self.noise_cap, self._nz_t, self._nz_x, self._nz_y, self._nz_p, fn_noise)
+            need = np.add.reduceat(fn_noise, first).max()
+            if need <= self.noise_cap:
+                break
+            self._ensure_noise(int(need * 1.25) + 16, m)
         self.n_capped += int(n_cap)
         K.commit_tiles(tiles, H, W, TILE, *self._state_pairs())
         total = int(fn.sum() + fn_noise.sum())
         ev = Events(np.empty(total, np.int64), np.empty(total, np.uint16),
                     np.empty(total, np.uint16), np.empty(total, np.uint8))
-        K.gather_tiles(off, t0, t1, self.cap, fn, fn_noise, self._ev_t, self._ev_x, self._ev_y,
-                       self._ev_p, ev.t, ev.x, ev.y, ev.p)
+        K.gather_tiles(off, t0, t1, self.cap, fn, self._ev_t, self._ev_x, self._ev_y, self._ev_p,
+                       self.noise_cap, fn_noise, self._nz_t, self._nz_x, self._nz_y, self._nz_p,
+                       ev.t, ev.x, ev.y, ev.p)
         last = off[1:] - 1
         self.t_tile[tiles] = t1[last]
         self.n_tile[tiles] += np.diff(off)
