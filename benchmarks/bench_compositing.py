@@ -12,6 +12,11 @@ Runs on the models that ``bench_cost_model.py --run SCENE --sensor S`` trained
   training step runs (float64 compute), baseline against today. Per kernel: ms
   per call (median, 2 threads), and the image against the baseline's (largest
   difference, PSNR; 8-bit values that differ).
+* ``render``: the whole ``gs2e render`` command the cost run's job ran (its log's
+  command line), at ``--render-fps`` frames per second instead (fewer frames,
+  the same exposure, so the same sub-frames per frame), today and in the
+  baseline checkout: CPU seconds per blurred frame, and the 8-bit frames
+  against the baseline's.
 * ``events``: the whole ``gs2e events`` command (paper settings, fixed 2400 fps,
   first ``--span-s`` of the trajectory), today and in a checkout of the
   baseline revision, seeds 0 and 1 each: CPU seconds per simulated second and
@@ -21,7 +26,7 @@ Runs on the models that ``bench_cost_model.py --run SCENE --sensor S`` trained
 Usage:
     python benchmarks/bench_compositing.py --sensor imx636 --scenes mouse_colmap
     python benchmarks/bench_compositing.py --sensor davis346 --scenes temple_ring,llff_fern
-Writes benchmarks/results/bench_compositing_<sensor>_{kernel,events}.csv and
+Writes benchmarks/results/bench_compositing_<sensor>_{kernel,events,render}.csv and
 bench_compositing_<sensor>.png; the last printed line is the headline.
 """
 
@@ -198,6 +203,56 @@ def bench_events(results: Path, events_cfg: dict, scene: str, traj: str, span_s:
     return rows
 
 
+def render_command(scene_dir: Path, traj: str) -> list[str]:
+    """The arguments of the ``gs2e render`` the cost run's job ran (its log's first line)."""
+    import shlex
+
+    log = scene_dir / "logs" / f"render_{traj}.log"
+    first = log.read_text().splitlines()[0]
+    args = shlex.split(first.split(" gs2e ", 1)[1].split(" ", 1)[1])  # after "gs2e <version>"
+    if args[0] != "render":
+        raise SystemExit(f"{log}: not a gs2e render log")
+    return args
+
+
+def bench_render(results: Path, scene: str, traj: str, fps: float, baseline_repo: Path) -> list[dict]:
+    from bench_cost_cuts import child_cpu_s
+
+    from gs2e.io.images import read_image
+
+    args = render_command(results / scene, traj)
+    i = args.index("--config-json")
+    cfg = json.loads(args[i + 1])
+    cfg["fps"] = fps
+    args[i + 1] = json.dumps(cfg)
+    rows, blur = [], {}
+    with tempfile.TemporaryDirectory(prefix="bench_compositing_render_") as tmp:
+        for label, repo in (("baseline", baseline_repo), ("today", REPO)):
+            for rep in range(2):  # the first run fills the checkout's numba cache: not kept
+                out = Path(tmp) / f"{label}_{rep}"
+                a = list(args)
+                a[a.index("--out") + 1] = str(out)
+                env = dict(os.environ, GS2E_PROGRESS="0", PYTHONPATH=str(repo))
+                c0, w0 = child_cpu_s(), time.perf_counter()
+                subprocess.run([sys.executable, "-m", "gs2e", *a], check=True, env=env,
+                               capture_output=True, cwd=repo)
+                cpu, wall = child_cpu_s() - c0, time.perf_counter() - w0
+            import pandas as pd
+
+            fr = pd.read_parquet(out / "frames.parquet")
+            blur[label] = [read_image(out / "blur" / f) for f in fr["file"]]
+            rows.append({"scene": scene, "trajectory": traj, "code": label, "fps": fps,
+                         "frames": len(fr), "subframes": int(fr["n_subframes"].sum()),
+                         "cpu_s": cpu, "wall_s": wall, "cpu_s_per_frame": cpu / len(fr)})
+            print(f"  {scene} render {label}: {len(fr)} frames, {rows[-1]['subframes']} sub-frames, "
+                  f"{cpu:.1f} CPU-s ({rows[-1]['cpu_s_per_frame']:.2f} per frame)", flush=True)
+    d = [np.abs(a.astype(np.int16) - b.astype(np.int16)) for a, b in zip(blur["today"], blur["baseline"])]
+    for row in rows:
+        row.update(blur_u8_max_diff=int(max(x.max() for x in d)),
+                   blur_u8_frac_differ=float(np.mean([(x > 0).mean() for x in d])))
+    return rows
+
+
 def plot(kn, ev, path: Path) -> None:
     plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
@@ -227,7 +282,7 @@ def plot(kn, ev, path: Path) -> None:
     fig.savefig(path, dpi=120)
 
 
-def report(kn, ev, stem: Path, sensor: str, rev: str) -> None:
+def report(kn, ev, stem: Path, sensor: str, rev: str, rn=None) -> None:
     plot(kn, ev, Path(f"{stem}.png"))
     print()
     head = []
@@ -256,6 +311,15 @@ def report(kn, ev, stem: Path, sensor: str, rev: str) -> None:
                   f"per-pixel count distance today vs baseline at the same seed "
                   f"{t['count_dist_same_seed_other_code'].mean():.4f}, between seeds {t['count_dist_seeds'].iloc[0]:.4f}")
             head.append(f"{scene} events {ratio:.2f}x less CPU")
+    if rn is not None:
+        print("gs2e render (blurred frames):")
+        for scene, g in rn.groupby("scene", sort=False):
+            b, t = g[g["code"] == "baseline"].iloc[0], g[g["code"] == "today"].iloc[0]
+            ratio = b["cpu_s_per_frame"] / t["cpu_s_per_frame"]
+            print(f"  {scene}: {b['cpu_s_per_frame']:.2f} -> {t['cpu_s_per_frame']:.2f} CPU-s per frame "
+                  f"({ratio:.2f}x; sub-frames {b['subframes']} -> {t['subframes']}); blurred 8-bit values "
+                  f"differing {t['blur_u8_frac_differ']:.2e}, by at most {t['blur_u8_max_diff']}")
+            head.append(f"{scene} render {ratio:.2f}x less CPU")
     print(f"wrote {stem}_*.csv and {stem}.png")
     print(f"compositing at {sensor}, today against {rev}: " + "; ".join(head))
 
@@ -270,6 +334,8 @@ def main() -> None:
     ap.add_argument("--poses", type=int, default=6)
     ap.add_argument("--reps", type=int, default=5)
     ap.add_argument("--span-s", type=float, default=0.1, help="simulated span per events run (s)")
+    ap.add_argument("--render-fps", type=float, default=3.0,
+                    help="frames per second of the render part (the exposure stays the job's)")
     ap.add_argument("--report", action="store_true", help="only reprint and redraw from the CSVs")
     ap.add_argument("--quick", action="store_true", help="2 poses, 2 reps, 20 ms of events")
     args = ap.parse_args()
@@ -279,18 +345,19 @@ def main() -> None:
     if args.report:
         kn = pd.read_csv(f"{stem}_kernel.csv") if Path(f"{stem}_kernel.csv").exists() else None
         ev = pd.read_csv(f"{stem}_events.csv") if Path(f"{stem}_events.csv").exists() else None
-        return report(kn, ev, stem, args.sensor, args.baseline_rev)
+        rn = pd.read_csv(f"{stem}_render.csv") if Path(f"{stem}_render.csv").exists() else None
+        return report(kn, ev, stem, args.sensor, args.baseline_rev, rn)
     if not args.scenes:
         ap.error("--scenes is required (or --report)")
     if args.quick:
         args.poses, args.reps, args.span_s = 2, 2, 0.02
     results, cfg = cost_run(args.sensor)
     parts = set(args.parts.split(","))
-    kn_rows, ev_rows = [], []
+    kn_rows, ev_rows, rn_rows = [], [], []
     with tempfile.TemporaryDirectory(prefix="bench_compositing_base_") as tmp:
         tmp = Path(tmp)
         base = baseline_module(args.baseline_rev, tmp) if "kernel" in parts else None
-        if "events" in parts:
+        if parts & {"events", "render"}:
             checkout = tmp / "checkout"
             subprocess.run(["git", "worktree", "add", "--detach", str(checkout), args.baseline_rev],
                            cwd=REPO, check=True, capture_output=True)
@@ -302,8 +369,10 @@ def main() -> None:
                 if "events" in parts:
                     ev_rows += bench_events(results, cfg["events"], scene, args.trajectory, args.span_s,
                                             checkout)
+                if "render" in parts:
+                    rn_rows += bench_render(results, scene, args.trajectory, args.render_fps, checkout)
         finally:
-            if "events" in parts:
+            if parts & {"events", "render"}:
                 subprocess.run(["git", "worktree", "remove", "--force", str(checkout)], cwd=REPO,
                                capture_output=True)
     kn = pd.DataFrame(kn_rows) if kn_rows else None
@@ -312,7 +381,10 @@ def main() -> None:
         kn.to_csv(f"{stem}_kernel.csv", index=False)
     if ev is not None:
         ev.to_csv(f"{stem}_events.csv", index=False)
-    report(kn, ev, stem, args.sensor, args.baseline_rev)
+    rn = pd.DataFrame(rn_rows) if rn_rows else None
+    if rn is not None:
+        rn.to_csv(f"{stem}_render.csv", index=False)
+    report(kn, ev, stem, args.sensor, args.baseline_rev, rn)
 
 
 if __name__ == "__main__":

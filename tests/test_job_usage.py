@@ -80,3 +80,27 @@ def test_snakemake_job_reads_its_exact_usage_from_the_log(tmp_path):
     (tmp_path / "res/sc/logs/presets.log").write_text("")
     row = read_benchmark_file(tmp_path / "res/sc/benchmarks/presets.tsv")
     assert row["usage_exact"] == 0.0 and "cpu_time_sampled" not in row
+
+
+def test_the_usage_line_is_the_whole_process(tmp_path):
+    """The program ends right after its usage line (no interpreter teardown after
+    it: ~0.3-0.5 CPU-s once torch or numba are loaded), so the line holds all the
+    CPU time the process used."""
+    import re
+    import resource
+
+    import numpy as np
+
+    frames = np.random.default_rng(0).random((5, 24, 32)).astype(np.float32)
+    np.save(tmp_path / "frames.npy", frames)
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    p = subprocess.run([str(BIN / "gs2e"), "events", str(tmp_path / "frames.npy"), "--fps", "100",
+                        "--encoding", "linear", "-o", str(tmp_path / "ev")],
+                       capture_output=True, text=True, env={**__import__("os").environ, "GS2E_PROGRESS": "0"})
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert (tmp_path / "ev" / "events.h5").is_file()  # written and closed before the exit
+    measured = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+    logged = float(re.search(r"\(([0-9.]+) CPU-s, peak RSS", p.stderr).group(1))
+    assert logged <= measured + 0.02
+    assert measured - logged < 0.1, (measured, logged)
