@@ -97,6 +97,26 @@ def test_static_camera_blur_equals_sharp(plane, tmp_path):
         assert np.array_equal(iio.imread(f), iio.imread(tmp_path / "out" / "blur" / f.name))
 
 
+def test_subframes_from_the_forward_renderer_are_the_sharp_renderers_image(plane, tmp_path):
+    """Sub-frames come from the forward-only renderer: the same bits as the image of
+    the full render (alpha, depth) at the same pose, clamped to [0, 1], in a buffer
+    of their own (a kept sub-frame is not overwritten by the next render)."""
+    from gs2e.render.renderer import TrajectoryRenderer
+
+    model, _ = plane
+    r = TrajectoryRenderer(model, _straight_trajectory(tmp_path, dx=0.6), background=(0.2, 0.1, 0.0))
+    first = None
+    for t in np.linspace(r.t0_us, r.t1_us, 5):
+        c2w = r.pose(float(t))
+        sub = r.render_rgb(c2w)
+        np.testing.assert_array_equal(sub.astype(np.float64), r.render_pose(c2w)[0])
+        assert sub.min() >= 0.0 and sub.max() <= 1.0
+        if first is None:
+            first, kept = sub, sub.copy()
+    np.testing.assert_array_equal(first, kept)
+    assert r.renders == 10
+
+
 def test_constant_velocity_pan_matches_box_filter(plane, tmp_path):
     """Blur of a fronto-parallel textured plane under constant-velocity
     translation = the sharp image box-filtered along x over the exposure's
