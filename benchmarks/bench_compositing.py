@@ -209,8 +209,10 @@ def render_command(scene_dir: Path, traj: str) -> list[str]:
 
     log = scene_dir / "logs" / f"render_{traj}.log"
     first = log.read_text().splitlines()[0]
-    args = shlex.split(first.split(" gs2e ", 1)[1].split(" ", 1)[1])  # after "gs2e <version>"
-    if args[0] != "render":
+    # the line joins the arguments with spaces: the JSON (last) is the rest of the line
+    head, _, cfg_json = first.split(" gs2e ", 1)[1].split(" ", 1)[1].partition(" --config-json ")
+    args = shlex.split(head) + ["--config-json", cfg_json]
+    if args[0] != "render" or not cfg_json:
         raise SystemExit(f"{log}: not a gs2e render log")
     return args
 
@@ -369,6 +371,7 @@ def main() -> None:
                 if "events" in parts:
                     ev_rows += bench_events(results, cfg["events"], scene, args.trajectory, args.span_s,
                                             checkout)
+                    pd.DataFrame(ev_rows).to_csv(f"{stem}_events.csv", index=False)  # kept if a later part fails
                 if "render" in parts:
                     rn_rows += bench_render(results, scene, args.trajectory, args.render_fps, checkout)
         finally:
