@@ -27,7 +27,7 @@ import time
 
 from gs2e import __version__
 from gs2e.common.errors import GS2EError, Terminated
-from gs2e.common.log import setup_logging
+from gs2e.common.log import process_usage, setup_logging
 
 # Stage modules that provide subcommands, in pipeline order.
 STAGE_CLIS = (
@@ -281,8 +281,6 @@ def _main(argv: list[str] | None) -> int:
     except Exception as exc:  # a bug in gs2e: still one line, traceback with --debug
         return fail("internal error", f"{type(exc).__name__}: {exc} "
                     "(please report it; rerun with --debug for the traceback)", 1)
-    from gs2e.common.log import process_usage
-
     cpu_s, peak_mb = process_usage()
     # the line gs2e.report.io.read_job_usage reads (exact CPU and peak memory per job)
     log.info("gs2e %s finished in %.2f s (%.2f CPU-s, peak RSS %.1f MB)", args.command,

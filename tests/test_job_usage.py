@@ -86,6 +86,7 @@ def test_the_usage_line_is_the_whole_process(tmp_path):
     """The program ends right after its usage line (no interpreter teardown after
     it: ~0.3-0.5 CPU-s once torch or numba are loaded), so the line holds all the
     CPU time the process used."""
+    import os
     import re
     import resource
 
@@ -96,7 +97,7 @@ def test_the_usage_line_is_the_whole_process(tmp_path):
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     p = subprocess.run([str(BIN / "gs2e"), "events", str(tmp_path / "frames.npy"), "--fps", "100",
                         "--encoding", "linear", "-o", str(tmp_path / "ev")],
-                       capture_output=True, text=True, env={**__import__("os").environ, "GS2E_PROGRESS": "0"})
+                       capture_output=True, text=True, env={**os.environ, "GS2E_PROGRESS": "0"})
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     assert p.returncode == 0, p.stderr[-2000:]
     assert (tmp_path / "ev" / "events.h5").is_file()  # written and closed before the exit

@@ -415,8 +415,9 @@ class _StreamingModel:
             if need <= self.cap:
                 break
             self._ensure(int(need * 1.25) + 16, m)
-        while self.noise_on:
+        if self.noise_on:
             self._ensure_noise(16, m)
+        while self.noise_on:
             K.noise_tiles(tiles, off, t0, t1, lum, H, W, TILE, self.prev, self.seed,
                           self.leak_rate_hz, self.shot_noise_rate_hz, self.shot_noise_on_fraction,
                           K.noise_block_us(self.leak_rate_hz, self.shot_noise_rate_hz, TILE),
