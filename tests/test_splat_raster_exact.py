@@ -19,7 +19,8 @@ def _pixel_loop_forward(means2d, conics, opac, feats, bg, W, H, offsets, gids, t
     """Pixel-major compositing, every Gaussian of the tile list tested at every
     pixel, each operation in ``ftype`` in the kernels' order: Python floats
     (IEEE double, like the float64 kernel without fast-math) or numpy float32
-    scalars with ``exp_neg=R._exp_neg_f32`` (the float32 kernel). The opacity
+    scalars with ``exp_neg=R._exp_neg_f32`` (the float32 kernel; its
+    multiply-adds fused, here by :func:`R._mul_add`'s exact rational reference). The opacity
     and determinant cuts and lpm are computed in double, as the kernels' set-up."""
     C = feats.shape[1]
     tiles_x = (W + tile - 1) // tile
@@ -43,7 +44,7 @@ def _pixel_loop_forward(means2d, conics, opac, feats, bg, W, H, offsets, gids, t
                 a, b, c, o = ftype(a), ftype(b), ftype(c), ftype(o)
                 dx = ftype(means2d[g, 0]) - (ftype(j) + half)
                 dy = ftype(means2d[g, 1]) - (ftype(i) + half)
-                power = -half * (a * dx * dx + c * dy * dy) - b * dx * dy
+                power = R._mul_add(-(b * dx), dy, -half * R._mul_add(a * dx, dx, c * dy * dy))
                 if power > 0.0 or power < lpm or power < R.POWER_MIN:
                     continue
                 alpha = min(a_max, o * exp_neg(power))
@@ -55,10 +56,10 @@ def _pixel_loop_forward(means2d, conics, opac, feats, bg, W, H, offsets, gids, t
                     break
                 w = alpha * T
                 for ch in range(C):
-                    acc[ch] = acc[ch] + ftype(feats[g, ch]) * w
+                    acc[ch] = R._mul_add(ftype(feats[g, ch]), w, acc[ch])
                 T = t_next
             for ch in range(C):
-                out[i, j, ch] = acc[ch] + T * ftype(bg[ch])
+                out[i, j, ch] = R._mul_add(T, ftype(bg[ch]), acc[ch])
             out_T[i, j] = T
             n_contrib[i, j] = last
     return out, out_T, n_contrib

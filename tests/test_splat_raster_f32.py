@@ -1,8 +1,9 @@
 """The float32 forward compositing kernel (16 pixels per vector; renders that
 no backward follows: the event stage, the render stage, evaluations) against
 a pixel-by-pixel float32 loop of the same rules (same bits: the spans only
-pre-filter), against the float64 kernel (rounding only), and its exp within
-1.5 float32 ulp of the exact exponential."""
+pre-filter; both with fused multiply-adds), against the float64 kernel
+(rounding only), its exp within 1.1 float32 ulp of the exact exponential,
+and the fused multiply-add against exact rationals."""
 
 from __future__ import annotations
 
@@ -42,7 +43,7 @@ def test_forward_f32_same_bits_as_pixel_loop(tile, W, H, C):
     assert float(out_T.max()) > 0.3  # ... and some stayed open
 
 
-def test_exp_f32_within_one_and_a_half_ulp():
+def test_exp_f32_within_1_1_ulp():
     xs = np.concatenate([-np.linspace(0, 4.5, 20001), -np.arange(289) / 64 - 1 / 128,
                          -np.arange(289) / 64 + 1 / 128, [-4.5, -1e-30, -0.0]]).astype(f32)
     xs = xs[(xs <= 0) & (xs >= -4.5)]
@@ -55,16 +56,61 @@ def test_exp_f32_within_one_and_a_half_ulp():
             assert float(f32(got)) == got  # a float32 value (numba boxes it as a float)
             ulp = np.spacing(f32(float(exact)))
             worst = max(worst, float(abs(Decimal(float(got)) - exact) / Decimal(float(ulp))))
-    assert worst <= 1.5, worst
+    assert worst <= 1.1, worst
     assert R._exp_neg_f32(f32(0.0)) == 1.0
-    # the float32 table is correctly rounded from the exact values
-    with localcontext() as ctx:
-        ctx.prec = 40
-        for i in (1, 37, 100, 291):
-            exact = (-Decimal(i) / 64).exp()
-            e = R.EXP_TAB_F32[i]
-            for nb in (np.nextafter(e, f32(0)), np.nextafter(e, f32(2))):
-                assert abs(Decimal(float(e)) - exact) <= abs(Decimal(float(nb)) - exact)
+    assert R._exp_neg_f32(f32(-0.0)) == 1.0
+
+
+def test_exp_f32_every_float32_of_a_range_and_monotone():
+    """Every float32 in [-4.5, -4.4] and [-0.36, -0.34] (the ends of the
+    range and of the reduction, where i changes: r at its largest) against
+    float64's exp (itself within 0.5 float64 ulp: far below float32's)."""
+    from numba import njit
+
+    @njit
+    def ev(x, out):
+        for k in range(x.shape[0]):
+            out[k] = R._exp_neg_f32(x[k])
+
+    worst = 0.0
+    for lo, hi in ((-4.50001, -4.4), (-0.36, -0.34), (-3.5, -3.45)):
+        bits = np.arange(f32(hi).view(np.int32), f32(lo).view(np.int32) + 1, dtype=np.int64)
+        x = bits.astype(np.int32).view(f32)
+        got = np.empty_like(x)
+        ev(x, got)
+        exact = np.exp(x.astype(np.float64))
+        worst = max(worst, float((np.abs(got - exact) / np.spacing(exact.astype(f32))).max()))
+        assert (np.diff(got) <= 0).all()  # x decreases along the array: so does exp
+    assert worst <= 1.1, worst
+
+
+def test_mul_add_fused_in_float32_plain_in_float64():
+    """The compiled multiply-add against the exact rational reference: float32
+    triples with cancellation (c ~ -a b, where one rounding and two differ
+    most), tiny and huge magnitudes; float64 keeps a * b + c as written."""
+    from numba import njit
+
+    @njit
+    def ma(a, b, c, out):
+        for k in range(a.shape[0]):
+            out[k] = R._mul_add(a[k], b[k], c[k])
+
+    rng = np.random.default_rng(3)
+    n = 4000
+    a = rng.uniform(-2, 2, n).astype(f32)
+    b = (rng.uniform(-2, 2, n) * 10.0 ** rng.integers(-6, 6, n)).astype(f32)
+    c = rng.uniform(-1, 1, n).astype(f32)
+    c[: n // 2] = -(a[: n // 2].astype(np.float64) * b[: n // 2]).astype(f32)  # cancellation
+    got = np.empty(n, f32)
+    ma(a, b, c, got)
+    ref = np.array([R._mul_add(x, y, z) for x, y, z in zip(a, b, c)], dtype=f32)
+    np.testing.assert_array_equal(got, ref)
+    two_roundings = (a * b + c).astype(f32)  # numpy: product rounded, then the sum
+    assert (got != two_roundings).sum() > n // 10  # fused: it differs where rounding did
+    a64, b64, c64 = (v.astype(np.float64) for v in (a, b, c))
+    got64 = np.empty(n)
+    ma(a64, b64, c64, got64)
+    np.testing.assert_array_equal(got64, a64 * b64 + c64)
 
 
 def _big_scene(seed=5, n=3000, W=197, H=131):
@@ -86,7 +132,11 @@ def test_forward_f32_against_float64_rounding_only():
     assert (nc32 == nc64).mean() > 0.999
     d = np.abs(o32.astype(np.float64) - o64)
     assert np.quantile(d, 0.999) < 2e-5, np.quantile(d, 0.999)
-    assert d.max() < 1.1 / 255 * float(np.abs(args[3]).max()), d.max()
+    # ... except where a needle's power (det ~1e-9 here: near-singular conic)
+    # cancels to within rounding of 0 near its centre, and rounding puts it
+    # above 0, the rule that skips the Gaussian (one pixel of 25,807 here)
+    far = d.max(axis=2) >= 1.1 / 255 * float(np.abs(args[3]).max())
+    assert far.sum() <= 2, far.sum()
     assert np.quantile(np.abs(T32.astype(np.float64) - T64), 0.999) < 2e-5
     assert (o32 != o64).any()  # it did compute in float32
 

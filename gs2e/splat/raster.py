@@ -27,19 +27,22 @@ decide, so the spans only pre-filter and never change a result (tested).
 Per render, each Gaussian's set-up (opacity cut, footprint, row radius, 1/a)
 is computed once (:func:`_prepare_gaussians`), not once per tile it reaches.
 
-exp: :func:`_exp_neg`, a table of exp(-i/64) (correctly rounded, built from
+exp: vectorisable (libm's exp is a call per pixel), on [-4.5, 0] only. float64
+(:func:`_exp_neg`): a table of exp(-i/64) (correctly rounded, built from
 exact decimal arithmetic, so the same on every machine) times a degree-6
-polynomial; within 1.4 ulp of exp on [-4.5, 0] (tests), and vectorisable
-(libm's exp is a call per pixel).
+polynomial, within 1.4 ulp. float32 (:func:`_exp_neg_f32`): no table (a
+lookup per lane is a gather, a fifth of the float32 kernel on AVX-512): 2^-i
+built in the exponent bits times a degree-7 polynomial, within 1.1 ulp.
 
 Precision: the backward and the forward it follows compute in float64 (8
-lanes). Renders that no backward follows (event stage, render stage,
-evaluations: :func:`forward_kernel`) composite in float32, 16 lanes, with
-:func:`_exp_neg_f32` (the same table split and polynomial): the same rules in the same
-order, each operation rounded to float32 (tests: same bits as a float32
-pixel loop; against float64 a pixel differs by rounding, or by one
-Gaussian's weight where rounding moves it across a cut). Set-up, row ranges
-and column spans stay float64 in both.
+lanes), products and sums rounded one by one. Renders that no backward
+follows (event stage, render stage, evaluations: :func:`forward_kernel`)
+composite in float32, 16 lanes, and fuse their multiply-adds
+(:func:`_mul_add`: ``llvm.fma``, one rounding, the same bits on every CPU):
+the same rules in the same order (tests: same bits as a float32 pixel loop
+with exact fused multiply-adds; against float64 a pixel differs by rounding,
+or by one Gaussian's weight where rounding moves it across a cut). Set-up,
+row ranges and column spans stay float64 in both.
 
 Channels: up to 4 per-Gaussian features are composited together (RGB plus
 camera depth, so expected depth comes for free).
@@ -58,10 +61,13 @@ from __future__ import annotations
 
 import math
 from decimal import Decimal, localcontext
+from fractions import Fraction
 
 import numba
 import numpy as np
+from llvmlite import ir as llvm_ir
 from numba import njit, prange
+from numba.extending import intrinsic, overload
 
 ALPHA_MAX = 0.99
 ALPHA_MIN = 1.0 / 255.0
@@ -71,60 +77,118 @@ MAX_CHANNELS = 4
 LANES = 8  # pixels per segment: one AVX-512 register of float64
 
 
-def _exp_table(dtype=np.float64) -> np.ndarray:
-    """exp(-i/64), i = 0..291, correctly rounded to ``dtype`` (from 40-digit
-    decimals: float32 entries are rounded once, not via float64)."""
+def _exp_table() -> np.ndarray:
+    """exp(-i/64), i = 0..291, correctly rounded to float64 (from 40-digit
+    decimals, so the same on every machine)."""
     with localcontext() as ctx:
         ctx.prec = 40
-        vals = [(-Decimal(i) / 64).exp() for i in range(292)]
-    if np.dtype(dtype) == np.float64:
-        return np.array([float(x) for x in vals])
-    out = np.array([float(x) for x in vals], dtype=np.float32)
-    for i, x in enumerate(vals):  # fix float64 -> float32 double rounding
-        cands = [np.nextafter(out[i], np.float32(-1)), out[i], np.nextafter(out[i], np.float32(2))]
-        out[i] = min(cands, key=lambda c: abs(Decimal(float(c)) - x))
-    return out
+        return np.array([float((-Decimal(i) / 64).exp()) for i in range(292)])
 
 
 EXP_TAB = _exp_table()
-EXP_TAB_F32 = _exp_table(np.float32)
-
-
-@njit(inline="always", fastmath=False)
-def _exp_neg_poly(x, ftype, tab, kx, coefs):
-    """exp(x) for x in [-4.5 - 1e-5, 0] (the compositing range; others: do not
-    call), computed in x's float type: exp(-i/64) from ``tab`` (the table in
-    that type) times exp(r), |r| <= 1/128, by its Taylor polynomial to degree
-    6 with ``coefs`` (1/1!, ..., 1/6! in that type, by Horner's rule). ``kx`` =
-    (-64, 0.5, 1/64) in that type: constants of x's type keep the arithmetic
-    in it."""
-    i = np.int32(x * kx[0] + kx[1])  # int32: one conversion per vector of float32 too
-    r = x + ftype(i) * kx[2]  # exact: i / 64 and x share their last bits
-    c1, c2, c3, c4, c5, c6 = coefs
-    t = c1 + r * (c2 + r * (c3 + r * (c4 + r * (c5 + r * c6))))
-    e = tab[i]
-    return e + e * (r * t)
-
-
-_F32 = np.float32
-_EXP_K64 = (-64.0, 0.5, 0.015625)
-_EXP_C64 = (1.0, 0.5, 1.0 / 6.0, 1.0 / 24.0, 1.0 / 120.0, 1.0 / 720.0)  # truncation < 4e-19
-_EXP_K32 = tuple(_F32(k) for k in _EXP_K64)
-_EXP_C32 = tuple(_F32(c) for c in _EXP_C64)  # degree 3 would do; 6 costs nothing measurable
 
 
 @njit(inline="always", fastmath=False)
 def _exp_neg(x):
-    """float64 exp on the compositing range (:func:`_exp_neg_poly`):
-    within 1.4 ulp of exp on [-4.5, 0] (tests)."""
-    return _exp_neg_poly(x, np.float64, EXP_TAB, _EXP_K64, _EXP_C64)
+    """float64 exp for x in [-4.5 - 1e-5, 0] (the compositing range; others:
+    do not call): exp(-i/64) from :data:`EXP_TAB` times exp(r), |r| <= 1/128,
+    by its Taylor polynomial to degree 6 (Horner); within 1.4 ulp of exp on
+    [-4.5, 0] (tests). The float64 kernels (training's forward and backward)
+    use it."""
+    i = np.int32(x * -64.0 + 0.5)
+    r = x + float(i) * 0.015625  # exact: i / 64 and x share their last bits
+    t = 1.0 + r * (0.5 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0)))))
+    e = EXP_TAB[i]
+    return e + e * (r * t)
+
+
+def _round_f32(exact: Fraction) -> np.float32:
+    """The float32 nearest to a rational (ties to even), for the Python
+    reference of :func:`_mul_add`."""
+    f = np.float32(float(exact))
+    cands = (np.nextafter(f, np.float32(-np.inf)), f, np.nextafter(f, np.float32(np.inf)))
+    return min(cands, key=lambda v: (abs(Fraction(float(v)) - exact),
+                                     int(np.array(v).view(np.int32)) & 1))
+
+
+def _mul_add(a, b, c):
+    """a * b + c. All float32: fused, one rounding of the exact value
+    (``llvm.fma``, correctly rounded on every CPU: a single instruction where
+    the CPU has FMA, a library call otherwise, the same bits either way).
+    Otherwise a product then a sum, two roundings, as written: the float64
+    kernels keep the plain arithmetic that the backward recomputes. This
+    Python body is the reference (exact rationals); compiled code uses the
+    overload below."""
+    if all(isinstance(v, np.float32) for v in (a, b, c)):
+        return _round_f32(Fraction(float(a)) * Fraction(float(b)) + Fraction(float(c)))
+    return a * b + c
+
+
+@intrinsic
+def _fma_f32(typingctx, a, b, c):
+    sig = numba.types.float32(numba.types.float32, numba.types.float32, numba.types.float32)
+
+    def codegen(context, builder, signature, args):
+        f = llvm_ir.FloatType()
+        fn = builder.module.declare_intrinsic("llvm.fma", [f], llvm_ir.FunctionType(f, [f, f, f]))
+        return builder.call(fn, args)
+
+    return sig, codegen
+
+
+@overload(_mul_add, inline="always")
+def _mul_add_impl(a, b, c):
+    f32 = numba.types.float32
+    if a == f32 and b == f32 and c == f32:
+        return lambda a, b, c: _fma_f32(a, b, c)
+    return lambda a, b, c: a * b + c
+
+
+def _pow2_neg_f32(i):
+    """2**-i as a float32, for an integer i in [0, 126] (exact)."""
+    return np.float32(2.0 ** -int(i))
+
+
+@overload(_pow2_neg_f32, inline="always")
+def _pow2_neg_f32_impl(i):
+    return lambda i: np.int32((np.int32(127) - i) << np.int32(23)).view(np.float32)
+
+
+_F32 = np.float32
+_LOG2E_F32 = _F32(1.4426950408889634)
+_LN2_HI_F32 = _F32(0.693359375)  # 9 significant bits: i * _LN2_HI_F32 is exact for i < 2^15
+_LN2_LO_F32 = _F32(math.log(2.0) - 0.693359375)
+_EXP_C_F32 = tuple(_F32(1.0 / math.factorial(k)) for k in range(1, 8))  # 1/1! .. 1/7!
 
 
 @njit(inline="always", fastmath=False)
 def _exp_neg_f32(x):
-    """float32 exp on the compositing range (:func:`_exp_neg_poly`):
-    within 1.5 float32 ulp of exp on [-4.5, 0] (tests)."""
-    return _exp_neg_poly(x, np.float32, EXP_TAB_F32, _EXP_K32, _EXP_C32)
+    """float32 exp for x in [-4.5 - 1e-5, 0] (the compositing range; others:
+    do not call): 2^-i, i = round(-x / ln 2), built in the exponent bits,
+    times exp(r), r = x + i ln 2 (Cody-Waite, |r| <= 0.35), by its Taylor
+    polynomial to degree 7 in fused multiply-adds; within 1.1 float32 ulp of
+    exp on [-4.5, 0] (tests). No table: a table lookup per lane is a gather,
+    a fifth of the float32 kernel's time on AVX-512."""
+    i = np.int32(_mul_add(x, -_LOG2E_F32, _F32(0.5)))
+    fi = np.float32(i)
+    r = _mul_add(fi, _LN2_LO_F32, _mul_add(fi, _LN2_HI_F32, x))
+    c1, c2, c3, c4, c5, c6, c7 = _EXP_C_F32
+    t = _mul_add(r, _mul_add(r, _mul_add(r, _mul_add(r, _mul_add(r, _mul_add(r, c7, c6), c5),
+                                                      c4), c3), c2), c1)
+    e = _pow2_neg_f32(i)
+    return _mul_add(e * r, t, e)
+
+
+def _exp_neg_any(x):
+    """:func:`_exp_neg_f32` for a float32, :func:`_exp_neg` otherwise."""
+    return _exp_neg_f32(x) if isinstance(x, np.float32) else _exp_neg(x)
+
+
+@overload(_exp_neg_any, inline="always")
+def _exp_neg_any_impl(x):
+    if x == numba.types.float32:
+        return lambda x: _exp_neg_f32(x)
+    return lambda x: _exp_neg(x)
 
 
 @njit(cache=True, fastmath=False)
@@ -326,35 +390,35 @@ def _col_span(u, dy, a, b, det, m2, inv_a, x0, tw):
 
 
 @njit(inline="always", fastmath=False)
-def _segment_forward(s, jx, u, a, b, c, dy, lpm, o, f0, f1, f2, f3, kf, mf, lanes, lane_f, kc,
-                     ftype, tab, kx, coefs):
+def _segment_forward(s, jx, u, a, b, c, dy, lpm, o, f0, f1, f2, f3, kf, mf, lanes, lane_f, kc):
     """Composite Gaussian k (kf = k) over the ``lanes`` pixels of one segment
     block ``s`` (columns jx .. jx + lanes - 1 at offset dy from the centre
     row; jx given in the float type), in the float type of the block and
     values. Branch-free: every lane computes, masks decide what is stored. A
     pixel is open while its stop index equals mf (list length). lane_f = 0 ..
-    lanes - 1; kc = (0, 1, 0.5,
-    ALPHA_MAX, ALPHA_MIN, T_MIN, POWER_MIN); ftype, tab, kx, coefs: the exp
-    (:func:`_exp_neg_poly`); all in that type."""
+    lanes - 1; kc = (0, 1, 0.5, ALPHA_MAX, ALPHA_MIN, T_MIN, POWER_MIN); all
+    in that type. Multiply-adds go through :func:`_mul_add` (fused in float32)
+    and exp through :func:`_exp_neg_any`."""
     zero, one, half, a_max, a_min, t_min, p_min = kc
     FT, F0, F1, F2, F3, FL = 0, lanes, 2 * lanes, 3 * lanes, 4 * lanes, 5 * lanes
     for lane in range(lanes):
         dx = u - ((jx + lane_f[lane]) + half)
-        power = -half * (a * dx * dx + c * dy * dy) - b * dx * dy
+        # -1/2 (a dx^2 + c dy^2) - b dx dy
+        power = _mul_add(-(b * dx), dy, -half * _mul_add(a * dx, dx, c * dy * dy))
         # exp's argument is clamped to its domain, not masked by the pixel
         # state: the exp then does not wait for the previous Gaussian's
         # result on these pixels (a loop-carried chain; 1.1-1.2x faster)
-        alpha = min(a_max, o * _exp_neg_poly(min(max(power, p_min), zero), ftype, tab, kx, coefs))
+        alpha = min(a_max, o * _exp_neg_any(min(max(power, p_min), zero)))
         ok = ((power <= zero) & (power >= lpm) & (power >= p_min) & (s[FL + lane] == mf)
               & (alpha >= a_min))
         T = s[FT + lane]
         t_next = T * (one - alpha)
         upd = ok & (t_next >= t_min)
         w = alpha * T
-        s[F0 + lane] = s[F0 + lane] + f0 * w if upd else s[F0 + lane]
-        s[F1 + lane] = s[F1 + lane] + f1 * w if upd else s[F1 + lane]
-        s[F2 + lane] = s[F2 + lane] + f2 * w if upd else s[F2 + lane]
-        s[F3 + lane] = s[F3 + lane] + f3 * w if upd else s[F3 + lane]
+        s[F0 + lane] = _mul_add(f0, w, s[F0 + lane]) if upd else s[F0 + lane]
+        s[F1 + lane] = _mul_add(f1, w, s[F1 + lane]) if upd else s[F1 + lane]
+        s[F2 + lane] = _mul_add(f2, w, s[F2 + lane]) if upd else s[F2 + lane]
+        s[F3 + lane] = _mul_add(f3, w, s[F3 + lane]) if upd else s[F3 + lane]
         s[FT + lane] = t_next if upd else T
         s[FL + lane] = kf if ok & (t_next < t_min) else s[FL + lane]
 
@@ -371,10 +435,9 @@ def _block_open(st, at, mf, lanes):
     return False
 
 
-def _make_forward(ftype, lanes: int, tab: np.ndarray, kx: tuple, coefs: tuple):
+def _make_forward(ftype, lanes: int):
     """The forward compositing kernel computing in ``ftype`` with segments of
-    ``lanes`` pixels (one AVX-512 register: 8 float64 or 16 float32) and the
-    exp of ``tab``, ``kx``, ``coefs`` (:func:`_exp_neg_poly`). Per-Gaussian
+    ``lanes`` pixels (one AVX-512 register: 8 float64 or 16 float32). Per-Gaussian
     set-up, row ranges and column spans stay float64 (scalar, per row); the
     per-pixel tests and compositing run in ``ftype``.
 
@@ -435,14 +498,14 @@ def _make_forward(ftype, lanes: int, tab: np.ndarray, kx: tuple, coefs: tuple):
                             if _block_open(st, blk + FL, mf, lanes):
                                 _segment_forward(st[blk:blk + FBLK], ftype(x0 + h * lanes), u_f, a_f, b_f,
                                                  c_f, dy_f, lpm_f, o_f, f0, f1, f2, f3, kf, mf,
-                                                 lanes, lane_f, kc, ftype, tab, kx, coefs)
+                                                 lanes, lane_f, kc)
                 for ii in range(th):
                     for jj in range(tw):
                         blk = (ii * nseg + jj // lanes) * FBLK
                         lane = jj % lanes
                         T = st[blk + FT + lane]
                         for ch in range(C):
-                            out[y0 + ii, x0 + jj, ch] = st[blk + lanes * (1 + ch) + lane] + T * bg[ch]
+                            out[y0 + ii, x0 + jj, ch] = _mul_add(T, ftype(bg[ch]), st[blk + lanes * (1 + ch) + lane])
                         out_T[y0 + ii, x0 + jj] = T
                         n_contrib[y0 + ii, x0 + jj] = int(st[blk + FL + lane])
 
@@ -457,8 +520,8 @@ def _make_forward(ftype, lanes: int, tab: np.ndarray, kx: tuple, coefs: tuple):
 
 LANES_F32 = 16  # float32 pixels per segment: one AVX-512 register
 F32_MAX_LIST = 1 << 24  # float32 holds list positions exactly up to here
-raster_forward_kernel = _make_forward(np.float64, LANES, EXP_TAB, _EXP_K64, _EXP_C64)
-raster_forward_kernel_f32 = _make_forward(np.float32, LANES_F32, EXP_TAB_F32, _EXP_K32, _EXP_C32)
+raster_forward_kernel = _make_forward(np.float64, LANES)
+raster_forward_kernel_f32 = _make_forward(np.float32, LANES_F32)
 
 
 def forward_kernel(compute_dtype, offsets: np.ndarray):
