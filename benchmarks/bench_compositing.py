@@ -152,25 +152,34 @@ def bench_kernel(results: Path, events_cfg: dict, scene: str, traj: str, n_poses
             (img.sum() + depth.mean()).backward()
         finally:
             R.rasterize_backward = real_bwd
-        m2, cn, op, feats, w, h, offsets, gids, out_T, nc, g_out, g_T, tile = captured["args"]
+        m2, cn, op, feats, w, h, offsets, gids, out_T, nc, g_out, g_T, tile = captured["args"][:13]
         bg = np.zeros(feats.shape[1], feats.dtype)
         res = {}
-        for label, mod in (("baseline", base), ("float64", R)):
-            ms_f = _median_ms(lambda: mod.rasterize_forward(m2, cn, op, feats, bg, w, h, offsets, gids,
-                                                             tile), reps)
-            ms_b = _median_ms(lambda: mod.rasterize_backward(m2, cn, op, feats, w, h, offsets, gids,
-                                                              out_T, nc, g_out, g_T, tile), reps)
-            res[label] = (mod.rasterize_forward(m2, cn, op, feats, bg, w, h, offsets, gids, tile)[0],
-                          mod.rasterize_backward(m2, cn, op, feats, w, h, offsets, gids, out_T, nc,
-                                                 g_out, g_T, tile))
+        for label, mod, dt in (("baseline", base, None), ("float64", R, None),
+                               ("float32", R, np.float32)):
+            kw = {} if dt is None else {"compute_dtype": dt}
+            fwd = lambda: mod.rasterize_forward(m2, cn, op, feats, bg, w, h, offsets, gids, tile, **kw)
+            ms_f = _median_ms(fwd, reps)
+            o, oT, onc = fwd()  # the backward follows its own forward's stops
+            bwd = lambda: mod.rasterize_backward(m2, cn, op, feats, w, h, offsets, gids, oT, onc,
+                                                 g_out, g_T, tile, **kw)
+            ms_b = _median_ms(bwd, reps)
+            res[label] = (o, bwd())
             same = all(np.array_equal(a, b) for a, b in zip(res[label], res["baseline"]))
+            g, g0 = res[label][1], res["baseline"][1]
+            # gradient agreement with the baseline, per column relative to its largest value
+            scale = np.maximum(np.abs(g0).max(axis=0), 1e-30)
+            rel = float(np.median(np.quantile(np.abs(g - g0), 0.99, axis=0) / scale))
             for pss, ms in (("train forward", ms_f), ("train backward", ms_b)):
                 rows.append({"scene": scene, "pass": pss, "kernel": label, "pose": k, "width": w,
                              "height": h, "n_gaussians": int(m2.shape[0]), "n_pairs": int(gids.shape[0]),
-                             "ms": ms, "same_bits_as_baseline": same})
-        print(f"  {scene} training size {w}x{h} pose {k}: forward {rows[-4]['ms']:.1f} -> {rows[-2]['ms']:.1f} ms, "
-              f"backward {rows[-3]['ms']:.1f} -> {rows[-1]['ms']:.1f} ms, same bits: {rows[-1]['same_bits_as_baseline']}",
-              flush=True)
+                             "ms": ms, "same_bits_as_baseline": same, "grad_q99_rel": rel})
+        r64, r32 = rows[-4:-2], rows[-2:]
+        print(f"  {scene} training size {w}x{h} pose {k}: forward {rows[-6]['ms']:.1f} -> "
+              f"{r64[0]['ms']:.1f} (float64) / {r32[0]['ms']:.1f} ms (float32), backward "
+              f"{rows[-5]['ms']:.1f} -> {r64[1]['ms']:.1f} / {r32[1]['ms']:.1f} ms; float64 same "
+              f"bits: {r64[1]['same_bits_as_baseline']}; float32 gradients: q99 of |diff| "
+              f"{r32[1]['grad_q99_rel']:.1e} of each column's largest", flush=True)
     return rows
 
 
@@ -297,11 +306,20 @@ def report(kn, ev, stem: Path, sensor: str, rev: str, rn=None) -> None:
               f"|d| {fw['max_abs'].max():.2e}, 8-bit values differing {fw['frac_u8_differ'].max():.2e}")
         tr = kn[kn["pass"] != "render forward"]
         if len(tr):
-            print(f"training passes same bits as the baseline: {bool(tr['same_bits_as_baseline'].all())}")
+            t64, t32 = tr[tr["kernel"] == "float64"], tr[tr["kernel"] == "float32"]
+            print(f"training passes, float64, same bits as the baseline: "
+                  f"{bool(t64['same_bits_as_baseline'].all())}")
+            if len(t32):
+                print(f"training passes, float32 (splat.compute_dtype): gradients' q99 |diff| "
+                      f"{t32['grad_q99_rel'].max():.1e} of each column's largest (median over columns)")
         for scene in m.index.get_level_values(0).unique():
             r = m.loc[(scene, "render forward")]
             head.append(f"{scene} render {r['baseline'] / r['float32']:.2f}x (float32), "
                         f"{r['baseline'] / r['float64']:.2f}x (float64)")
+            if (scene, "train backward") in m.index and "float32" in m.columns:
+                f, b = m.loc[(scene, "train forward")], m.loc[(scene, "train backward")]
+                head.append(f"{scene} training passes {(f['baseline'] + b['baseline']) / (f['float32'] + b['float32']):.2f}x "
+                            f"(float32), {(f['baseline'] + b['baseline']) / (f['float64'] + b['float64']):.2f}x (float64)")
     if ev is not None:
         print("gs2e events, fixed 2400 fps (mean of seeds 0 and 1):")
         for scene, g in ev.groupby("scene", sort=False):

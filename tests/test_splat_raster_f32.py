@@ -157,12 +157,79 @@ def test_forward_f32_same_bits_whatever_the_thread_count():
         np.testing.assert_array_equal(a, b)
 
 
+def _grads(args, dt, g_seed=0):
+    m2, cn, op, feats, bg, W, H, offsets, gids = args
+    f4 = np.ascontiguousarray(np.concatenate([feats, np.ones((len(feats), 1), f32)], axis=1))
+    out, out_T, nc = R.rasterize_forward(m2, cn, op, f4, np.zeros(4, f32), W, H, offsets, gids,
+                                         compute_dtype=dt)
+    rng = np.random.default_rng(g_seed)
+    g_out, g_T = rng.standard_normal(out.shape), rng.standard_normal(out_T.shape)
+    return R.rasterize_backward(m2, cn, op, f4, W, H, offsets, gids, out_T, nc, g_out, g_T,
+                                compute_dtype=dt)
+
+
+def test_backward_f32_against_float64():
+    """The float32 backward (training at splat.compute_dtype float32) follows
+    its own forward's stops and recomputes its power, exp and alpha: against
+    the float64 backward the gradients differ by rounding (and, where rounding
+    moves a pixel across a cut, by that pixel's share), on hard cases."""
+    args = _big_scene(seed=7)
+    g64, g32 = _grads(args, np.float64), _grads(args, f32)
+    assert g32.dtype == np.float64  # pair sums are reduced in float64 either way
+    scale = np.abs(g64).max(axis=0)
+    d = np.abs(g32 - g64) / scale
+    assert (np.quantile(d, 0.99, axis=0) < 1e-5).all(), np.quantile(d, 0.99, axis=0)
+    assert (np.median(d, axis=0) < 1e-6).all()
+    assert (d.max(axis=0) < 2e-2).all(), d.max(axis=0)
+    assert (g32 != g64).any()
+
+
+def test_backward_f32_same_bits_whatever_the_thread_count():
+    import numba
+
+    args = _big_scene(seed=11)
+    outs = []
+    n0 = numba.get_num_threads()
+    try:
+        for nt in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
+            numba.set_num_threads(nt)
+            outs.append(_grads(args, f32))
+    finally:
+        numba.set_num_threads(n0)
+    np.testing.assert_array_equal(outs[0], outs[-1])
+
+
+def test_rasterize_grad_dtype_float32():
+    """rasterize(..., grad_dtype='float32'): gradients within rounding of the
+    float64 ones at torch level; a wrong name is an InputError."""
+    from splat_scenes import _loss, _render, look_at_camera, random_scene
+
+    from gs2e.common.errors import InputError
+    from gs2e.splat.rasterize import rasterize
+
+    cam = look_at_camera()
+    grads = {}
+    for gd in ("float64", "float32"):
+        q = random_scene(300, seed=4, dtype=torch.float32)
+        _loss(_render(rasterize, q, cam, grad_dtype=gd)).backward()
+        grads[gd] = {k: v.grad.clone() for k, v in q.items()}
+    for k, g64 in grads["float64"].items():
+        g32 = grads["float32"][k]
+        assert torch.allclose(g32, g64, rtol=1e-3, atol=1e-4 * float(g64.abs().max())), k
+        assert not torch.equal(g32, g64) or k == "background", k
+    with pytest.raises(InputError, match="grad_dtype"):
+        _render(rasterize, q, cam, grad_dtype="float16")
+
+
 def test_float32_falls_back_to_float64_for_lists_float32_cannot_count():
     small = np.array([0, 5, 9], np.int64)
     huge = np.array([0, 5, 5 + R.F32_MAX_LIST], np.int64)
     assert R.forward_kernel(f32, small) is R.raster_forward_kernel_f32
     assert R.forward_kernel(f32, huge) is R.raster_forward_kernel
     assert R.forward_kernel(np.float64, small) is R.raster_forward_kernel
+    assert R.backward_kernel(f32, small) is R.raster_backward_kernel_f32
+    assert R.backward_kernel(f32, huge) is R.raster_backward_kernel
+    assert R.backward_kernel(np.float64, small) is R.raster_backward_kernel
 
 
 def test_rasterize_computes_float32_only_where_no_gradient_can_follow(monkeypatch):

@@ -103,6 +103,16 @@ def test_training_improves_heldout_psnr(tiny_scene, tmp_path):
     assert np.mean([r["psnr"] for r in rows]) == pytest.approx(st["test_psnr"], abs=0.05)
 
 
+def test_float64_and_float32_training_reach_the_same_quality(tiny_scene, tmp_path):
+    """splat.compute_dtype: the float32 passes (the default) train to the
+    float64 ones' held-out quality; the two differ (each computed in its type)."""
+    st = {dt: train(tiny_scene, tmp_path / dt, cfg(max_iterations=150, compute_dtype=dt), seed=0,
+                    scene_id="tiny") for dt in ("float32", "float64")}
+    assert st["float32"]["compute_dtype"] == "float32"
+    assert abs(st["float32"]["test_psnr"] - st["float64"]["test_psnr"]) < 0.3, st
+    assert st["float32"]["test_psnr"] != st["float64"]["test_psnr"]
+
+
 def test_resume_gives_identical_bytes(tiny_scene, tmp_path):
     """Interrupt after 45 steps (mid-epoch, between densifications, with
     densification statistics pending) and resume: same bytes as one run."""

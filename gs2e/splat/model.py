@@ -49,12 +49,14 @@ def from_params(p: dict[str, torch.Tensor]) -> dict[str, np.ndarray]:
 
 
 def render(p: dict[str, torch.Tensor], cam: SplatCamera, background: torch.Tensor, sh_degree: int,
-           backend: str = "cpu"):
+           backend: str = "cpu", grad_dtype: str = "float64"):
     """Differentiable render of the model: (image, alpha, depth, meta), see
-    :func:`gs2e.splat.rasterize.rasterize`."""
+    :func:`gs2e.splat.rasterize.rasterize` (``grad_dtype``: what the CPU
+    compositing computes in when a gradient may follow)."""
     sh = torch.cat([p["sh_dc"], p["sh_rest"]], dim=1)
     return rasterize(p["means"], p["quats"], p["log_scales"], p["opacity_logits"], sh, cam,
-                     background=background, sh_degree=sh_degree, backend=backend)
+                     background=background, sh_degree=sh_degree, backend=backend,
+                     grad_dtype=grad_dtype)
 
 
 def save_model(out: Path, g: dict[str, np.ndarray], iterations: int, sh_degree: int,

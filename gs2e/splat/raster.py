@@ -536,139 +536,183 @@ def forward_kernel(compute_dtype, offsets: np.ndarray):
     return raster_forward_kernel
 
 
-# backward segment block (float64), LANES each: pixel state T, T_final, g_T,
+# backward segment block, ``lanes`` values each: pixel state T, T_final, g_T,
 # S (sum behind of w f.g), g_out[0..4), stop index; then the current pair's
 # gradient terms d u, d v, d conic a, b, c, d opacity, d feats[0..4)
-_BT, _BTF, _BGT, _BS, _BG, _BL, _BACC = 0, 8, 16, 24, 32, 64, 72
 _NGRAD = 6 + MAX_CHANNELS
-_BBLK = _BACC + _NGRAD * LANES
+
+
+def _backward_layout(lanes: int) -> tuple:
+    """(T, T_final, g_T, S, g_out, stop, acc) offsets and block size of a
+    backward segment block of ``lanes`` lanes."""
+    L = lanes
+    return (0, L, 2 * L, 3 * L, 4 * L, 8 * L, 9 * L), 9 * L + _NGRAD * L
 
 
 @njit(inline="always", fastmath=False)
-def _segment_backward(s, jx, u, a, b, c, dy, lpm, o, f0, f1, f2, f3, kf):
+def _segment_backward(s, jx, u, a, b, c, dy, lpm, o, f0, f1, f2, f3, kf, lanes, lane_f, kc,
+                      lay):
     """Undo Gaussian k over one segment block (back to front) and add its
-    per-lane gradient partial sums into the block's accumulators."""
-    for lane in range(LANES):
-        dx = u - (jx + lane + 0.5)
-        power = -0.5 * (a * dx * dx + c * dy * dy) - b * dx * dy
-        ok = (power <= 0.0) & (power >= lpm) & (power >= POWER_MIN) & (kf < s[_BL + lane])
-        G = _exp_neg(power if ok else 0.0)
+    per-lane gradient partial sums into the block's accumulators. Arguments as
+    :func:`_segment_forward`'s, in the same float type, and the block layout
+    ``lay`` (:func:`_backward_layout`); power, exp and alpha are the
+    forward's, operation for operation, so the same pixels take part."""
+    zero, one, half, a_max, a_min, t_min, p_min = kc
+    BT, BTF, BGT, BS, BG, BL, BACC = lay
+    L = lanes
+    for lane in range(lanes):
+        dx = u - ((jx + lane_f[lane]) + half)
+        power = _mul_add(-(b * dx), dy, -half * _mul_add(a * dx, dx, c * dy * dy))
+        ok = (power <= zero) & (power >= lpm) & (power >= p_min) & (kf < s[BL + lane])
+        G = _exp_neg_any(power if ok else zero)
         a_raw = o * G
-        alpha = min(ALPHA_MAX, a_raw)
-        ok = ok & (alpha >= ALPHA_MIN)
-        inv_om = 1.0 / (1.0 - alpha)
-        T = s[_BT + lane] * inv_om  # transmittance in front of this Gaussian
+        alpha = min(a_max, a_raw)
+        ok = ok & (alpha >= a_min)
+        inv_om = one / (one - alpha)
+        T = s[BT + lane] * inv_om  # transmittance in front of this Gaussian
         w = alpha * T
-        g0 = s[_BG + lane]
-        g1 = s[_BG + 8 + lane]
-        g2 = s[_BG + 16 + lane]
-        g3 = s[_BG + 24 + lane]
+        g0 = s[BG + lane]
+        g1 = s[BG + L + lane]
+        g2 = s[BG + 2 * L + lane]
+        g3 = s[BG + 3 * L + lane]
         dotf = g0 * f0 + g1 * f1 + g2 * f2 + g3 * f3
         # dL/dalpha = T f.g - (sum_{behind} w_j f_j.g + gT T_final) / (1 - alpha)
-        g_alpha = T * dotf - (s[_BS + lane] + s[_BGT + lane] * s[_BTF + lane]) * inv_om
-        s[_BT + lane] = T if ok else s[_BT + lane]
-        s[_BS + lane] = s[_BS + lane] + w * dotf if ok else s[_BS + lane]
+        g_alpha = T * dotf - (s[BS + lane] + s[BGT + lane] * s[BTF + lane]) * inv_om
+        s[BT + lane] = T if ok else s[BT + lane]
+        s[BS + lane] = s[BS + lane] + w * dotf if ok else s[BS + lane]
         # the pair's terms (one segment call per block and Gaussian: stored, not summed)
-        s[_BACC + 48 + lane] = w * g0 if ok else 0.0
-        s[_BACC + 56 + lane] = w * g1 if ok else 0.0
-        s[_BACC + 64 + lane] = w * g2 if ok else 0.0
-        s[_BACC + 72 + lane] = w * g3 if ok else 0.0
-        ok = ok & (a_raw <= ALPHA_MAX)  # clamped: no gradient to opacity or shape
+        s[BACC + 6 * L + lane] = w * g0 if ok else zero
+        s[BACC + 7 * L + lane] = w * g1 if ok else zero
+        s[BACC + 8 * L + lane] = w * g2 if ok else zero
+        s[BACC + 9 * L + lane] = w * g3 if ok else zero
+        ok = ok & (a_raw <= a_max)  # clamped: no gradient to opacity or shape
         gp = alpha * g_alpha  # dL/dpower
-        s[_BACC + 40 + lane] = G * g_alpha if ok else 0.0
-        s[_BACC + lane] = -(gp * (a * dx + b * dy)) if ok else 0.0
-        s[_BACC + 8 + lane] = -(gp * (b * dx + c * dy)) if ok else 0.0
-        s[_BACC + 16 + lane] = -(0.5 * gp * dx * dx) if ok else 0.0
-        s[_BACC + 24 + lane] = -(gp * dx * dy) if ok else 0.0
-        s[_BACC + 32 + lane] = -(0.5 * gp * dy * dy) if ok else 0.0
+        s[BACC + 5 * L + lane] = G * g_alpha if ok else zero
+        s[BACC + lane] = -(gp * (a * dx + b * dy)) if ok else zero
+        s[BACC + L + lane] = -(gp * (b * dx + c * dy)) if ok else zero
+        s[BACC + 2 * L + lane] = -(half * gp * dx * dx) if ok else zero
+        s[BACC + 3 * L + lane] = -(gp * dx * dy) if ok else zero
+        s[BACC + 4 * L + lane] = -(half * gp * dy * dy) if ok else zero
 
 
 @njit(inline="always", fastmath=False)
-def _take_partials(s, acc):
-    """acc += the block's gradient terms for the current Gaussian."""
-    for q in range(_NGRAD * LANES):
-        acc[q] += s[_BACC + q]
+def _add_block(acc, s, n):
+    """acc[:n] += s[:n] (a slice: the loop over a plain offset did not
+    vectorise and cost the backward 1.4x)."""
+    for z in range(n):
+        acc[z] += s[z]
 
 
-@njit(parallel=True, cache=True, fastmath=False)
-def raster_backward_kernel(offsets, gids, means2d, conics, opac, feats,
-                           width, height, tile, out_T, n_contrib, g_out, g_T, pair_grad,
-                           order, bounds):
-    """Per-pair gradients. pair_grad (n_pairs, 6 + C) rows:
-    d u, d v, d conic_a, d conic_b, d conic_c, d opacity, d feats[0..C).
-    Thread w handles tiles order[bounds[w]:bounds[w + 1]] (:func:`tile_schedule`)."""
-    tiles_x = (width + tile - 1) // tile
-    C = feats.shape[1]
-    nseg = (tile + LANES - 1) // LANES
-    geo = _prepare_gaussians(means2d, conics, opac, feats)
-    for w in prange(bounds.shape[0] - 1):
-        for r in range(bounds[w], bounds[w + 1]):
-            t = order[r]
-            x0, y0, tw, th = _tile_origin(t, tiles_x, tile, width, height)
-            start = offsets[t]
-            m = offsets[t + 1] - start
-            st = np.zeros(th * nseg * _BBLK)
-            for ii in range(th):
-                for jj in range(nseg * LANES):
-                    blk = (ii * nseg + jj // LANES) * _BBLK
-                    lane = jj % LANES
-                    if jj < tw:
-                        st[blk + _BT + lane] = out_T[y0 + ii, x0 + jj]
-                        st[blk + _BTF + lane] = out_T[y0 + ii, x0 + jj]
-                        st[blk + _BGT + lane] = g_T[y0 + ii, x0 + jj]
-                        for ch in range(C):
-                            st[blk + _BG + LANES * ch + lane] = g_out[y0 + ii, x0 + jj, ch]
-                        st[blk + _BL + lane] = n_contrib[y0 + ii, x0 + jj]
-                    else:
-                        st[blk + _BT + lane] = 1.0
-                        st[blk + _BTF + lane] = 1.0
-                        st[blk + _BL + lane] = -1.0  # closed
-            # a block takes part in Gaussian k only if one of its pixels stops after k
-            last = np.empty(th * nseg)
-            for q in range(th * nseg):
-                mx = -1.0
-                for lane in range(LANES):
-                    mx = max(mx, st[q * _BBLK + _BL + lane])
-                last[q] = mx
-            acc = np.empty(_NGRAD * LANES)
-            touched = np.empty(th * nseg, dtype=np.int64)
-            for k in range(m - 1, -1, -1):
-                g = gids[start + k]
-                for ch in range(6 + C):
-                    pair_grad[start + k, ch] = 0.0
-                lpm = geo[g, 4]
-                if lpm > 0.0:
-                    continue
-                o, a, b, c = geo[g, 0], geo[g, 1], geo[g, 2], geo[g, 3]
-                m2, det, u, v = geo[g, 5], geo[g, 6], geo[g, 7], geo[g, 8]
-                f0, f1, f2, f3 = geo[g, 9], geo[g, 10], geo[g, 11], geo[g, 12]
-                inv_a = geo[g, 14]
-                kf = float(k)
-                n_touched = 0
-                i_lo, i_hi = _rows_of(v, geo[g, 13], y0, th)
-                for ii in range(i_lo, i_hi + 1):
-                    dy = v - (y0 + ii + 0.5)
-                    j_lo, j_hi = _col_span(u, dy, a, b, det, m2, inv_a, x0, tw)
-                    if j_lo > j_hi:
+def _make_backward(ftype, lanes: int):
+    """The backward compositing kernel computing in ``ftype`` with segments of
+    ``lanes`` pixels, following the forward kernel of the same type (a closure
+    over plain values, as :func:`_make_forward`)."""
+    zero, one, half = ftype(0.0), ftype(1.0), ftype(0.5)
+    kc = (zero, one, half, ftype(ALPHA_MAX), ftype(ALPHA_MIN), ftype(T_MIN), ftype(POWER_MIN))
+    lay, BBLK = _backward_layout(lanes)
+    BT, BTF, BGT, BS, BG, BL, BACC = lay
+    NACC = _NGRAD * lanes
+    lane_f = np.arange(lanes).astype(ftype)
+
+    @njit(parallel=True, cache=True, fastmath=False)
+    def kernel(offsets, gids, means2d, conics, opac, feats, width, height, tile, out_T,
+               n_contrib, g_out, g_T, pair_grad, order, bounds):
+        tiles_x = (width + tile - 1) // tile
+        C = feats.shape[1]
+        nseg = (tile + lanes - 1) // lanes
+        geo = _prepare_gaussians(means2d, conics, opac, feats)
+        for w in prange(bounds.shape[0] - 1):
+            for r in range(bounds[w], bounds[w + 1]):
+                t = order[r]
+                x0, y0, tw, th = _tile_origin(t, tiles_x, tile, width, height)
+                start = offsets[t]
+                m = offsets[t + 1] - start
+                st = np.zeros(th * nseg * BBLK, dtype=ftype)
+                for ii in range(th):
+                    for jj in range(nseg * lanes):
+                        blk = (ii * nseg + jj // lanes) * BBLK
+                        lane = jj % lanes
+                        if jj < tw:
+                            st[blk + BT + lane] = out_T[y0 + ii, x0 + jj]
+                            st[blk + BTF + lane] = out_T[y0 + ii, x0 + jj]
+                            st[blk + BGT + lane] = g_T[y0 + ii, x0 + jj]
+                            for ch in range(C):
+                                st[blk + BG + lanes * ch + lane] = g_out[y0 + ii, x0 + jj, ch]
+                            st[blk + BL + lane] = n_contrib[y0 + ii, x0 + jj]
+                        else:
+                            st[blk + BT + lane] = one
+                            st[blk + BTF + lane] = one
+                            st[blk + BL + lane] = -one  # closed
+                # a block takes part in Gaussian k only if one of its pixels stops after k
+                last = np.empty(th * nseg, dtype=ftype)
+                for q in range(th * nseg):
+                    mx = -one
+                    for lane in range(lanes):
+                        mx = max(mx, st[q * BBLK + BL + lane])
+                    last[q] = mx
+                acc = np.empty(NACC, dtype=ftype)
+                touched = np.empty(th * nseg, dtype=np.int64)
+                for k in range(m - 1, -1, -1):
+                    g = gids[start + k]
+                    for ch in range(6 + C):
+                        pair_grad[start + k, ch] = 0.0
+                    lpm = geo[g, 4]
+                    if lpm > 0.0:
                         continue
-                    for h in range(j_lo // LANES, j_hi // LANES + 1):
-                        if kf >= last[ii * nseg + h]:
+                    a, b, m2, det, u, v = geo[g, 1], geo[g, 2], geo[g, 5], geo[g, 6], geo[g, 7], geo[g, 8]
+                    inv_a = geo[g, 14]
+                    # the segment's values, in ftype, as the forward's
+                    o_f, a_f, b_f, c_f, lpm_f = (ftype(geo[g, 0]), ftype(a), ftype(b),
+                                                 ftype(geo[g, 3]), ftype(lpm))
+                    u_f, v_f = ftype(u), ftype(v)
+                    f0, f1, f2, f3 = (ftype(geo[g, 9]), ftype(geo[g, 10]), ftype(geo[g, 11]),
+                                      ftype(geo[g, 12]))
+                    kf = ftype(k)
+                    n_touched = 0
+                    i_lo, i_hi = _rows_of(v, geo[g, 13], y0, th)
+                    for ii in range(i_lo, i_hi + 1):
+                        dy = v - (y0 + ii + 0.5)
+                        j_lo, j_hi = _col_span(u, dy, a, b, det, m2, inv_a, x0, tw)
+                        if j_lo > j_hi:
                             continue
-                        blk = (ii * nseg + h) * _BBLK
-                        _segment_backward(st[blk:blk + _BBLK], x0 + h * LANES, u, a, b, c, dy, lpm,
-                                          o, f0, f1, f2, f3, kf)
-                        touched[n_touched] = blk
-                        n_touched += 1
-                if n_touched == 0:
-                    continue
-                acc[:] = 0.0
-                for q in range(n_touched):
-                    _take_partials(st[touched[q]:touched[q] + _BBLK], acc)
-                for f in range(6 + C):
-                    total = 0.0
-                    for lane in range(LANES):
-                        total += acc[f * LANES + lane]
-                    pair_grad[start + k, f] = total
+                        dy_f = v_f - (ftype(y0 + ii) + half)
+                        for h in range(j_lo // lanes, j_hi // lanes + 1):
+                            if kf >= last[ii * nseg + h]:
+                                continue
+                            blk = (ii * nseg + h) * BBLK
+                            _segment_backward(st[blk:blk + BBLK], ftype(x0 + h * lanes), u_f, a_f,
+                                              b_f, c_f, dy_f, lpm_f, o_f, f0, f1, f2, f3, kf,
+                                              lanes, lane_f, kc, lay)
+                            touched[n_touched] = blk
+                            n_touched += 1
+                    if n_touched == 0:
+                        continue
+                    acc[:] = zero
+                    for q in range(n_touched):  # acc += the block's terms for this Gaussian
+                        _add_block(acc, st[touched[q] + BACC:touched[q] + BACC + NACC], NACC)
+                    for f in range(6 + C):
+                        total = 0.0
+                        for lane in range(lanes):
+                            total += acc[f * lanes + lane]
+                        pair_grad[start + k, f] = total
+
+    kernel.__doc__ = """Per-pair gradients, computing in %s. pair_grad (n_pairs, 6 + C)
+    float64 rows: d u, d v, d conic_a, d conic_b, d conic_c, d opacity, d feats[0..C)
+    (per pair: lane sums in row order, then the lanes in order). Thread w
+    handles tiles order[bounds[w]:bounds[w + 1]] (:func:`tile_schedule`).""" % np.dtype(ftype).name
+    return kernel
+
+
+raster_backward_kernel = _make_backward(np.float64, LANES)
+raster_backward_kernel_f32 = _make_backward(np.float32, LANES_F32)
+
+
+def backward_kernel(compute_dtype, offsets: np.ndarray):
+    """The backward kernel following :func:`forward_kernel`'s choice for the
+    same ``compute_dtype`` and lists."""
+    if forward_kernel(compute_dtype, offsets) is raster_forward_kernel_f32:
+        return raster_backward_kernel_f32
+    return raster_backward_kernel
 
 
 @njit(cache=True, fastmath=False)
@@ -736,8 +780,9 @@ def rasterize_forward(means2d, conics, opac, feats, bg, width, height, offsets, 
 
 
 def rasterize_backward(means2d, conics, opac, feats, width, height, offsets, gids,
-                       out_T, n_contrib, g_out, g_T, tile=16):
-    """Backward of :func:`rasterize_forward`.
+                       out_T, n_contrib, g_out, g_T, tile=16, compute_dtype=np.float64):
+    """Backward of :func:`rasterize_forward` (computing in the forward's
+    ``compute_dtype``: the backward recomputes its power, exp and alpha).
 
     g_out (H,W,C) gradient of ``out``; g_T (H,W) gradient of the final
     transmittance (the background term is added by the caller).
@@ -747,9 +792,9 @@ def rasterize_backward(means2d, conics, opac, feats, width, height, offsets, gid
     n = means2d.shape[0]
     C = _channels(feats)
     pair_grad = np.empty((gids.shape[0], 6 + C), dtype=np.float64)
-    raster_backward_kernel(offsets, gids, means2d, conics, opac, feats,
-                           int(width), int(height), int(tile), out_T, n_contrib,
-                           g_out, g_T, pair_grad, *tile_schedule(offsets))
+    backward_kernel(compute_dtype, offsets)(
+        offsets, gids, means2d, conics, opac, feats, int(width), int(height), int(tile), out_T,
+        n_contrib, g_out, g_T, pair_grad, *tile_schedule(offsets))
     grads = np.zeros((n, 6 + C), dtype=np.float64)
     reduce_pairs_kernel(gids, pair_grad, grads)
     return grads

@@ -154,7 +154,8 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     extent = scene_extent(train_v)
     bg = torch.tensor(cfg["background"], dtype=torch.float32)
     timings: dict[str, float] = {}
-    stats: dict[str, Any] = {"backend": backend, "n_views": len(views), "n_train_views": len(train_v),
+    stats: dict[str, Any] = {"backend": backend, "compute_dtype": cfg["compute_dtype"],
+                             "n_views": len(views), "n_train_views": len(train_v),
                              "n_test_views": len(test_v), "extent": extent,
                              "test_every": cfg["test_every"], "background": list(cfg["background"]),
                              "train_width": train_size[0], "train_height": train_size[1]}
@@ -231,7 +232,7 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
         for k in PARAMS:
             p[k].requires_grad_(True)
         try:
-            img, alpha, depth, meta = render(p, cam, bg, sh_deg, backend)
+            img, alpha, depth, meta = render(p, cam, bg, sh_deg, backend, cfg["compute_dtype"])
             loss = photometric_loss(img, gt, cfg["lambda_ssim"])
             loss.backward()
         except NonFiniteError as exc:
