@@ -11,7 +11,10 @@ in ``--work``). Settings, each a fresh process on ``--threads`` threads:
   code, e.g. a worktree of an older commit, measured in the same run.
 
 ``--setting NAME=JSON`` (repeatable) adds a setting of splat overrides, e.g.
-``--setting late_fine='{"resolution_schedule": [[0, 4], [1000, 2], [2500, 1]]}'``.
+``--setting late_fine='{"resolution_schedule": [[0, 4], [1000, 2], [2500, 1]]}'``;
+``"_seed": N`` in a setting trains with seed N (the seed-to-seed spread, e.g.
+``--setting f64='{"compute_dtype": "float64"}' --setting f64_s1='{"compute_dtype":
+"float64", "_seed": 1}' --setting s1='{"_seed": 1}'``).
 
 ``--cost-run SENSOR`` trains instead on the scenes of
 ``bench_cost_model.py --run … --sensor SENSOR`` (their SfM outputs under
@@ -57,7 +60,9 @@ MARKS_MIN = (5, 10, 20)
 
 def child(repo: str, scene_dir: str, out: str, overrides: str, threads: int) -> None:
     """Train in this process with ``repo``'s code; print the statistics as JSON.
-    ``overrides`` may hold ``_target_size`` [W, H] (the event sensor's array)."""
+    ``overrides`` may hold ``_target_size`` [W, H] (the event sensor's array)
+    and ``_seed`` (the training seed, default 0: settings that differ only in
+    it give the seed-to-seed spread)."""
     sys.path.insert(0, repo)
     import gs2e  # noqa: F401  (first: thread settings before torch loads)
     from gs2e.config import load_section
@@ -65,7 +70,8 @@ def child(repo: str, scene_dir: str, out: str, overrides: str, threads: int) -> 
 
     over = json.loads(overrides)
     target = over.pop("_target_size", None)
-    st = train(scene_dir, out, load_section("splat", json.dumps(over)), seed=0, threads=threads,
+    seed = int(over.pop("_seed", 0))
+    st = train(scene_dir, out, load_section("splat", json.dumps(over)), seed=seed, threads=threads,
                resume=False, **({"target_size": tuple(target)} if target else {}))
     print(json.dumps({k: st.get(k) for k in ("iterations", "stop_reason", "train_cpu_s",
                                               "n_gaussians", "budget", "test_psnr", "test_ssim")}))
