@@ -141,18 +141,24 @@ def test_forward_f32_against_float64_rounding_only():
     assert (o32 != o64).any()  # it did compute in float32
 
 
-def test_forward_f32_same_bits_whatever_the_thread_count():
+def _at_thread_counts(fn):
+    """fn() at 1 thread and at 2 (where numba may use 2), numba's setting restored."""
     import numba
 
-    args = _big_scene(seed=9)
     outs = []
     n0 = numba.get_num_threads()
     try:
         for nt in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
             numba.set_num_threads(nt)
-            outs.append(R.rasterize_forward(*args, compute_dtype=f32))
+            outs.append(fn())
     finally:
         numba.set_num_threads(n0)
+    return outs
+
+
+def test_forward_f32_same_bits_whatever_the_thread_count():
+    args = _big_scene(seed=9)
+    outs = _at_thread_counts(lambda: R.rasterize_forward(*args, compute_dtype=f32))
     for a, b in zip(outs[0], outs[-1]):
         np.testing.assert_array_equal(a, b)
 
@@ -185,17 +191,8 @@ def test_backward_f32_against_float64():
 
 
 def test_backward_f32_same_bits_whatever_the_thread_count():
-    import numba
-
     args = _big_scene(seed=11)
-    outs = []
-    n0 = numba.get_num_threads()
-    try:
-        for nt in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
-            numba.set_num_threads(nt)
-            outs.append(_grads(args, f32))
-    finally:
-        numba.set_num_threads(n0)
+    outs = _at_thread_counts(lambda: _grads(args, f32))
     np.testing.assert_array_equal(outs[0], outs[-1])
 
 

@@ -366,6 +366,16 @@ def _prepare_gaussians(means2d, conics, opac, feats):
 
 
 @njit(inline="always", fastmath=False)
+def _segment_values(geo, g, ftype):
+    """Gaussian g's values as the segments take them, in ``ftype``: opacity,
+    conic (a, b, c), lpm, centre (u, v), features 0..3 (one place for the
+    forward and the backward kernels, which must see the same values)."""
+    return (ftype(geo[g, 0]), ftype(geo[g, 1]), ftype(geo[g, 2]), ftype(geo[g, 3]),
+            ftype(geo[g, 4]), ftype(geo[g, 7]), ftype(geo[g, 8]), ftype(geo[g, 9]),
+            ftype(geo[g, 10]), ftype(geo[g, 11]), ftype(geo[g, 12]))
+
+
+@njit(inline="always", fastmath=False)
 def _rows_of(v, ry, y0, th):
     """Rows (tile-local, inclusive) whose centre lies within ``ry`` of the
     centre row v."""
@@ -479,12 +489,7 @@ def _make_forward(ftype, lanes: int):
                         continue
                     a, b, m2, det, u, v = geo[g, 1], geo[g, 2], geo[g, 5], geo[g, 6], geo[g, 7], geo[g, 8]
                     inv_a = geo[g, 14]
-                    # the segment's values, in ftype
-                    o_f, a_f, b_f, c_f, lpm_f = (ftype(geo[g, 0]), ftype(a), ftype(b),
-                                                 ftype(geo[g, 3]), ftype(lpm))
-                    u_f, v_f = ftype(u), ftype(v)
-                    f0, f1, f2, f3 = (ftype(geo[g, 9]), ftype(geo[g, 10]), ftype(geo[g, 11]),
-                                      ftype(geo[g, 12]))
+                    o_f, a_f, b_f, c_f, lpm_f, u_f, v_f, f0, f1, f2, f3 = _segment_values(geo, g, ftype)
                     kf = ftype(k)
                     i_lo, i_hi = _rows_of(v, geo[g, 13], y0, th)
                     for ii in range(i_lo, i_hi + 1):
@@ -661,12 +666,7 @@ def _make_backward(ftype, lanes: int):
                         continue
                     a, b, m2, det, u, v = geo[g, 1], geo[g, 2], geo[g, 5], geo[g, 6], geo[g, 7], geo[g, 8]
                     inv_a = geo[g, 14]
-                    # the segment's values, in ftype, as the forward's
-                    o_f, a_f, b_f, c_f, lpm_f = (ftype(geo[g, 0]), ftype(a), ftype(b),
-                                                 ftype(geo[g, 3]), ftype(lpm))
-                    u_f, v_f = ftype(u), ftype(v)
-                    f0, f1, f2, f3 = (ftype(geo[g, 9]), ftype(geo[g, 10]), ftype(geo[g, 11]),
-                                      ftype(geo[g, 12]))
+                    o_f, a_f, b_f, c_f, lpm_f, u_f, v_f, f0, f1, f2, f3 = _segment_values(geo, g, ftype)
                     kf = ftype(k)
                     n_touched = 0
                     i_lo, i_hi = _rows_of(v, geo[g, 13], y0, th)
