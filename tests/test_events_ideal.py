@@ -188,3 +188,19 @@ def test_noise_off_by_default_and_calibrated_rates():
     ev2 = IdealModel((H, W), shot_noise_rate_hz=0.56, shot_noise_on_fraction=0.54,
                      leak_rate_hz=0.2, seed=2).simulate(ts, fr)
     assert np.array_equal(ev.t, ev2.t) and np.array_equal(ev.x, ev2.x)
+
+
+@pytest.mark.parametrize("B,H,W", [(3, 37, 53), (1, 16, 16), (2, 5, 70)])
+def test_frames_to_tiles_is_the_padded_tile_layout(B, H, W):
+    from gs2e.events import _kernels as K
+    from gs2e.events.models import TILE
+
+    frames = np.random.default_rng(B + H).random((B, H, W), dtype=np.float32)
+    ty, tx = -(-H // TILE), -(-W // TILE)
+    padded = np.zeros((B, ty * TILE, tx * TILE), np.float32)
+    padded[:, :H, :W] = frames
+    ref = (padded.reshape(B, ty, TILE, tx, TILE).transpose(1, 3, 0, 2, 4)
+           .reshape(ty * tx * B, TILE, TILE))  # tile-major, then frame
+    out = np.full((ty * tx * B, TILE, TILE), np.nan, np.float32)
+    K.frames_to_tiles(frames, out)
+    np.testing.assert_array_equal(out, ref)

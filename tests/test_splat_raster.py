@@ -212,3 +212,27 @@ def test_no_gaussians():
     g = torch.autograd.grad(img.sum(), [p["means"], p["sh"]])
     assert g[0].shape == (0, 3) and g[1].shape == (0, 16, 3)
 
+
+
+def test_bin_kernel_same_lists_for_any_number_of_workers():
+    """Tile lists built by bands of tile rows in parallel: each tile's list in
+    the given order, as a plain loop builds it, whatever the worker count."""
+    rng = np.random.default_rng(3)
+    n, W, H, tile = 3000, 203, 117, 16
+    means2d = np.column_stack([rng.uniform(-30, W + 30, n), rng.uniform(-30, H + 30, n)])
+    radii = rng.uniform(0.0, 40.0, n)
+    radii[::7] = 0.0  # culled
+    order = rng.permutation(n).astype(np.int64)
+    tiles_x, tiles_y = -(-W // tile), -(-H // tile)
+    ref = [[] for _ in range(tiles_x * tiles_y)]
+    for g in order:
+        if radii[g] <= 0:
+            continue
+        x0, x1, y0, y1 = R._tile_rect(means2d[g, 0], means2d[g, 1], radii[g], W, H, tile,
+                                      tiles_x, tiles_y)
+        for ty in range(y0, y1 + 1):
+            for tx in range(x0, x1 + 1):
+                ref[ty * tiles_x + tx].append(g)
+    for n_workers in (1, 2, 3, 5, 64):
+        offsets, gids = R.bin_kernel(order, means2d, radii, W, H, tile, n_workers)
+        assert [gids[offsets[t]:offsets[t + 1]].tolist() for t in range(len(ref))] == ref

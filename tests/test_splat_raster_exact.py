@@ -174,3 +174,64 @@ def test_more_than_four_channels_refused():
     with pytest.raises(ValueError, match="1 to 4 feature channels"):
         R.rasterize_forward(np.zeros((1, 2)), np.ones((1, 3)), np.ones(1), z, np.zeros(5), 16, 16,
                             np.zeros(2, np.int64), np.zeros(0, np.int32))
+
+
+def test_row_test_of_one_segment_keeps_every_row_the_column_rule_keeps():
+    """The 16-lane kernels decide whether a tile row is reached by squared
+    distances (:func:`R._segments_of` with one segment); the column rule
+    (:func:`R._col_span`) is what the 8-lane kernels and the earlier float32
+    ones used. Every row the column rule keeps must be kept (the segment then
+    tests each pixel exactly); rows kept in excess must stay rare. Hard cases:
+    needles, near-singular conics, huge ellipses, and chords whose end lies
+    within 1e-9 .. 1e-3 px of the first or last pixel centre of the tile row."""
+    rng = np.random.default_rng(7)
+    m2_, cn_, op_ = _hard_scene(11, 4000, 64, 64, np.float64)[:3]
+    x0, tw = 16, 16
+    kept_col = kept_seg = missed = 0
+    cases = []
+    for g in range(len(op_)):
+        o, (a, b, c) = float(op_[g]), (float(x) for x in cn_[g])
+        lpm, m2, det = R._footprint(o, a, b, c)
+        if lpm > 0.0:
+            continue
+        cases.append((float(m2_[g, 0]) - 24.0 + 40.0, a, b, det, m2))
+    # chords ending next to a pixel centre of the tile row (both ends, both sides)
+    for _ in range(3000):
+        o = rng.uniform(0.02, 1.0)
+        sx, sy, th = np.exp(rng.uniform(np.log(0.3), np.log(40.0), 2)).tolist() + [rng.uniform(0, np.pi)]
+        cs, sn = math.cos(th), math.sin(th)
+        cxx = cs * cs * sx * sx + sn * sn * sy * sy
+        cyy = sn * sn * sx * sx + cs * cs * sy * sy
+        cxy = cs * sn * (sx * sx - sy * sy)
+        dd = cxx * cyy - cxy * cxy
+        a, b, c = cyy / dd, -cxy / dd, cxx / dd
+        lpm, m2, det = R._footprint(o, a, b, c)
+        if lpm > 0.0:
+            continue
+        dy = rng.uniform(-1.0, 1.0) * math.sqrt(m2 * a / det)
+        hw = math.sqrt(max(a * m2 - det * dy * dy, 0.0)) / a
+        end = x0 + 0.5 + rng.integers(0, 2) * (tw - 1)
+        side = rng.choice([-1.0, 1.0])
+        eps = rng.choice([0.0, 1e-9, -1e-9, 1e-6, -1e-6, 1e-3, -1e-3, 2e-3, -2e-3])
+        cx = end - side * hw + eps  # cx + side * hw lands next to a centre
+        cases.append((cx - b * dy / a, a, b, det, m2, dy))
+    for case in cases:
+        u, a, b, det, m2 = case[:5]
+        rows = [case[5]] if len(case) > 5 else [(u - 40.0) - (i + 0.5) for i in range(-2, 18)]
+        for dy in rows:
+            j_lo, j_hi = R._col_span(u, dy, a, b, det, m2, 1.0 / a, x0, tw)
+            h_lo, h_hi = R._segments_of(u, dy, a, b, det, m2, 1.0 / a, x0, tw, 16, 1)
+            natural = len(case) == 5  # the scene's rows, not built at the margins
+            kept_col += natural and j_lo <= j_hi
+            kept_seg += natural and h_lo <= h_hi
+            missed += (j_lo <= j_hi) and not (h_lo <= h_hi)
+    assert kept_col > 5_000, kept_col
+    assert missed == 0, missed
+    assert kept_seg - kept_col <= 0.01 * kept_col, (kept_seg, kept_col)
+    # several segments per row (8 lanes): exactly the column rule's segments
+    for u, a, b, det, m2 in [cs_[:5] for cs_ in cases[:500]]:
+        for i in range(16):
+            dy = (u - 40.0) - (i + 0.5)
+            j_lo, j_hi = R._col_span(u, dy, a, b, det, m2, 1.0 / a, x0, tw)
+            got = R._segments_of(u, dy, a, b, det, m2, 1.0 / a, x0, tw, 8, 2)
+            assert got == ((j_lo // 8, j_hi // 8) if j_lo <= j_hi else (0, -1))
