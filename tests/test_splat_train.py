@@ -104,13 +104,29 @@ def test_training_improves_heldout_psnr(tiny_scene, tmp_path):
 
 
 def test_float64_and_float32_training_reach_the_same_quality(tiny_scene, tmp_path):
-    """splat.compute_dtype: the float32 passes (the default) train to the
-    float64 ones' held-out quality; the two differ (each computed in its type)."""
+    """splat.compute_dtype: the float32 passes train to the float64 ones'
+    held-out quality; the two differ (each computed in its type); ``auto``
+    (the default) trains a scene this small in float64, the same bytes."""
     st = {dt: train(tiny_scene, tmp_path / dt, cfg(max_iterations=150, compute_dtype=dt), seed=0,
-                    scene_id="tiny") for dt in ("float32", "float64")}
+                    scene_id="tiny") for dt in ("float32", "float64", "auto")}
     assert st["float32"]["compute_dtype"] == "float32"
+    assert st["auto"]["compute_dtype"] == "float64"
     assert abs(st["float32"]["test_psnr"] - st["float64"]["test_psnr"]) < 0.3, st
     assert st["float32"]["test_psnr"] != st["float64"]["test_psnr"]
+    ply = "point_cloud/iteration_150/point_cloud.ply"
+    assert (tmp_path / "auto" / ply).read_bytes() == (tmp_path / "float64" / ply).read_bytes()
+
+
+def test_auto_compute_dtype_by_training_size():
+    from gs2e.splat.train import F32_TRAIN_MIN_PIXELS, training_dtype
+
+    assert training_dtype("auto", (1280, 960)) == "float32"  # IMX636's training size
+    assert training_dtype("auto", (349, 260)) == "float64"   # DAVIS346's
+    assert training_dtype("auto", (640, 480)) == "float64"
+    assert training_dtype("auto", (F32_TRAIN_MIN_PIXELS, 1)) == "float32"
+    assert training_dtype("auto", (F32_TRAIN_MIN_PIXELS - 1, 1)) == "float64"
+    assert training_dtype("float64", (4000, 3000)) == "float64"
+    assert training_dtype("float32", (10, 10)) == "float32"
 
 
 def test_resume_gives_identical_bytes(tiny_scene, tmp_path):
