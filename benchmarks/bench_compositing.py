@@ -8,9 +8,11 @@ Runs on the models that ``bench_cost_model.py --run SCENE --sensor S`` trained
   (the same tile lists for all) at the event camera's size as the event stage
   renders it (float32 storage): the baseline revision's kernel (float64
   compute), today's float64 kernel and today's float32 one (what the event and
-  render stages now run); and at the training size the forward and backward a
-  training step runs (float64 compute), baseline against today. Per kernel: ms
-  per call (median, 2 threads), and the image against the baseline's (largest
+  render stages now run), and the baseline's float32 kernel where it has one
+  (``baseline_f32``); and at the training size the forward and backward a
+  training step runs, baseline against today, in float64 and float32 (and the
+  baseline's float32 passes where it has them). Per kernel: ms per call
+  (median, 2 threads), and the image against the baseline's (largest
   difference, PSNR; 8-bit values that differ).
 * ``render``: the whole ``gs2e render`` command the cost run's job ran (its log's
   command line), at ``--render-fps`` frames per second instead (fewer frames,
@@ -111,9 +113,11 @@ def bench_kernel(results: Path, events_cfg: dict, scene: str, traj: str, n_poses
         tiles = np.arange(fr.n_tiles, dtype=np.int64)
         sched = R.tile_schedule(offsets)
         imgs = {}
-        for label, kern in (("baseline", base.raster_forward_kernel),
-                            ("float64", R.raster_forward_kernel),
-                            ("float32", R.raster_forward_kernel_f32)):
+        kernels = [("baseline", base.raster_forward_kernel)]
+        if hasattr(base, "raster_forward_kernel_f32"):  # revisions with a float32 kernel
+            kernels.append(("baseline_f32", base.raster_forward_kernel_f32))
+        for label, kern in kernels + [("float64", R.raster_forward_kernel),
+                                      ("float32", R.raster_forward_kernel_f32)]:
             out = np.zeros((fr.height, fr.width, 3), np.float32)
             T = np.zeros((fr.height, fr.width), np.float32)
             nc = np.zeros((fr.height, fr.width), np.int32)
@@ -124,9 +128,11 @@ def bench_kernel(results: Path, events_cfg: dict, scene: str, traj: str, n_poses
             rows.append({"scene": scene, "pass": "render forward", "kernel": label, "pose": k,
                          "width": fr.width, "height": fr.height, "n_gaussians": fr.n_gaussians,
                          "n_pairs": int(gids.shape[0]), "ms": ms,
-                         **_agreement(out, imgs["baseline"])})
+                         **_agreement(out, imgs["baseline"]),
+                         "same_bits_as_baseline_f32": (bool(np.array_equal(out, imgs["baseline_f32"]))
+                                                       if "baseline_f32" in imgs else None)})
         print(f"  {scene} pose {k} {fr.width}x{fr.height}: "
-              + ", ".join(f"{r['kernel']} {r['ms']:.1f} ms" for r in rows[-3:])
+              + ", ".join(f"{r['kernel']} {r['ms']:.1f} ms" for r in rows[-len(imgs):])
               + f"; float32 vs baseline {rows[-1]['psnr_db']:.1f} dB, max |d| {rows[-1]['max_abs']:.2e}",
               flush=True)
     # training size: forward (float64 compute) + backward, with gradients
@@ -155,8 +161,10 @@ def bench_kernel(results: Path, events_cfg: dict, scene: str, traj: str, n_poses
         m2, cn, op, feats, w, h, offsets, gids, out_T, nc, g_out, g_T, tile = captured["args"][:13]
         bg = np.zeros(feats.shape[1], feats.dtype)
         res = {}
-        for label, mod, dt in (("baseline", base, None), ("float64", R, None),
-                               ("float32", R, np.float32)):
+        passes = [("baseline", base, None)]
+        if hasattr(base, "raster_backward_kernel_f32"):  # revisions that train in float32
+            passes.append(("baseline_f32", base, np.float32))
+        for label, mod, dt in passes + [("float64", R, None), ("float32", R, np.float32)]:
             kw = {} if dt is None else {"compute_dtype": dt}
             fwd = lambda: mod.rasterize_forward(m2, cn, op, feats, bg, w, h, offsets, gids, tile, **kw)
             ms_f = _median_ms(fwd, reps)
@@ -174,12 +182,19 @@ def bench_kernel(results: Path, events_cfg: dict, scene: str, traj: str, n_poses
                 rows.append({"scene": scene, "pass": pss, "kernel": label, "pose": k, "width": w,
                              "height": h, "n_gaussians": int(m2.shape[0]), "n_pairs": int(gids.shape[0]),
                              "ms": ms, "same_bits_as_baseline": same, "grad_q99_rel": rel})
-        r64, r32 = rows[-4:-2], rows[-2:]
-        print(f"  {scene} training size {w}x{h} pose {k}: forward {rows[-6]['ms']:.1f} -> "
+        r0, r64, r32 = rows[-2 * len(res):-2 * len(res) + 2], rows[-4:-2], rows[-2:]
+        f32_same = ""
+        if "baseline_f32" in res:
+            r0f = rows[-6:-4]
+            f32_same = (f"; float32 {r0f[0]['ms']:.1f} -> {r32[0]['ms']:.1f} ms forward, "
+                        f"{r0f[1]['ms']:.1f} -> {r32[1]['ms']:.1f} ms backward, same bits as the "
+                        f"baseline's float32: "
+                        f"{all(np.array_equal(a, b) for a, b in zip(res['float32'], res['baseline_f32']))}")
+        print(f"  {scene} training size {w}x{h} pose {k}: forward {r0[0]['ms']:.1f} -> "
               f"{r64[0]['ms']:.1f} (float64) / {r32[0]['ms']:.1f} ms (float32), backward "
-              f"{rows[-5]['ms']:.1f} -> {r64[1]['ms']:.1f} / {r32[1]['ms']:.1f} ms; float64 same "
+              f"{r0[1]['ms']:.1f} -> {r64[1]['ms']:.1f} / {r32[1]['ms']:.1f} ms; float64 same "
               f"bits: {r64[1]['same_bits_as_baseline']}; float32 gradients: q99 of |diff| "
-              f"{r32[1]['grad_q99_rel']:.1e} of each column's largest", flush=True)
+              f"{r32[1]['grad_q99_rel']:.1e} of each column's largest{f32_same}", flush=True)
     return rows
 
 
@@ -320,6 +335,13 @@ def report(kn, ev, stem: Path, sensor: str, rev: str, rn=None) -> None:
                 f, b = m.loc[(scene, "train forward")], m.loc[(scene, "train backward")]
                 head.append(f"{scene} training passes {(f['baseline'] + b['baseline']) / (f['float32'] + b['float32']):.2f}x "
                             f"(float32), {(f['baseline'] + b['baseline']) / (f['float64'] + b['float64']):.2f}x (float64)")
+            if "baseline_f32" in m.columns:  # today's float32 kernels against the baseline's
+                f32 = [f"render {r['baseline_f32'] / r['float32']:.2f}x"]
+                if (scene, "train backward") in m.index:
+                    f, b = m.loc[(scene, "train forward")], m.loc[(scene, "train backward")]
+                    f32.append(f"training forward {f['baseline_f32'] / f['float32']:.2f}x, "
+                               f"backward {b['baseline_f32'] / b['float32']:.2f}x")
+                head.append(f"{scene} float32 kernels against the baseline's: " + ", ".join(f32))
     if ev is not None:
         print("gs2e events, fixed 2400 fps (mean of seeds 0 and 1):")
         for scene, g in ev.groupby("scene", sort=False):
