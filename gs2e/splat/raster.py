@@ -446,8 +446,9 @@ def _segments_of(u, dy, a, b, det, m2, inv_a, x0, tw, lanes, nseg):
     row): only whether the row is reached matters, and that is decided by
     squared distances, without the square root and the rounding to columns
     of :func:`_col_span`, which took a quarter of the float32 forward's time
-    and a fifth of its backward's at HD. The test keeps every row that :func:`_col_span` keeps: the distance
-    from the chord's centre cx to the row's span of pixel centres, less
+    and a fifth of its backward's at HD. The test keeps every row that
+    :func:`_col_span` keeps: the distance from the chord's centre cx to the
+    row's span of pixel centres, less
     2e-3 px, is compared with the half-chord sqrt(D) / a widened by a relative
     1e-5 (the column rule's slack is 1e-6 and 1e-3 px; the margins cover the
     rounding of either side). A row kept with no pixel in reach composites
@@ -458,6 +459,17 @@ def _segments_of(u, dy, a, b, det, m2, inv_a, x0, tw, lanes, nseg):
     if j_lo > j_hi:
         return 0, -1
     return j_lo // lanes, j_hi // lanes
+
+
+@njit(inline="always", fastmath=False)
+def _row_segments(reached, ii, u, v, a, b, det, m2, inv_a, x0, y0, tw, lanes, nseg):
+    """Segments (inclusive; empty if lo > hi) of tile row ii that the kernels
+    composite for a Gaussian: with one segment per row, what
+    :func:`_rows_reached` found for the row; with several,
+    :func:`_segments_of`."""
+    if nseg == 1:
+        return (0, 0) if reached[ii] else (0, -1)
+    return _segments_of(u, v - (y0 + ii + 0.5), a, b, det, m2, inv_a, x0, tw, lanes, nseg)
 
 
 @njit(inline="always", fastmath=False)
@@ -556,15 +568,10 @@ def _make_forward(ftype, lanes: int):
                     i_lo, i_hi = _rows_of(v, geo[g, 13], y0, th)
                     _rows_reached(reached, i_lo, i_hi, u, v, a, b, det, m2, inv_a, x0, y0, tw, nseg)
                     for ii in range(i_lo, i_hi + 1):
-                        if nseg == 1:
-                            if not reached[ii]:
-                                continue
-                            h_lo, h_hi = 0, 0
-                        else:
-                            h_lo, h_hi = _segments_of(u, v - (y0 + ii + 0.5), a, b, det, m2, inv_a,
-                                                      x0, tw, lanes, nseg)
-                            if h_lo > h_hi:
-                                continue
+                        h_lo, h_hi = _row_segments(reached, ii, u, v, a, b, det, m2, inv_a, x0, y0, tw,
+                                                   lanes, nseg)
+                        if h_lo > h_hi:
+                            continue
                         dy_f = v_f - (ftype(y0 + ii) + half)
                         for h in range(h_lo, h_hi + 1):
                             blk = (ii * nseg + h) * FBLK
@@ -741,15 +748,10 @@ def _make_backward(ftype, lanes: int):
                     i_lo, i_hi = _rows_of(v, geo[g, 13], y0, th)
                     _rows_reached(reached, i_lo, i_hi, u, v, a, b, det, m2, inv_a, x0, y0, tw, nseg)
                     for ii in range(i_lo, i_hi + 1):
-                        if nseg == 1:
-                            if not reached[ii]:
-                                continue
-                            h_lo, h_hi = 0, 0
-                        else:
-                            h_lo, h_hi = _segments_of(u, v - (y0 + ii + 0.5), a, b, det, m2, inv_a,
-                                                      x0, tw, lanes, nseg)
-                            if h_lo > h_hi:
-                                continue
+                        h_lo, h_hi = _row_segments(reached, ii, u, v, a, b, det, m2, inv_a, x0, y0, tw,
+                                                   lanes, nseg)
+                        if h_lo > h_hi:
+                            continue
                         dy_f = v_f - (ftype(y0 + ii) + half)
                         for h in range(h_lo, h_hi + 1):
                             if kf >= last[ii * nseg + h]:
