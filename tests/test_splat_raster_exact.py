@@ -176,17 +176,36 @@ def test_more_than_four_channels_refused():
                             np.zeros(2, np.int64), np.zeros(0, np.int32))
 
 
-def test_row_test_of_one_segment_keeps_every_row_the_column_rule_keeps():
-    """The 16-lane kernels decide whether a tile row is reached by squared
-    distances (:func:`R._segments_of` with one segment); the column rule
-    (:func:`R._col_span`) is what the 8-lane kernels and the earlier float32
-    ones used. Every row the column rule keeps must be kept (the segment then
-    tests each pixel exactly); rows kept in excess must stay rare. Hard cases:
-    needles, near-singular conics, huge ellipses, and chords whose end lies
-    within 1e-9 .. 1e-3 px of the first or last pixel centre of the tile row."""
+def _col_span(u, dy, a, b, det, m2, inv_a, x0, tw):
+    """The column rule the kernels used before the squared-distance test:
+    the row's chord a dx^2 + 2 b dx dy + c dy^2 <= m2 solved for dx, widened
+    by 1e-6 relative and 1e-3 px, rounded to tile-local columns (inclusive;
+    empty if lo > hi)."""
+    D = a * m2 - det * dy * dy + 1e-6 * a * m2
+    if D < 0.0:
+        return 0, -1
+    hw = math.sqrt(D) * inv_a * (1.0 + 1e-6) + 1e-3
+    cx = u + b * dy * inv_a
+    return (max(0, int(math.ceil(cx - hw - 0.5)) - x0),
+            min(tw - 1, int(math.floor(cx + hw - 0.5)) - x0))
+
+
+@pytest.mark.parametrize("lanes", [16, 8])
+def test_reach_test_keeps_every_segment_the_column_rule_keeps(lanes):
+    """The kernels decide which segments of a tile row a Gaussian reaches by
+    squared distances (:func:`R._row_reached` on each segment's pixel
+    centres: one segment per row at 16 lanes, two at 8). Every segment
+    holding a column that the column rule keeps must be kept (the segment
+    then tests each pixel exactly); segments kept in excess must stay rare.
+    Hard cases: needles, near-singular conics, huge ellipses, and chords whose
+    end lies within 1e-9 .. 2e-3 px of the first or last pixel centre of the
+    tile row or of a segment. The kernels' path (all rows at once,
+    :func:`R._rows_reached`, then :func:`R._row_segments`) gives the same
+    segments as the row-at-a-time :func:`R._segments_of`."""
     rng = np.random.default_rng(7)
     m2_, cn_, op_ = _hard_scene(11, 4000, 64, 64, np.float64)[:3]
     x0, tw = 16, 16
+    nseg = tw // lanes
     kept_col = kept_seg = missed = 0
     cases = []
     for g in range(len(op_)):
@@ -195,8 +214,9 @@ def test_row_test_of_one_segment_keeps_every_row_the_column_rule_keeps():
         if lpm > 0.0:
             continue
         cases.append((float(m2_[g, 0]) - 24.0 + 40.0, a, b, det, m2))
-    # chords ending next to a pixel centre of the tile row (both ends, both sides)
-    for _ in range(3000):
+    # chords ending next to a pixel centre at a segment's end (both ends, both sides)
+    ends = sorted({x0 + 0.5 + h * lanes + e for h in range(nseg) for e in (0, lanes - 1)})
+    for _ in range(4000):
         o = rng.uniform(0.02, 1.0)
         sx, sy, th = np.exp(rng.uniform(np.log(0.3), np.log(40.0), 2)).tolist() + [rng.uniform(0, np.pi)]
         cs, sn = math.cos(th), math.sin(th)
@@ -210,7 +230,7 @@ def test_row_test_of_one_segment_keeps_every_row_the_column_rule_keeps():
             continue
         dy = rng.uniform(-1.0, 1.0) * math.sqrt(m2 * a / det)
         hw = math.sqrt(max(a * m2 - det * dy * dy, 0.0)) / a
-        end = x0 + 0.5 + rng.integers(0, 2) * (tw - 1)
+        end = ends[rng.integers(0, len(ends))]
         side = rng.choice([-1.0, 1.0])
         eps = rng.choice([0.0, 1e-9, -1e-9, 1e-6, -1e-6, 1e-3, -1e-3, 2e-3, -2e-3])
         cx = end - side * hw + eps  # cx + side * hw lands next to a centre
@@ -219,19 +239,28 @@ def test_row_test_of_one_segment_keeps_every_row_the_column_rule_keeps():
         u, a, b, det, m2 = case[:5]
         rows = [case[5]] if len(case) > 5 else [(u - 40.0) - (i + 0.5) for i in range(-2, 18)]
         for dy in rows:
-            j_lo, j_hi = R._col_span(u, dy, a, b, det, m2, 1.0 / a, x0, tw)
-            h_lo, h_hi = R._segments_of(u, dy, a, b, det, m2, 1.0 / a, x0, tw, 16, 1)
+            j_lo, j_hi = _col_span(u, dy, a, b, det, m2, 1.0 / a, x0, tw)
+            h_lo, h_hi = R._segments_of(u, dy, a, b, det, m2, 1.0 / a, x0, tw, lanes, nseg)
+            col = set(range(j_lo // lanes, j_hi // lanes + 1)) if j_lo <= j_hi else set()
+            seg = set(range(h_lo, h_hi + 1))
             natural = len(case) == 5  # the scene's rows, not built at the margins
-            kept_col += natural and j_lo <= j_hi
-            kept_seg += natural and h_lo <= h_hi
-            missed += (j_lo <= j_hi) and not (h_lo <= h_hi)
+            kept_col += natural * len(col)
+            kept_seg += natural * len(seg)
+            missed += len(col - seg)
     assert kept_col > 5_000, kept_col
     assert missed == 0, missed
     assert kept_seg - kept_col <= 0.01 * kept_col, (kept_seg, kept_col)
-    # several segments per row (8 lanes): exactly the column rule's segments
+    # the kernels' path: every row of the tile at once, then per row
+    reached = np.zeros(16 * nseg, np.bool_)
     for u, a, b, det, m2 in [cs_[:5] for cs_ in cases[:500]]:
-        for i in range(16):
-            dy = (u - 40.0) - (i + 0.5)
-            j_lo, j_hi = R._col_span(u, dy, a, b, det, m2, 1.0 / a, x0, tw)
-            got = R._segments_of(u, dy, a, b, det, m2, 1.0 / a, x0, tw, 8, 2)
-            assert got == ((j_lo // 8, j_hi // 8) if j_lo <= j_hi else (0, -1))
+        v, y0 = 40.0, 24
+        i_lo, i_hi = 0, 15
+        reached[:] = False
+        R._rows_reached(reached, i_lo, i_hi, u, v, a, b, det, m2, 1.0 / a, x0, y0, tw, lanes,
+                        nseg, lanes < 16)
+        for ii in range(16):
+            dy = v - (y0 + ii + 0.5)
+            got = R._row_segments(reached, ii, u, v, a, b, det, m2, 1.0 / a, x0, y0, tw, lanes,
+                                  nseg, lanes < 16)
+            want = R._segments_of(u, dy, a, b, det, m2, 1.0 / a, x0, tw, lanes, nseg)
+            assert (got[0] > got[1] and want[0] > want[1]) or got == want, (got, want)

@@ -42,7 +42,7 @@ composite in float32, 16 lanes, and fuse their multiply-adds
 the same rules in the same order (tests: same bits as a float32 pixel loop
 with exact fused multiply-adds; against float64 a pixel differs by rounding,
 or by one Gaussian's weight where rounding moves it across a cut). Set-up,
-row ranges and column spans stay float64 in both.
+row ranges and which segments a Gaussian reaches stay float64 in both.
 
 Channels: up to 4 per-Gaussian features are composited together (RGB plus
 camera depth, so expected depth comes for free).
@@ -398,27 +398,21 @@ def _rows_of(v, ry, y0, th):
 
 
 @njit(inline="always", fastmath=False)
-def _col_span(u, dy, a, b, det, m2, inv_a, x0, tw):
-    """Columns (tile-local, inclusive; empty if lo > hi) of the row at offset
-    dy = v - py from the centre that the ellipse reaches: a dx^2 + 2 b dx dy +
-    c dy^2 <= m2 solved for dx, widened (slack, relative and absolute) so
-    that rounding never drops a pixel the exact test would keep. inv_a = 1 / a
-    (a product, not a division, per row)."""
-    D = a * m2 - det * dy * dy + 1e-6 * a * m2
-    if D < 0.0:
-        return 0, -1
-    hw = math.sqrt(D) * inv_a * (1.0 + 1e-6) + 1e-3
-    cx = u + b * dy * inv_a
-    return (max(0, int(math.ceil(cx - hw - 0.5)) - x0),
-            min(tw - 1, int(math.floor(cx + hw - 0.5)) - x0))
-
-
-@njit(inline="always", fastmath=False)
 def _row_reached(u, dy, a, b, det, m2, inv_a, x0, tw):
-    """Whether the ellipse may reach the tile row (origin x0, width tw) at
-    offset dy from its centre row: the one-segment test of
-    :func:`_segments_of`, branch-free (the kernels evaluate it for all of a
-    Gaussian's rows at once, as vector code)."""
+    """Whether the ellipse a dx^2 + 2 b dx dy + c dy^2 <= m2 may reach one of
+    the pixel centres x0 + 0.5 .. x0 + tw - 0.5 of the row at offset dy = v - py
+    from its centre row (a tile row, or one segment of it; inv_a = 1 / a).
+
+    Decided by squared distances, without a square root or a rounding to
+    columns: the distance from the chord's centre cx to that span, less
+    2e-3 px, is compared with the half-chord sqrt(D) / a widened by a
+    relative 1e-5. So every span holding a column that the column rule keeps
+    (the chord solved for dx, widened by 1e-6 relative and 1e-3 px:
+    ``tests/test_splat_raster_exact.py``) is kept; the margins cover the
+    rounding of either side. A span kept with no pixel in reach composites
+    nothing: every pixel is tested exactly in the segment. Branch-free (the
+    kernels evaluate it for all of a Gaussian's rows at once, as vector
+    code)."""
     D = a * m2 - det * dy * dy + 1e-6 * a * m2
     cx = u + b * dy * inv_a
     d = max(0.0, max(x0 + 0.5 - cx, cx - (x0 + tw - 0.5))) - 2e-3  # less a margin
@@ -426,12 +420,24 @@ def _row_reached(u, dy, a, b, det, m2, inv_a, x0, tw):
 
 
 @njit(inline="always", fastmath=False)
-def _rows_reached(reached, i_lo, i_hi, u, v, a, b, det, m2, inv_a, x0, y0, tw, nseg):
-    """With one segment per row: reached[ii] = :func:`_row_reached` for the
-    tile rows i_lo..i_hi (tile origin x0, y0), in one loop without branches,
-    which LLVM vectorises; one test per row and branch cost the float32
-    kernels ~7 %. Nothing with several segments per row."""
-    if nseg == 1:
+def _rows_reached(reached, i_lo, i_hi, u, v, a, b, det, m2, inv_a, x0, y0, tw, lanes, nseg,
+                  per_segment):
+    """Which segments of tile rows i_lo..i_hi (tile origin x0, y0) the
+    ellipse may reach (:func:`_row_reached`), for all rows at once in loops
+    without branches, which LLVM vectorises: with ``per_segment`` (the
+    8-lane kernels, a constant of the kernel) reached[ii * nseg + h] for
+    every segment h; else, with one segment per row, reached[ii] (with
+    several, :func:`_row_segments` tests one row at a time). Solving each
+    row's chord for its columns instead (a square root and two roundings per
+    row) took a quarter of the float32 forward's time at HD and a sixth of
+    the float64 one's; a test and branch per row, ~7 % more."""
+    if per_segment:
+        for h in range(nseg):
+            ws = min(lanes, tw - h * lanes)
+            for ii in range(i_lo, i_hi + 1):
+                reached[ii * nseg + h] = (ws > 0) & _row_reached(u, v - (y0 + ii + 0.5), a, b, det,
+                                                                 m2, inv_a, x0 + h * lanes, ws)
+    elif nseg == 1:
         for ii in range(i_lo, i_hi + 1):
             reached[ii] = _row_reached(u, v - (y0 + ii + 0.5), a, b, det, m2, inv_a, x0, tw)
 
@@ -439,34 +445,37 @@ def _rows_reached(reached, i_lo, i_hi, u, v, a, b, det, m2, inv_a, x0, y0, tw, n
 @njit(inline="always", fastmath=False)
 def _segments_of(u, dy, a, b, det, m2, inv_a, x0, tw, lanes, nseg):
     """Segments of ``lanes`` columns (inclusive; empty if lo > hi) of the tile
-    row at offset dy = v - py from the centre row that the ellipse may reach.
-
-    Several segments per row (float64, 8 lanes): those holding the columns of
-    :func:`_col_span`. One segment per row (float32, 16 lanes: the whole tile
-    row): only whether the row is reached matters, and that is decided by
-    squared distances, without the square root and the rounding to columns
-    of :func:`_col_span`, which took a quarter of the float32 forward's time
-    and a fifth of its backward's at HD. The test keeps every row that
-    :func:`_col_span` keeps: the distance from the chord's centre cx to the
-    row's span of pixel centres, less
-    2e-3 px, is compared with the half-chord sqrt(D) / a widened by a relative
-    1e-5 (the column rule's slack is 1e-6 and 1e-3 px; the margins cover the
-    rounding of either side). A row kept with no pixel in reach composites
-    nothing: every pixel is tested exactly in the segment."""
-    if nseg == 1:
-        return (0, 0) if _row_reached(u, dy, a, b, det, m2, inv_a, x0, tw) else (0, -1)
-    j_lo, j_hi = _col_span(u, dy, a, b, det, m2, inv_a, x0, tw)
-    if j_lo > j_hi:
-        return 0, -1
-    return j_lo // lanes, j_hi // lanes
+    row (origin x0, width tw) at offset dy from the centre row that the
+    ellipse may reach: :func:`_row_reached` on each segment's pixel centres,
+    for one row."""
+    lo, hi = nseg, -1
+    for h in range(nseg):
+        ws = min(lanes, tw - h * lanes)
+        if ws > 0 and _row_reached(u, dy, a, b, det, m2, inv_a, x0 + h * lanes, ws):
+            lo = min(lo, h)
+            hi = h
+    return (lo, hi) if hi >= 0 else (0, -1)
 
 
 @njit(inline="always", fastmath=False)
-def _row_segments(reached, ii, u, v, a, b, det, m2, inv_a, x0, y0, tw, lanes, nseg):
+def _row_segments(reached, ii, u, v, a, b, det, m2, inv_a, x0, y0, tw, lanes, nseg, per_segment):
     """Segments (inclusive; empty if lo > hi) of tile row ii that the kernels
-    composite for a Gaussian: with one segment per row, what
-    :func:`_rows_reached` found for the row; with several,
-    :func:`_segments_of`."""
+    composite for a Gaussian: what :func:`_rows_reached` found (the reached
+    segments of a row are contiguous: the chord is an interval), or, for
+    the 16-lane kernels on tiles wider than 16, :func:`_segments_of`. The
+    16-lane kernels carry no per-segment code in their hot loop: inlined,
+    it slowed them by ~5 % at HD."""
+    if per_segment:
+        if nseg == 2:
+            r0 = reached[2 * ii]
+            r1 = reached[2 * ii + 1]
+            return (0 if r0 else 1), (1 if r1 else (0 if r0 else -1))
+        lo, hi = nseg, -1
+        for h in range(nseg):
+            if reached[ii * nseg + h]:
+                lo = min(lo, h)
+                hi = h
+        return (lo, hi) if hi >= 0 else (0, -1)
     if nseg == 1:
         return (0, 0) if reached[ii] else (0, -1)
     return _segments_of(u, v - (y0 + ii + 0.5), a, b, det, m2, inv_a, x0, tw, lanes, nseg)
@@ -521,8 +530,8 @@ def _block_open(st, at, mf, lanes):
 def _make_forward(ftype, lanes: int):
     """The forward compositing kernel computing in ``ftype`` with segments of
     ``lanes`` pixels (one AVX-512 register: 8 float64 or 16 float32). Per-Gaussian
-    set-up, row ranges and column spans stay float64 (scalar, per row); the
-    per-pixel tests and compositing run in ``ftype``.
+    set-up, row ranges and the segments reached stay float64; the per-pixel
+    tests and compositing run in ``ftype``.
 
     The kernel is a closure over plain values only (type, ints, constants,
     arrays): numba's on-disk cache keys a closure by its values, and a
@@ -533,6 +542,7 @@ def _make_forward(ftype, lanes: int):
     FT, FL = 0, 5 * lanes
     FBLK = 6 * lanes
     lane_f = np.arange(lanes).astype(ftype)  # exact: no per-segment int conversion
+    per_segment = lanes < 16  # tile rows of 16 hold several segments: find each
 
     @njit(parallel=True, cache=True, fastmath=False)
     def kernel(tile_ids, offsets, gids, means2d, conics, opac, feats, bg,
@@ -550,7 +560,7 @@ def _make_forward(ftype, lanes: int):
                 mf = ftype(m)
                 # one block per (row, segment): lanes past the tile's width start closed
                 st = np.zeros(th * nseg * FBLK, dtype=ftype)
-                reached = np.zeros(th, dtype=np.bool_)
+                reached = np.zeros(th * nseg, dtype=np.bool_)
                 for ii in range(th):
                     for jj in range(nseg * lanes):
                         blk = (ii * nseg + jj // lanes) * FBLK
@@ -566,10 +576,11 @@ def _make_forward(ftype, lanes: int):
                     o_f, a_f, b_f, c_f, lpm_f, u_f, v_f, f0, f1, f2, f3 = _segment_values(geo, g, ftype)
                     kf = ftype(k)
                     i_lo, i_hi = _rows_of(v, geo[g, 13], y0, th)
-                    _rows_reached(reached, i_lo, i_hi, u, v, a, b, det, m2, inv_a, x0, y0, tw, nseg)
+                    _rows_reached(reached, i_lo, i_hi, u, v, a, b, det, m2, inv_a, x0, y0, tw, lanes,
+                                  nseg, per_segment)
                     for ii in range(i_lo, i_hi + 1):
                         h_lo, h_hi = _row_segments(reached, ii, u, v, a, b, det, m2, inv_a, x0, y0, tw,
-                                                   lanes, nseg)
+                                                   lanes, nseg, per_segment)
                         if h_lo > h_hi:
                             continue
                         dy_f = v_f - (ftype(y0 + ii) + half)
@@ -693,6 +704,7 @@ def _make_backward(ftype, lanes: int):
     BT, BTF, BGT, BS, BG, BL, BACC = lay
     NACC = _NGRAD * lanes
     lane_f = np.arange(lanes).astype(ftype)
+    per_segment = lanes < 16
 
     @njit(parallel=True, cache=True, fastmath=False)
     def kernel(offsets, gids, means2d, conics, opac, feats, width, height, tile, out_T,
@@ -708,7 +720,7 @@ def _make_backward(ftype, lanes: int):
                 start = offsets[t]
                 m = offsets[t + 1] - start
                 st = np.zeros(th * nseg * BBLK, dtype=ftype)
-                reached = np.zeros(th, dtype=np.bool_)
+                reached = np.zeros(th * nseg, dtype=np.bool_)
                 for ii in range(th):
                     for jj in range(nseg * lanes):
                         blk = (ii * nseg + jj // lanes) * BBLK
@@ -746,10 +758,11 @@ def _make_backward(ftype, lanes: int):
                     kf = ftype(k)
                     n_touched = 0
                     i_lo, i_hi = _rows_of(v, geo[g, 13], y0, th)
-                    _rows_reached(reached, i_lo, i_hi, u, v, a, b, det, m2, inv_a, x0, y0, tw, nseg)
+                    _rows_reached(reached, i_lo, i_hi, u, v, a, b, det, m2, inv_a, x0, y0, tw, lanes,
+                                  nseg, per_segment)
                     for ii in range(i_lo, i_hi + 1):
                         h_lo, h_hi = _row_segments(reached, ii, u, v, a, b, det, m2, inv_a, x0, y0, tw,
-                                                   lanes, nseg)
+                                                   lanes, nseg, per_segment)
                         if h_lo > h_hi:
                             continue
                         dy_f = v_f - (ftype(y0 + ii) + half)
