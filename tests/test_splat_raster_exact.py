@@ -264,3 +264,33 @@ def test_reach_test_keeps_every_segment_the_column_rule_keeps(lanes):
                                   nseg, lanes < 16)
             want = R._segments_of(u, dy, a, b, det, m2, 1.0 / a, x0, tw, lanes, nseg)
             assert (got[0] > got[1] and want[0] > want[1]) or got == want, (got, want)
+
+
+def test_float32_inputs_reach_the_pixels_float64_inputs_reach():
+    """The per-Gaussian set-up is float64 whatever the inputs' type. A needle
+    (the conic of one of a trained llff_fern model's Gaussians: det = a c - b^2
+    cancels to 1e-3 of a c) placed so that pixel (row 37, column 40), the
+    first of a segment, lies 1e-3 px inside the end of its row's chord near
+    the needle's tip, the rest of the chord in the segment before: the pixel
+    passes the per-pixel test
+    (checked here in float64), and with det rounded to float32 (numba's
+    float() keeps float32) the half-chord shrank by 8e-3 px, beyond the reach
+    test's margin, so the pixel was dropped. (float64 compositing: in
+    float32 the pixel's own power is rounded by more than that margin.)"""
+    m2d = np.array([[-63.73100280761719, 17.68130111694336]])
+    cn = np.array([[0.10061904788017273, -0.5289574265480042, 2.8036584854125977]])
+    op = np.array([0.996060848236084])
+    feats = np.array([[0.4664444, 0.4307131, 0.3698446]])
+    a, b, c = (float(np.float32(x)) for x in cn[0])
+    dx, dy = m2d[0, 0] - 40.5, m2d[0, 1] - 37.5
+    lpm = R._footprint(float(np.float32(op[0])), a, b, c)[0]
+    assert -0.5 * (a * dx * dx + c * dy * dy) - b * dx * dy >= lpm + 1e-6  # the pixel is reached
+    W, H = 64, 48
+    offsets, gids = R.bin_gaussians(m2d, np.ones(1), np.array([120], np.int32), W, H, 16, op)
+    res = {}
+    for dt in (np.float64, np.float32):
+        res[dt] = R.rasterize_forward(m2d.astype(dt), cn.astype(dt), op.astype(dt), feats.astype(dt),
+                                      np.zeros(3, dt), W, H, offsets, gids,
+                                      compute_dtype=np.float64)
+        assert res[dt][1][37, 40] < 0.995, dt  # alpha ~ 0.011
+    assert np.array_equal(res[np.float32][1] < 1.0, res[np.float64][1] < 1.0)

@@ -344,17 +344,20 @@ def _gaussian(g, means2d, conics, opac, feats):
     """Gaussian g as float64 scalars: opacity, conic (a, b, c), its footprint
     (lpm, m2, det: :func:`_footprint`), centre (u, v) and features padded to
     4 with zeros."""
+    # np.float64, not float(): numba's float() keeps a float32 a float32, and
+    # det = a c - b^2 in float32 cancels for needles, so that the reach tests
+    # missed pixels at their tips that the per-pixel test keeps
     C = feats.shape[1]
-    o = float(opac[g])
-    a = float(conics[g, 0])
-    b = float(conics[g, 1])
-    c = float(conics[g, 2])
+    o = np.float64(opac[g])
+    a = np.float64(conics[g, 0])
+    b = np.float64(conics[g, 1])
+    c = np.float64(conics[g, 2])
     lpm, m2, det = _footprint(o, a, b, c)
-    f1 = float(feats[g, 1]) if C > 1 else 0.0
-    f2 = float(feats[g, 2]) if C > 2 else 0.0
-    f3 = float(feats[g, 3]) if C > 3 else 0.0
-    return (o, a, b, c, lpm, m2, det, float(means2d[g, 0]), float(means2d[g, 1]),
-            float(feats[g, 0]), f1, f2, f3)
+    f1 = np.float64(feats[g, 1]) if C > 1 else 0.0
+    f2 = np.float64(feats[g, 2]) if C > 2 else 0.0
+    f3 = np.float64(feats[g, 3]) if C > 3 else 0.0
+    return (o, a, b, c, lpm, m2, det, np.float64(means2d[g, 0]), np.float64(means2d[g, 1]),
+            np.float64(feats[g, 0]), f1, f2, f3)
 
 
 _NGEO = 15  # per-Gaussian set-up of the forward kernels: _gaussian's 13, row radius, 1 / a
