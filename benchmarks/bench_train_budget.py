@@ -177,6 +177,10 @@ def main() -> int:
         name, _, js = item.partition("=")
         settings[name] = json.loads(js)
         a.settings += f",{name}"
+    unknown = [s for s in a.settings.split(",") if s and s not in settings]
+    if unknown:
+        ap.error(f"--settings: unknown {', '.join(unknown)} (known: {', '.join(settings)}; "
+                 "'baseline' comes from --baseline-repo)")
     runs = [(s, REPO, settings[s]) for s in a.settings.split(",") if s]
     if a.baseline_repo:
         runs.insert(0, ("baseline", a.baseline_repo.resolve(), {}))
