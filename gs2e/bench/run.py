@@ -38,6 +38,7 @@ from gs2e.common.color import linear_to_srgb, luminance, srgb_to_linear
 from gs2e.common.errors import InputError
 from gs2e.common.log import get_logger
 from gs2e.common.progress import progress
+from gs2e.io.images import to_u8
 
 log = get_logger("gs2e.bench")
 
@@ -471,7 +472,7 @@ def example_strip(images: dict[str, np.ndarray], crop_px: int, title: str) -> np
         crop = img[y0:y0 + c, x0:x0 + c]
         if crop.ndim == 2:
             crop = np.repeat(crop[..., None], 3, axis=2)
-        crop = np.clip(crop * 255 + 0.5, 0, 255).astype(np.uint8)
+        crop = to_u8(crop)
         crop = cv2.resize(crop, (c * scale, c * scale), interpolation=cv2.INTER_NEAREST)
         label = np.full((18, crop.shape[1], 3), 255, np.uint8)
         cv2.putText(label, name, (2, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)

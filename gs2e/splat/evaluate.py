@@ -11,7 +11,7 @@ import torch
 from gs2e.common.atomic import atomic_dir
 from gs2e.common.log import get_logger
 from gs2e.common.progress import progress
-from gs2e.io.images import write_png
+from gs2e.io.images import to_u8, write_png
 from gs2e.io.scene import read_scene
 from gs2e.splat.backend import resolve_backend
 from gs2e.splat.loss import psnr, ssim
@@ -65,7 +65,7 @@ def render_views(model_dir: str | Path, scene_dir: str | Path, out_dir: str | Pa
     with atomic_dir(out_dir) as out, torch.no_grad():
         for v in progress(sel, desc="rendering views"):
             img, view_psnr, view_ssim = score_view(p, v, bg, int(info["sh_degree"]), backend)
-            write_png(out / (Path(v.name).stem + ".png"), (img.numpy() * 255 + 0.5).astype(np.uint8))
+            write_png(out / (Path(v.name).stem + ".png"), to_u8(img.numpy()))
             rows.append({"view": v.name, "psnr": view_psnr, "ssim": view_ssim})
         write_metrics(out / "metrics.parquet", rows, stage="render-views")
     if rows:
