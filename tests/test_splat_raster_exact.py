@@ -272,11 +272,11 @@ def test_float32_inputs_reach_the_pixels_float64_inputs_reach():
     cancels to 1e-3 of a c) placed so that pixel (row 37, column 40), the
     first of a segment, lies 1e-3 px inside the end of its row's chord near
     the needle's tip, the rest of the chord in the segment before: the pixel
-    passes the per-pixel test
-    (checked here in float64), and with det rounded to float32 (numba's
-    float() keeps float32) the half-chord shrank by 8e-3 px, beyond the reach
-    test's margin, so the pixel was dropped. (float64 compositing: in
-    float32 the pixel's own power is rounded by more than that margin.)"""
+    passes the per-pixel test (checked here in float64), and with det rounded
+    to float32 (numba's float() keeps float32) the half-chord shrank by
+    8e-3 px, beyond the reach test's margin, so the pixel was dropped.
+    (float64 compositing: in float32 the pixel's own power is rounded by
+    more than that margin.)"""
     m2d = np.array([[-63.73100280761719, 17.68130111694336]])
     cn = np.array([[0.10061904788017273, -0.5289574265480042, 2.8036584854125977]])
     op = np.array([0.996060848236084])

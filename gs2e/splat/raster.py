@@ -432,8 +432,9 @@ def _rows_reached(reached, i_lo, i_hi, u, v, a, b, det, m2, inv_a, x0, y0, tw, l
     every segment h; else, with one segment per row, reached[ii] (with
     several, :func:`_row_segments` tests one row at a time). Solving each
     row's chord for its columns instead (a square root and two roundings per
-    row) took a quarter of the float32 forward's time at HD and a sixth of
-    the float64 one's; a test and branch per row, ~7 % more."""
+    row) took a quarter of the float32 forward's time at HD, and made the
+    float64 training passes 1.18-1.21x slower at DAVIS346; a test and branch
+    per row cost ~7 % more."""
     if per_segment:
         for h in range(nseg):
             ws = min(lanes, tw - h * lanes)
@@ -469,7 +470,7 @@ def _row_segments(reached, ii, u, v, a, b, det, m2, inv_a, x0, y0, tw, lanes, ns
     16-lane kernels carry no per-segment code in their hot loop: inlined,
     it slowed them by ~5 % at HD."""
     if per_segment:
-        if nseg == 2:
+        if nseg == 2:  # the 8-lane kernels on 16-pixel tiles: no loop (2-5 % of their forward)
             r0 = reached[2 * ii]
             r1 = reached[2 * ii + 1]
             return (0 if r0 else 1), (1 if r1 else (0 if r0 else -1))
