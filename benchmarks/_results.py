@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import time
 from pathlib import Path
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -32,3 +33,16 @@ def pyplot():
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def median_ms(fn, reps: int) -> float:
+    """Median wall time of ``fn()`` in ms over ``reps`` calls, after one
+    untimed call (compiles, warms caches)."""
+    fn()
+    ts = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t0)
+    ts.sort()
+    return 1e3 * (ts[(len(ts) - 1) // 2] + ts[len(ts) // 2]) / 2

@@ -52,7 +52,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "benchmarks"))
 
-from _results import RESULTS, pyplot  # noqa: E402
+from _results import RESULTS, median_ms, pyplot  # noqa: E402
 from bench_cost_cuts import PAPER_FPS, cost_run, count_distance, pixel_counts, run_events  # noqa: E402
 
 BASELINE_REV = "468d5aa"  # main before the float32 kernel
@@ -68,16 +68,6 @@ def baseline_module(rev: str, tmp: Path):
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
-
-
-def _median_ms(fn, reps: int) -> float:
-    fn()  # compile / warm
-    ts = []
-    for _ in range(reps):
-        t0 = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t0)
-    return 1e3 * float(np.median(ts))
 
 
 def _agreement(img: np.ndarray, ref: np.ndarray) -> dict:
@@ -121,7 +111,7 @@ def bench_kernel(results: Path, events_cfg: dict, scene: str, traj: str, n_poses
             out = np.zeros((fr.height, fr.width, 3), np.float32)
             T = np.zeros((fr.height, fr.width), np.float32)
             nc = np.zeros((fr.height, fr.width), np.int32)
-            ms = _median_ms(lambda: kern(tiles, offsets, gids, fr.m2_dt, fr.cn_dt, fr.opac_dt,
+            ms = median_ms(lambda: kern(tiles, offsets, gids, fr.m2_dt, fr.cn_dt, fr.opac_dt,
                                          fr.colors, fr.bg, fr.width, fr.height, TILE, out, T, nc,
                                          *sched), reps)
             imgs[label] = out
@@ -167,11 +157,11 @@ def bench_kernel(results: Path, events_cfg: dict, scene: str, traj: str, n_poses
         for label, mod, dt in passes + [("float64", R, None), ("float32", R, np.float32)]:
             kw = {} if dt is None else {"compute_dtype": dt}
             fwd = lambda: mod.rasterize_forward(m2, cn, op, feats, bg, w, h, offsets, gids, tile, **kw)
-            ms_f = _median_ms(fwd, reps)
+            ms_f = median_ms(fwd, reps)
             o, oT, onc = fwd()  # the backward follows its own forward's stops
             bwd = lambda: mod.rasterize_backward(m2, cn, op, feats, w, h, offsets, gids, oT, onc,
                                                  g_out, g_T, tile, **kw)
-            ms_b = _median_ms(bwd, reps)
+            ms_b = median_ms(bwd, reps)
             res[label] = (o, bwd())
             same = all(np.array_equal(a, b) for a, b in zip(res[label], res["baseline"]))
             g, g0 = res[label][1], res["baseline"][1]

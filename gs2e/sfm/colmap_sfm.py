@@ -42,6 +42,20 @@ def _device(cfg: dict):
     return pycolmap.Device.cuda if cfg.get("gpu") else pycolmap.Device.cpu
 
 
+SIFT_AUTO_MAX_IMAGE_SIZE = 1024  # sfm.max_image_size: auto (benchmarks/bench_sfm_size.py)
+SIFT_NATIVE_LIMIT = 3200  # COLMAP's own cap on the image SIFT sees
+
+
+def sift_image_size(cfg: dict) -> int:
+    """The longer side (px) of the image SIFT sees: ``sfm.max_image_size``
+    (``auto``: :data:`SIFT_AUTO_MAX_IMAGE_SIZE`; ``None``: the photo's own size,
+    up to COLMAP's 3200 px). Keypoints are scaled back to the photo's pixels."""
+    v = cfg.get("max_image_size", "auto")
+    if v == "auto":
+        return SIFT_AUTO_MAX_IMAGE_SIZE
+    return SIFT_NATIVE_LIMIT if v is None else int(v)
+
+
 def _extract(db: Path, image_dir: Path, names: list[str], cfg: dict, threads: int,
              camera_mode, camera_model: str) -> None:
     import pycolmap
@@ -52,6 +66,7 @@ def _extract(db: Path, image_dir: Path, names: list[str], cfg: dict, threads: in
     extraction.num_threads = threads
     extraction.use_gpu = bool(cfg.get("gpu"))
     extraction.sift.max_num_features = int(cfg["max_num_features"])
+    extraction.max_image_size = sift_image_size(cfg)
     # Images (and cameras) enter the database first, one by one in name order:
     # the extractor's threads would otherwise number them in the order they
     # finish, and the mapper's result depends on the image ids.
@@ -327,6 +342,7 @@ def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0
                                      if rec.num_points3D() and not keep_points else float("nan")),
             "mean_track_length": float(rec.compute_mean_track_length()) if rec.num_points3D() else float("nan"),
             "matcher": matcher,
+            "sift_max_image_size": None if mode == "given" else sift_image_size(cfg),
             "mode": mode,
             "threads": threads,
             **{f"time_{k}_s": v for k, v in run.timings.items()},

@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numba import njit, prange
 from scipy.special import expit
@@ -274,6 +275,7 @@ class ForwardRenderer:
         self.colors = np.zeros((n, 3), self.dtype)
         if self.sh_degree == 0:  # view-independent: once
             self.colors[:] = _sh.sh_to_color(np.ones((n, 3)), self.sh, 0)[0]
+        self._order = np.zeros(0, np.int64)  # depth order of the last whole render
         self._stamp = np.zeros(n, np.int64)
         self._mark = 0
         self.image = np.zeros((self.height, self.width, 3), self.dtype)
@@ -310,8 +312,17 @@ class ForwardRenderer:
         internal buffer, overwritten by the next call)."""
         vm = self._viewmat(c2w)
         self._project(vm, None)
-        offsets, gids = _raster.bin_gaussians(self.means2d, self.depths, self.radii, self.width,
-                                              self.height, TILE, self.opac)
+        # the lists of bin_gaussians (tested): the tile ranges _finish_subset
+        # computed, and the depth order of the last whole render as the start
+        # of this one's (the event stage renders poses microseconds apart)
+        visible = (self.radii > 0) & (self.opac >= _raster.ALPHA_MIN)
+        order, ok = _raster.resort_by_depth(self._order, visible, self.depths, 4 * self.n_gaussians)
+        if not ok:
+            vis = np.flatnonzero(visible)
+            order = vis[np.argsort(self.depths[vis], kind="stable")].astype(np.int64)
+        self._order = order
+        offsets, gids = _raster.bin_rects_kernel(order, self.rect[order], self.width, self.height,
+                                                 TILE, numba.get_num_threads())
         tiles = np.arange(self.n_tiles, dtype=np.int64)
         _raster.forward_kernel(self.dtype, offsets)(
             tiles, offsets, gids, self.m2_dt, self.cn_dt, self.opac_dt, self.colors, self.bg,
