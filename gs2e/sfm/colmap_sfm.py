@@ -50,7 +50,7 @@ def sift_image_size(cfg: dict) -> int:
     """The longer side (px) of the image SIFT sees: ``sfm.max_image_size``
     (``auto``: :data:`SIFT_AUTO_MAX_IMAGE_SIZE`; ``None``: the photo's own size,
     up to COLMAP's 3200 px). Keypoints are scaled back to the photo's pixels."""
-    v = cfg.get("max_image_size", "auto")
+    v = cfg["max_image_size"]
     if v == "auto":
         return SIFT_AUTO_MAX_IMAGE_SIZE
     return SIFT_NATIVE_LIMIT if v is None else int(v)

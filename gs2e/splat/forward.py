@@ -264,6 +264,7 @@ class ForwardRenderer:
             m2 = np.clip(2.0 * np.log(np.maximum(self.opac, 1e-300) / _raster.ALPHA_MIN), 0.0, 9.0)
         self.radius_factor = np.sqrt(m2 / 9.0)
         self.opac_dt = self.opac.astype(self.dtype)
+        self._binned = self.opac >= _raster.ALPHA_MIN  # opaque enough to enter a tile list
         # per-Gaussian buffers, valid for the rows last projected
         self.means2d = np.zeros((n, 2))
         self.conics = np.zeros((n, 3))
@@ -275,7 +276,7 @@ class ForwardRenderer:
         self.colors = np.zeros((n, 3), self.dtype)
         if self.sh_degree == 0:  # view-independent: once
             self.colors[:] = _sh.sh_to_color(np.ones((n, 3)), self.sh, 0)[0]
-        self._order = np.zeros(0, np.int64)  # depth order of the last whole render
+        self._order = None  # depth order of the last whole render (None: sort from scratch)
         self._stamp = np.zeros(n, np.int64)
         self._mark = 0
         self.image = np.zeros((self.height, self.width, 3), self.dtype)
@@ -315,11 +316,7 @@ class ForwardRenderer:
         # the lists of bin_gaussians (tested): the tile ranges _finish_subset
         # computed, and the depth order of the last whole render as the start
         # of this one's (the event stage renders poses microseconds apart)
-        visible = (self.radii > 0) & (self.opac >= _raster.ALPHA_MIN)
-        order, ok = _raster.resort_by_depth(self._order, visible, self.depths, 4 * self.n_gaussians)
-        if not ok:
-            vis = np.flatnonzero(visible)
-            order = vis[np.argsort(self.depths[vis], kind="stable")].astype(np.int64)
+        order = _raster.depth_order((self.radii > 0) & self._binned, self.depths, self._order)
         self._order = order
         offsets, gids = _raster.bin_rects_kernel(order, self.rect[order], self.width, self.height,
                                                  TILE, numba.get_num_threads())

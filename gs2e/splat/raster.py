@@ -261,10 +261,9 @@ def bin_kernel(order, means2d, radii, width, height, tile, n_workers=1):
 @njit(cache=True, parallel=True, fastmath=False)
 def bin_rects_kernel(order, rect, width, height, tile, n_workers=1):
     """Per-tile lists of the Gaussians ``order`` (n,) (in that order) from
-    their tile ranges rect (n, 4) int32, row k that of order[k]: x0, x1, y0,
-    y1 inclusive, empty if y0 > y1 (read in order: a table indexed by
-    Gaussian, read in depth order, made binning 1.2x slower). Returns tile_offsets (n_tiles+1,) int64 and
-    tile_gids (n_pairs,) int32.
+    their tile ranges rect (n, 4) int32, row k that of order[k] (read row
+    after row): x0, x1, y0, y1 inclusive, empty if y0 > y1. Returns
+    tile_offsets (n_tiles+1,) int64 and tile_gids (n_pairs,) int32.
 
     Parallel over bands of tile rows, each walking every Gaussian in order and
     writing only its own tiles (so the lists are the same whatever the thread
@@ -934,9 +933,22 @@ def bin_gaussians(means2d, depths, radii, width, height, tile=16, opac=None):
             m2 = np.clip(2.0 * np.log(np.maximum(o, 1e-300) / ALPHA_MIN), 0.0, 9.0)
         r = np.where(o >= ALPHA_MIN, r * np.sqrt(m2 / 9.0) * (1.0 + 1e-6) + 1e-3, 0.0)
         r[radii <= 0] = 0.0
-    vis = np.flatnonzero(r > 0)
-    order = vis[np.argsort(depths[vis], kind="stable")].astype(np.int64)
+    order = depth_order(r > 0, depths)
     return bin_kernel(order, means2d, r, int(width), int(height), int(tile), numba.get_num_threads())
+
+
+def depth_order(visible: np.ndarray, depths: np.ndarray, prev: np.ndarray | None = None) -> np.ndarray:
+    """(m,) int64: the Gaussians with ``visible`` (N,) bool by increasing
+    depth, ties by index (the order of every tile list). With ``prev``, the
+    order at a nearby pose, an insertion sort from there
+    (:func:`resort_by_depth`), else, or when that needs more than 4N moves, a
+    stable argsort: the same order either way."""
+    if prev is not None:
+        order, ok = resort_by_depth(prev, visible, depths, 4 * visible.shape[0])
+        if ok:
+            return order
+    vis = np.flatnonzero(visible)
+    return vis[np.argsort(depths[vis], kind="stable")].astype(np.int64)
 
 
 def _channels(feats) -> int:

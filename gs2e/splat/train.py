@@ -124,6 +124,24 @@ def make_optimizer(cfg: dict, extent: float) -> Adam:
                  "sh_dc": cfg["lr_sh_dc"], "sh_rest": cfg["lr_sh_rest"]})
 
 
+def train_step(p: dict[str, torch.Tensor], opt: Adam, cam, gt: torch.Tensor, bg: torch.Tensor,
+               sh_degree: int, backend: str, compute_dtype: str, lambda_ssim: float):
+    """One optimiser step on one view: render, photometric loss, backward,
+    Adam (the parameters ``p`` are updated in place). Returns (loss, the
+    render's meta: radii, 2D-mean gradients for densification)."""
+    for k in PARAMS:
+        p[k].requires_grad_(True)
+    img, _, _, meta = render(p, cam, bg, sh_degree, backend, compute_dtype)
+    loss = photometric_loss(img, gt, lambda_ssim)
+    loss.backward()
+    grads = {k: p[k].grad for k in PARAMS}
+    for k in PARAMS:
+        p[k].requires_grad_(False)
+        p[k].grad = None
+    opt.step(p, grads)
+    return loss, meta
+
+
 # ----------------------------------------------------------------- training
 def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
           threads: int | None = None, scene_id: str | None = None,
@@ -245,20 +263,12 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
             order = list(rng.permutation(len(train_v)))
         v = train_v[order.pop()]
         cam, gt = v.camera(ds)
-        for k in PARAMS:
-            p[k].requires_grad_(True)
         try:
-            img, alpha, depth, meta = render(p, cam, bg, sh_deg, backend, compute_dtype)
-            loss = photometric_loss(img, gt, cfg["lambda_ssim"])
-            loss.backward()
+            loss, meta = train_step(p, opt, cam, gt, bg, sh_deg, backend, compute_dtype,
+                                    cfg["lambda_ssim"])
         except NonFiniteError as exc:
             raise NonFiniteError(f"{scene_dir}: training step {it + 1} (view {v.name}): {exc}; "
                                  "no output written") from exc
-        grads = {k: p[k].grad for k in PARAMS}
-        for k in PARAMS:
-            p[k].requires_grad_(False)
-            p[k].grad = None
-        opt.step(p, grads)
         n_it = it + 1
         # evaluate before this step's densification: a model with freshly split or
         # cloned Gaussians scores 1.5-2 dB lower for one evaluation (temple_ring),
