@@ -74,7 +74,7 @@ from gs2e.splat.loss import photometric_loss
 from gs2e.splat.model import render, to_params
 from gs2e.splat.rasterize import SplatCamera
 from gs2e.splat.strategy import PARAMS, Adam, DensifyConfig, DensifyStrategy
-from gs2e.splat.train import downscale_at, position_lr
+from gs2e.splat.train import apply_loss, downscale_at, position_lr
 from gs2e.splat.views import downscale_area
 
 log = get_logger("gs2e.bench")
@@ -349,12 +349,7 @@ def train_variant(variant: str, data: Recon3dData, s: Recon3dSettings,
                 ts = data.t_us[j] - E / 2 + (np.arange(k) + 0.5) * E / k
                 subs = [render(p, _camera(data, c, dsb), bg, 0)[0] for c in data.pose_at(ts)]
                 loss = loss + s.lambda_blur * photometric_loss(blur_of(subs), blurred.get(j, dsb))
-        loss.backward()
-        grads = {k: p[k].grad for k in PARAMS}
-        for k in PARAMS:
-            p[k].requires_grad_(False)
-            p[k].grad = None
-        opt.step(p, grads)
+        apply_loss(p, opt, loss)
         if it + 1 < s.steps:
             strategy.step_post_update(p, opt, it + 1, meta, cam.width, cam.height, ds, gen)
     stats = {"steps": s.steps, "cpu_s": time.process_time() - c0, "wall_s": time.perf_counter() - w0,

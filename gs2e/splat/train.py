@@ -133,13 +133,19 @@ def train_step(p: dict[str, torch.Tensor], opt: Adam, cam, gt: torch.Tensor, bg:
         p[k].requires_grad_(True)
     img, _, _, meta = render(p, cam, bg, sh_degree, backend, compute_dtype)
     loss = photometric_loss(img, gt, lambda_ssim)
+    apply_loss(p, opt, loss)
+    return loss, meta
+
+
+def apply_loss(p: dict[str, torch.Tensor], opt: Adam, loss: torch.Tensor) -> None:
+    """Backward of ``loss`` to the parameters ``p`` (which require grad), one
+    Adam step on them, and the parameters left without grad state."""
     loss.backward()
     grads = {k: p[k].grad for k in PARAMS}
     for k in PARAMS:
         p[k].requires_grad_(False)
         p[k].grad = None
     opt.step(p, grads)
-    return loss, meta
 
 
 # ----------------------------------------------------------------- training
