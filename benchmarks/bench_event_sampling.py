@@ -65,6 +65,9 @@ SCENES = {
     "demo": ("demo", "", "splat.max_iterations=2000"),
     **{n: (SHARED_SCENES[n][0], str(SHARED_SCENES[n][1]), "ingest.max_side=320;splat.max_iterations=2000")
        for n in ("temple_ring", "llff_fern")},
+    # its own COLMAP cameras: SfM at 320 px registers too few of its views
+    "mouse_colmap": (SHARED_SCENES["mouse_colmap"][0], str(SHARED_SCENES["mouse_colmap"][1]),
+                     "sfm.reuse_poses=true;ingest.max_side=320;splat.max_iterations=2000"),
 }
 
 
@@ -124,45 +127,56 @@ def plane_scene(tmp: Path) -> tuple[Path, Path]:
 
 
 # ------------------------------------------------------------------ runs
-def events_cfg(model: str, mode: str, fps: float = 2400.0, bound: float = 1.0) -> dict:
+def events_cfg(model: str, mode: str, fps: float = 2400.0, bound: float = 1.0,
+               extra: dict | None = None) -> dict:
+    """The events section for ``model`` sampled by ``mode``; ``extra``: more
+    keys of the section (a ``sampling`` entry is merged into sampling)."""
     ev = {"model": model, "sampling": {"mode": mode, "fixed_fps": fps, "bound_fraction": bound}}
     if model == "ideal":
         ev.update(theta_on=THETA_IDEAL, theta_off=THETA_IDEAL)
+    extra = dict(extra or {})
+    ev["sampling"].update(extra.pop("sampling", {}))
+    ev.update(extra)
     return load_config({"events": ev})["events"]
 
 
 def run(model_dir, traj, span, mode, fps=2400.0, bound=1.0, seeds=(0,),
-        sample_for=("ideal", "voltmeter")) -> dict:
+        sample_for=("ideal", "voltmeter"), extra: dict | None = None) -> dict:
     """One sampling run feeding the ideal model and/or DVS-Voltmeter (one per
-    seed); events, rendered pixel values and timings. Adaptive modes sample the
-    signal of the model they feed (``sample_for`` one model); fixed-rate
-    samples do not depend on it and feed both."""
-    cfg = events_cfg(sample_for[0], mode, fps, bound)
+    seed); events, rendered pixel values, sample times and timings (wall, and
+    process CPU of the whole run). Adaptive modes sample the signal of the
+    model they feed (``sample_for`` one model); fixed-rate and motion-clock
+    samples do not depend on it and feed both. ``extra``: see :func:`events_cfg`."""
+    cfg = events_cfg(sample_for[0], mode, fps, bound, extra)
     src = RenderedSource(model_dir, traj, cfg, span_us=span, batch_frames=64)
-    a = time.perf_counter()
+    a, cpu = time.perf_counter(), time.process_time()
     t0, f0 = src.start()
     models = {}
     if "ideal" in sample_for:
-        models["ideal"] = make_model(events_cfg("ideal", mode, fps, bound), src.shape, 0)[0]
+        models["ideal"] = make_model(events_cfg("ideal", mode, fps, bound, extra), src.shape, 0)[0]
     for s in seeds if "voltmeter" in sample_for else ():
-        models[f"voltmeter{s}"] = make_model(events_cfg("voltmeter", mode), src.shape, s)[0]
+        models[f"voltmeter{s}"] = make_model(events_cfg("voltmeter", mode, extra=extra), src.shape,
+                                             s)[0]
     for m in models.values():
         m.start(t0, f0)
     out = {k: [] for k in models}
     model_s = dict.fromkeys(models, 0.0)
+    times = [np.array([t0], np.int64)]
     for item in src.batches():
+        times.append(item.t1_us if isinstance(item, TileBatch) else item[0].copy())
         for k, m in models.items():
             b = time.perf_counter()
             out[k].append(m.process_tiles(item) if isinstance(item, TileBatch) else m.process_batch(*item))
             model_s[k] += time.perf_counter() - b
     for k, m in models.items():
         out[k].append(m.flush())
-    wall = time.perf_counter() - a
+    wall, cpu = time.perf_counter() - a, time.process_time() - cpu
     st = src.stats
     return {"events": {k: Events.concat(v) for k, v in out.items()}, "shape": src.shape,
             "pixel_samples": st.pixel_samples, "renders": st.renders, "rejected": st.rejected,
-            "forced": st.forced, "windows": st.windows,
-            "render_s": wall - sum(model_s.values()), "model_s": model_s}
+            "forced": st.forced, "windows": st.windows, "times_us": np.unique(np.concatenate(times)),
+            "render_s": wall - sum(model_s.values()), "model_s": model_s, "wall_s": wall,
+            "cpu_s": cpu, "duration_us": src.duration_us}
 
 
 def _keys(ev: Events, W: int) -> np.ndarray:
@@ -179,6 +193,13 @@ def count_error(ev: Events, ref: Events, shape) -> float:
 
 def timestamp_error(ev: Events, ref: Events, shape) -> float:
     """Mean |t - t_ref| (us) of events matched in order per pixel and polarity."""
+    d = matched_dt_us(ev, ref, shape)
+    return float(d.mean()) if len(d) else float("nan")
+
+
+def matched_dt_us(ev: Events, ref: Events, shape) -> np.ndarray:
+    """|t - t_ref| (us) of the events matched in order per pixel and polarity
+    (the k-th ON event of a pixel with the reference's k-th, ...)."""
     H, W = shape
 
     def ranked(e):
@@ -190,7 +211,7 @@ def timestamp_error(ev: Events, ref: Events, shape) -> float:
     ia_id, ta = ranked(ev)
     ib_id, tb = ranked(ref)
     _, ia, ib = np.intersect1d(ia_id, ib_id, assume_unique=True, return_indices=True)
-    return float(np.abs(ta[ia] - tb[ib]).mean()) if len(ia) else float("nan")
+    return np.abs(ta[ia] - tb[ib])
 
 
 def legacy_render_ratio(model_dir, traj, t_us: int, n: int) -> tuple[float, float]:

@@ -315,6 +315,9 @@ def _check_events(cfg: dict) -> None:
     lo, hi = e["theta_range"]
     if lo > hi:
         raise ConfigError(f"events.theta_range: low {lo:g} is larger than high {hi:g}")
+    if e["sampling"]["mode"] == "motion" and e["sampling"]["max_motion_px"] is None:
+        raise ConfigError("events.sampling.mode=motion needs events.sampling.max_motion_px "
+                          "(the largest image motion between samples, px)")
     if e["sensor"] == "custom":
         if not e["sensor_file"]:
             raise ConfigError("events.sensor=custom needs events.sensor_file (a sensor YAML)")

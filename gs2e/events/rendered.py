@@ -4,7 +4,8 @@ The I/O edge of the workflow's event stage: loads the Gaussian model (gs2e
 train output) and the trajectory, renders linear luminance with the
 forward-only renderer (:mod:`gs2e.splat.forward`) at the times the sampling
 mode asks for (:mod:`gs2e.events.sampling`), and hands the event models
-either whole frames (``fixed``, ``adaptive``) or tile batches (``tile``).
+either whole frames (``fixed``, ``adaptive``, ``motion``) or tile batches
+(``tile``).
 Nothing is stored: memory does not grow with the trajectory's length.
 
 What changes pixels comes from the render stage (``background``, ``scale``,
@@ -26,9 +27,9 @@ from gs2e.events.models import TileBatch
 from gs2e.events.presets import get_preset, log_contrast
 from gs2e.events.sensors import get_sensor
 from gs2e.events.sampling import (MODES, SamplerStats, TileSampler, adaptive_samples,
-                                  image_luminance)
+                                  image_luminance, motion_times)
 from gs2e.splat.backend import resolve_backend
-from gs2e.splat.forward import ForwardRenderer
+from gs2e.splat.forward import ForwardRenderer, image_motion_px
 from gs2e.splat.model import load_model, render
 from gs2e.splat.rasterize import SplatCamera
 from gs2e.trajectory import fixed_times_us, load_trajectory
@@ -85,6 +86,9 @@ class _GsplatRenderer:
     def candidates(self, *args, **kwargs):
         return self.cpu.candidates(*args, **kwargs)  # whatever the CPU renderer takes
 
+    def centres(self, c2w):
+        return self.cpu.centres(c2w)
+
 
 class RenderedSource:
     """Event-model input rendered from ``model_dir`` along ``trajectory_path``
@@ -92,7 +96,7 @@ class RenderedSource:
 
     ``start()`` renders the first frame: (t0_us, (H, W) float32 luminance);
     ``batches()`` then yields, per sampling mode, ``(times, frames)`` pairs
-    (fixed / adaptive: whole frames) or :class:`TileBatch` (tile).
+    (fixed / adaptive / motion: whole frames) or :class:`TileBatch` (tile).
     ``luminance`` is the latest luminance image (per tile in tile mode), for
     previews; ``stats`` counts renders and rendered pixel values.
     """
@@ -192,11 +196,13 @@ class RenderedSource:
         if mode == "fixed":
             frames = ((int(t), None)
                       for t in fixed_times_us(self.t0_us, self.t1_us, self.sc["fixed_fps"])[1:])
+        elif mode == "motion":
+            frames = ((t, None) for t in self.motion_clock())
         else:
             frames = self._adaptive_frames()
         ts = []
         for t, f in frames:
-            if mode == "fixed":
+            if f is None:
                 self.stats.accepted += 1
                 self.frame(t, buf[len(ts)])
             else:
@@ -209,6 +215,16 @@ class RenderedSource:
         if ts:
             self.luminance[:] = buf[len(ts) - 1]
             yield np.array(ts, np.int64), buf[:len(ts)]
+
+    def motion_clock(self) -> Iterator[int]:
+        """Sample times after t0 of mode ``motion`` (:func:`motion_times`)."""
+        sc = self.sc
+        dt0 = int(min(sc["dt_max_us"], max(sc["dt_min_us"], 1e6 / sc["fixed_fps"])))
+        times = motion_times(lambda t: self.renderer.centres(self.pose_at(t)), image_motion_px,
+                             self.t0_us, self.t1_us, float(sc["max_motion_px"]),
+                             int(sc["dt_min_us"]), int(sc["dt_max_us"]), dt0, self.stats)
+        next(times)
+        return times
 
     def _adaptive_frames(self):
         cache: dict[int, np.ndarray] = {}

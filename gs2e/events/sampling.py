@@ -12,6 +12,13 @@ L's drift as constant. How densely to sample is the event stage's choice
     one clock for the whole image: steps such that the largest per-pixel
     change of G = log(L + log_eps) between consecutive samples stays below the
     bound, over all pixels but the ``outlier_fraction`` that change most.
+``motion``
+    one clock for the whole image, bounded by the scene's projected motion:
+    steps such that no drawn Gaussian's centre moves more than
+    ``max_motion_px`` between consecutive samples, in units of its own
+    projected scale (:func:`gs2e.splat.forward.image_motion_px`), measured
+    on the trajectory's continuous pose. Costs one projection per step, no
+    trial renders; blind to what motion does not drive (view-dependent colour).
 ``tile``
     one clock per 16 x 16 tile (the rasterizer's tiles). Guarantee, per pixel,
     between consecutive samples of its tile:
@@ -53,7 +60,7 @@ from gs2e.common.errors import ConfigError
 from gs2e.events._kernels import tile_box
 from gs2e.events.models import TILE, TileBatch
 
-MODES = ("fixed", "adaptive", "tile")
+MODES = ("fixed", "adaptive", "motion", "tile")
 
 
 @dataclass
@@ -264,6 +271,44 @@ def adaptive_samples(render_log: Callable[[int], np.ndarray], t0_us: int, t1_us:
         # avoids the wasted render of a rejected trial
         grow = 2.0 if change <= 0 else min(2.0, max(0.5, 0.9 * bound / change))
         dt = max(dt_min_us, int(step * grow))
+
+
+def motion_times(project: Callable[[int], object], motion: Callable[[object, object], float],
+                 t0_us: int, t1_us: int, max_motion_px: float, dt_min_us: int, dt_max_us: int,
+                 dt_init_us: int | None = None,
+                 stats: SamplerStats | None = None) -> Iterator[int]:
+    """Yield sample times (us) from t0_us to t1_us (both included) such that
+    the image motion between consecutive ones, ``motion(project(t_a),
+    project(t_b))``, is at most ``max_motion_px``, unless the step is already
+    ``dt_min_us`` (taken and counted as forced). Steps are integers in
+    [dt_min_us, dt_max_us] (the last may be shorter), growth at most 2x per
+    step, aiming at 0.9 x the bound; a trial over the bound is shortened to
+    the step that would just meet it (motion locally linear in time). Costs
+    projections only (``project`` is called once per trial)."""
+    if not (t1_us >= t0_us and 1 <= dt_min_us <= dt_max_us and max_motion_px > 0):
+        raise ValueError(f"bad motion clock arguments t0={t0_us} t1={t1_us} "
+                         f"dt=[{dt_min_us},{dt_max_us}] max_motion_px={max_motion_px}")
+    st = stats if stats is not None else SamplerStats()
+    t = int(t0_us)
+    cur = project(t)
+    yield t
+    dt = int(dt_init_us or dt_min_us)
+    while t < t1_us:
+        dt = int(min(max(dt, dt_min_us), dt_max_us, t1_us - t))
+        nxt = project(t + dt)
+        m = motion(cur, nxt)
+        if m > max_motion_px and dt > dt_min_us:
+            st.rejected += 1
+            dt = max(dt_min_us, int(dt * max(0.2, 0.9 * max_motion_px / m)))
+            continue
+        if m > max_motion_px:
+            st.forced += 1
+        else:
+            st.max_change = max(st.max_change, m)
+        st.step(dt)
+        t, cur = t + dt, nxt
+        yield t
+        dt = max(dt_min_us, int(dt * (2.0 if m <= 0 else min(2.0, 0.9 * max_motion_px / m))))
 
 
 # ---------------------------------------------------------------- per-tile clocks

@@ -57,6 +57,38 @@ class TileCandidates:
     max_step_px: float = 0.0
 
 
+@dataclass
+class CentreProjection:
+    """Where a pose puts every Gaussian's centre, for measuring image motion.
+
+    ``uv`` (n, 2) float64 projected centres (px); ``scale_px`` (n,) the
+    Gaussian's smallest projected standard deviation, at least 1 px (the
+    finest image structure it can draw: moving it by d px changes its pixels
+    by about d / scale_px of its contrast); ``front`` (n,) projected (in
+    front of the near plane, within an image size of the view: ``uv`` valid);
+    ``seen`` (n,) opaque enough to be drawn, centre in the view (10 % margin).
+    """
+
+    uv: np.ndarray
+    scale_px: np.ndarray
+    front: np.ndarray
+    seen: np.ndarray
+
+
+def image_motion_px(a: CentreProjection, b: CentreProjection) -> float:
+    """Largest displacement of a drawn Gaussian's centre between two
+    projections, in units of its own scale (px for Gaussians of at most 1 px):
+    max |uv_b - uv_a| / max(scale_a, scale_b) over the Gaussians in front at
+    both and seen at either. A Gaussian next to the near plane is large on
+    screen and counts for little; one that crosses the near plane is not
+    counted (its appearance is a jump no clock can bound)."""
+    m = a.front & b.front & (a.seen | b.seen)
+    if not m.any():
+        return 0.0
+    d = np.hypot(*(b.uv[m] - a.uv[m]).T)
+    return float((d / np.maximum(a.scale_px[m], b.scale_px[m])).max())
+
+
 @njit(cache=True)
 def _cover_kernel(u, v, r, margin, everywhere, width, height, tile, counts_only, offsets, gids):
     """Bin boxes [u - r - margin, u + r + margin] (per Gaussian, over the
@@ -328,6 +360,31 @@ class ForwardRenderer:
         self.renders += 1
         self.tiles_rendered += self.n_tiles
         return self.image
+
+    def centres(self, c2w) -> CentreProjection:
+        """Projected centres and scales of every Gaussian at pose ``c2w``
+        (:func:`image_motion_px`); leaves the render buffers alone. Centres are
+        valid up to one image size outside the view."""
+        c = self.cam
+        n = self.n_gaussians
+        B = float(max(self.width, self.height))
+        m2, cn, dp, rad = np.zeros((n, 2)), np.zeros((n, 3)), np.zeros(n), np.zeros(n, np.int32)
+        _proj.project_cov(self.means, self.cov6, self._viewmat(c2w), c.fx, c.fy, c.cx + B,
+                          c.cy + B, c.width + 2 * B, c.height + 2 * B, c.near, c.far,
+                          out=(m2, cn, dp, rad))
+        self.gaussians_projected += n
+        uv = m2 - B
+        # centres in the view (10 % margin): the motion of off-screen centres is
+        # distorted by the projection's clamp, and near-plane Gaussians far off
+        # screen swing by thousands of pixels while their tails barely change
+        mx, my = 0.1 * self.width, 0.1 * self.height
+        seen = ((rad > 0) & self._binned & (uv[:, 0] >= -mx) & (uv[:, 0] <= self.width + mx)
+                & (uv[:, 1] >= -my) & (uv[:, 1] <= self.height + my))
+        # largest eigenvalue of the conic (inverse 2D covariance) = 1 / smallest variance
+        half_tr = 0.5 * (cn[:, 0] + cn[:, 2])
+        lam = half_tr + np.sqrt((0.5 * (cn[:, 0] - cn[:, 2])) ** 2 + cn[:, 1] ** 2)
+        sigma = 1.0 / np.sqrt(np.maximum(lam, 1e-300))
+        return CentreProjection(uv, np.maximum(sigma, 1.0), rad > 0, seen)
 
     def candidates(self, c2ws, margin_px: float = 1.0, border_px: float = 16.0) -> TileCandidates:
         """Per tile, the Gaussians that can reach it at the poses ``c2ws`` or

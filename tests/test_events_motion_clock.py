@@ -1,0 +1,199 @@
+"""The motion clock (events.sampling.mode = motion) on hard scenes: a thin
+occluder crossing a textured background, a semi-transparent edge, pure
+rotation, a camera moving toward a surface, a Gaussian next to the near
+plane; each against a dense reference (samples 0.02 px apart) with the ideal
+model. And the measure it runs on (gs2e.splat.forward.image_motion_px)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gs2e.events.models import Events, IdealModel
+from gs2e.events.sampling import SamplerStats, image_luminance, motion_times
+from gs2e.splat.forward import ForwardRenderer, image_motion_px
+
+W, H, F = 64, 48, 60.0
+EPS, THETA = 1e-3, 0.2
+
+
+def _gaussians(xyz, rgb, scale, opacity_logit=6.0):
+    from gs2e.splat.init import rgb_to_sh_dc
+
+    xyz = np.asarray(xyz, float)
+    n = len(xyz)
+    return {"means": xyz, "quats": np.tile([1.0, 0, 0, 0], (n, 1)),
+            "log_scales": np.log(np.broadcast_to(np.asarray(scale, float), (n, 3))).copy(),
+            "opacity_logits": np.broadcast_to(np.asarray(opacity_logit, float), (n,)).copy(),
+            "sh": rgb_to_sh_dc(np.broadcast_to(np.asarray(rgb, float), (n, 3)))[:, None, :]}
+
+
+def _merge(*gs):
+    return {k: np.concatenate([g[k] for g in gs]) for k in gs[0]}
+
+
+def _wall(depth=4.0, n=40, extent=3.0, seed=0):
+    """A randomly coloured wall of round Gaussians at z = depth."""
+    rng = np.random.default_rng(seed)
+    xs = (np.arange(n) - n / 2 + 0.5) * (2 * extent / n)
+    X, Y = np.meshgrid(xs, xs)
+    return _gaussians(np.c_[X.ravel(), Y.ravel(), np.full(n * n, depth)],
+                      rng.uniform(0.05, 0.95, (n * n, 3)), extent / n)
+
+
+def _pose(tx=0.0, ty=0.0, tz=0.0, yaw=0.0):
+    c2w = np.eye(4)
+    c, s = np.cos(yaw), np.sin(yaw)
+    c2w[:3, :3] = [[c, 0, s], [0, 1, 0], [-s, 0, c]]
+    c2w[:3, 3] = tx, ty, tz
+    return c2w
+
+
+SCENES = {
+    # a thin bar at 1 m sweeping across a wall at 4 m: it occludes and uncovers texture
+    "thin_occluder": (lambda: _merge(_wall(), _gaussians(np.c_[np.zeros(24), np.linspace(-0.5, 0.5, 24),
+                                                                 np.ones(24)], [0.95, 0.95, 0.95], 0.012)),
+                      lambda t: _pose(tx=-0.05 + 1.0 * t)),
+    # a half-plane of translucent grey (alpha 0.3) in front of the wall
+    "translucent_edge": (lambda: _merge(_wall(), _gaussians(
+        np.c_[np.repeat(np.linspace(0.0, 1.5, 16), 16), np.tile(np.linspace(-1.0, 1.0, 16), 16),
+              np.full(256, 2.0)], [0.9, 0.9, 0.9], 0.06, opacity_logit=-0.85)),
+        lambda t: _pose(tx=-0.3 + 3.0 * t)),
+    "pure_rotation": (lambda: _wall(), lambda t: _pose(yaw=6.0 * t)),
+    "toward_surface": (lambda: _wall(depth=2.0), lambda t: _pose(tz=30.0 * t)),
+    # a large dim Gaussian 5 cm in front of the camera, sliding sideways
+    "near_plane": (lambda: _merge(_wall(), _gaussians([[0.0, 0.0, 0.05]], [0.3, 0.3, 0.3], 0.02,
+                                                     opacity_logit=0.0)),
+                   lambda t: _pose(tx=-0.01 + 0.6 * t)),
+}
+SPAN_US = 30_000
+
+
+def _clock(r, pose_of_s, bound_px, dt_max_us=5000, stats=None):
+    return list(motion_times(lambda t: r.centres(pose_of_s(t * 1e-6)), image_motion_px, 0, SPAN_US,
+                             bound_px, 1, dt_max_us, 400, stats))
+
+
+def _events(r, pose_of_s, times):
+    lum = np.empty((len(times), H, W), np.float32)
+    for i, t in enumerate(times):
+        image_luminance(r.render(pose_of_s(t * 1e-6)), lum[i])
+    m = IdealModel((H, W), theta_on=THETA, theta_off=THETA, log_eps=EPS)
+    m.start(int(times[0]), lum[0])
+    return Events.concat([m.process_batch(np.asarray(times[1:], np.int64), lum[1:]), m.flush()])
+
+
+def _l1(ev, ref):
+    def counts(e):
+        return np.bincount((e.y.astype(np.int64) * W + e.x) * 2 + e.p, minlength=2 * H * W)
+    return np.abs(counts(ev) - counts(ref)).sum() / max(1, len(ref))
+
+
+@pytest.mark.parametrize("scene", list(SCENES))
+def test_motion_clock_bounds_motion_and_matches_a_dense_reference(scene):
+    make, pose_of_s = SCENES[scene]
+    r = ForwardRenderer(make(), 0, F, F, W / 2, H / 2, W, H)
+    st = SamplerStats()
+    times = _clock(r, pose_of_s, 0.25, stats=st)
+    assert times[0] == 0 and times[-1] == SPAN_US and np.all(np.diff(times) > 0)
+    assert st.forced == 0
+    proj = [r.centres(pose_of_s(t * 1e-6)) for t in times]
+    steps = [image_motion_px(a, b) for a, b in zip(proj, proj[1:])]
+    assert max(steps) <= 0.25
+    # steps as long as the bound allows (growth is at most 2x per step)
+    assert len(times) <= 2 * sum(steps) / 0.25 + 12
+    ref_times = _clock(r, pose_of_s, 0.02, dt_max_us=250)
+    ref = _events(r, pose_of_s, ref_times)
+    ev = _events(r, pose_of_s, times)
+    assert len(ref) > 300, "the scene makes events"
+    # the ideal model takes log-intensity as linear between samples: at a
+    # quarter pixel per sample, some crossings of a dense texture land late,
+    # across the span's end, or are split between neighbours
+    assert abs(len(ev) - len(ref)) <= 0.02 * len(ref)
+    assert _l1(ev, ref) <= 0.03
+
+
+def test_near_plane_gaussian_does_not_drive_the_clock():
+    """A Gaussian 5 cm in front of the camera moves its centre 80x faster
+    than the wall, but it is 24 px wide: its image changes as if it moved 24x
+    less, and that is what the clock follows."""
+    make, pose_of_s = SCENES["near_plane"]
+    g = make()
+    r = ForwardRenderer(g, 0, F, F, W / 2, H / 2, W, H)
+    a, b = r.centres(pose_of_s(0.0)), r.centres(pose_of_s(0.001))
+    near = len(g["means"]) - 1
+    raw = np.hypot(*(b.uv[near] - a.uv[near]))
+    wall = np.hypot(*(b.uv[:-1] - a.uv[:-1]).T)[a.seen[:-1]].max()
+    assert raw > 50 * wall and a.seen[near] and a.scale_px[near] > 20
+    assert image_motion_px(a, b) == pytest.approx(raw / a.scale_px[near], rel=0.05)
+    assert image_motion_px(a, b) < raw / 20
+
+
+def test_motion_of_a_still_camera_is_zero_and_steps_grow_to_the_largest():
+    r = ForwardRenderer(_wall(), 0, F, F, W / 2, H / 2, W, H)
+    p = r.centres(_pose())
+    assert image_motion_px(p, r.centres(_pose())) == 0.0
+    times = list(motion_times(lambda t: r.centres(_pose()), image_motion_px, 0, 100_000, 0.25, 10,
+                              8000, 400))
+    assert times[-1] == 100_000 and np.diff(times)[-4:-1].tolist() == [8000] * 3
+
+
+def test_motion_clock_forces_a_jump_and_rejects_bad_arguments():
+    """A pose that jumps cannot be bounded: the step at dt_min is taken and counted."""
+    r = ForwardRenderer(_wall(), 0, F, F, W / 2, H / 2, W, H)
+    st = SamplerStats()
+    times = list(motion_times(lambda t: r.centres(_pose(tx=0.0 if t < 5000 else 0.2)),
+                              image_motion_px, 0, 10_000, 0.25, 50, 5000, 400, st))
+    assert st.forced == 1 and times[-1] == 10_000
+    jump = [b - a for a, b in zip(times, times[1:]) if a < 5000 <= b]
+    assert jump == [50]
+    with pytest.raises(ValueError):
+        next(motion_times(lambda t: None, image_motion_px, 0, 10, 0.0, 1, 5))
+
+
+def test_several_threshold_crossings_between_two_samples():
+    """A pixel whose log rises by 3.5 thresholds between two samples gets three
+    ON events at the linearly interpolated times."""
+    m = IdealModel((1, 1), theta_on=THETA, theta_off=THETA, log_eps=EPS)
+    l0 = 0.1
+    m.start(0, np.full((1, 1), l0, np.float32))
+    l1 = (l0 + EPS) * np.exp(3.5 * THETA) - EPS
+    ev = Events.concat([m.process_batch(np.array([1000]), np.full((1, 1, 1), l1, np.float32)),
+                        m.flush()])
+    assert ev.p.tolist() == [1, 1, 1]
+    np.testing.assert_allclose(ev.t, [1000 * k / 3.5 for k in (1, 2, 3)], atol=1.0)
+
+
+def test_rendered_source_in_motion_mode_renders_at_its_clock(tmp_path):
+    """mode: motion through the workflow's event source: whole frames at the
+    clock's times, each the true render at its time, fewer where the bound is
+    looser; a config without the bound is refused naming the key."""
+    from test_render import _plane_model, _straight_trajectory
+
+    from gs2e.common.errors import ConfigError
+    from gs2e.config import check_config, load_config
+    from gs2e.events.rendered import RenderedSource
+
+    model, traj = _plane_model(tmp_path), _straight_trajectory(tmp_path, 0.2)
+
+    def source(px):
+        cfg = load_config({"events": {"model": "ideal", "sampling": {
+            "mode": "motion", "max_motion_px": px, "dt_max_us": 1_000_000}}})
+        return RenderedSource(model, traj, check_config(cfg)["events"], span_us=None)
+
+    runs = {}
+    for px in (0.25, 1.0):
+        src = source(px)
+        t0, f0 = src.start()
+        ts, frames = zip(*[(t.copy(), f.copy()) for t, f in src.batches()])
+        ts, frames = np.concatenate(ts), np.concatenate(frames)
+        assert ts[-1] == src.t1_us and np.all(np.diff(np.r_[t0, ts]) > 0)
+        assert src.stats.forced == 0 and src.stats.max_change <= px
+        ref = np.empty(src.shape, np.float32)
+        for i in (0, len(ts) // 2, len(ts) - 1):
+            image_luminance(src.renderer.render(src.pose_at(int(ts[i]))), ref)
+            np.testing.assert_array_equal(frames[i], ref)
+        runs[px] = len(ts)
+    assert runs[1.0] < 0.5 * runs[0.25]
+    with pytest.raises(ConfigError, match="events.sampling.max_motion_px"):
+        check_config(load_config({"events": {"sampling": {"mode": "motion"}}}))
