@@ -52,7 +52,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "benchmarks"))
 
-from _results import RESULTS, pyplot, write_csv  # noqa: E402
+from _results import pyplot, write_csv  # noqa: E402
 from bench_event_sampling import (build_scenes, count_error, events_cfg,  # noqa: E402
                                   matched_dt_us, plane_scene, run)
 

@@ -2,8 +2,10 @@
 
 A 3DGS model is trained from one generated trajectory alone (its events,
 blurred frames, poses and intrinsics; never the source photos, model or
-points) with gs2e's own trainer parts (rasterizer, Adam, density control on
-the 3DGS schedule, position learning-rate decay), in three variants:
+points) on gs2e's training loop (:func:`gs2e.splat.optimise.optimise`:
+rasterizer, Adam with the trainer's learning rates, density control on the
+3DGS schedule, position learning-rate decay, the non-finite guard), each
+variant an objective of it:
 
 ``event_only``
     EventNeRF's event loss (Rudnev et al., CVPR 2023): two renders at the
@@ -68,22 +70,21 @@ import torch
 from gs2e.common.color import linear_to_srgb, luminance, srgb_to_linear
 from gs2e.common.errors import InputError
 from gs2e.common.log import get_logger
-from gs2e.common.progress import progress
+from gs2e.config import load_section
 from gs2e.splat.init import init_from_points
 from gs2e.splat.loss import photometric_loss
 from gs2e.splat.model import render, to_params
 from gs2e.splat.rasterize import SplatCamera
-from gs2e.splat.strategy import PARAMS, Adam, DensifyConfig, DensifyStrategy
-from gs2e.splat.train import apply_loss, downscale_at, position_lr
+from gs2e.splat.optimise import Schedule, Step, make_optimizer, optimise
+from gs2e.splat.strategy import DensifyConfig, DensifyStrategy
 from gs2e.splat.views import downscale_area
 
 log = get_logger("gs2e.bench")
 
 VARIANTS = ("event_only", "event_blur", "sharp")
-# 3DGS's learning rates (position: times the scene extent, log-linear decay)
-LRS = {"quats": 1e-3, "log_scales": 5e-3, "opacity_logits": 0.025, "sh_dc": 2.5e-3, "sh_rest": 1.25e-4}
-# 10x 3DGS's: Gaussians start at random, far from the surfaces (demo base_mild, sharp
-# frames, 1500 steps: +0.6 dB and SSIM 0.73 -> 0.80 against 3DGS's rate)
+# position lr 10x the trainer's (3DGS's): Gaussians start at random, far from the surfaces
+# (demo base_mild, sharp frames, 1500 steps: +0.6 dB and SSIM 0.73 -> 0.80 against 3DGS's
+# rate); the other learning rates are the trainer's defaults (splat.lr_* in the schema)
 POSITION_LR = {"lr_position_init": 1.6e-3, "lr_position_final": 1.6e-5}
 # one blur sub-frame per this much image motion over the exposure (rendered px)
 BLUR_PX_PER_SUBFRAME = 2.0
@@ -296,9 +297,69 @@ def _extent(c2w: np.ndarray, d_hint: float | None) -> float:
     return 1.1 * max(r, 0.1 * (d_hint or 0.0), 1e-6)
 
 
+class _SharpFrames:
+    """Objective ``sharp``: the photometric loss on one random training frame."""
+
+    def __init__(self, data: Recon3dData, rng: np.random.Generator, bg: torch.Tensor):
+        self.data, self.rng, self.bg = data, rng, bg
+        self.sharp = _Targets(data.sharp)
+        self.j = None
+
+    def step(self, p, it: int, downscale: int, sh_degree: int) -> Step:
+        d = self.data
+        self.j = d.train_idx[int(self.rng.integers(len(d.train_idx)))]
+        cam = _camera(d, d.c2w[self.j], downscale)
+        img, _, _, meta = render(p, cam, self.bg, sh_degree)
+        return Step(photometric_loss(img, self.sharp.get(self.j, downscale)), meta, cam)
+
+    def where(self) -> str:
+        return f"frame {self.j}"
+
+
+class _EventWindows:
+    """Objectives ``event_only`` and (``blur``) ``event_blur``: the log change
+    between renders at the two ends of a random window against the events'
+    summed steps in it (:func:`event_loss`); with ``blur``, plus ``lambda_blur``
+    x the photometric loss of the blur of sub-frame renders against one random
+    blurred training frame."""
+
+    def __init__(self, data: Recon3dData, s: Recon3dSettings, rng: np.random.Generator,
+                 bg: torch.Tensor, blur: bool):
+        self.data, self.s, self.rng, self.bg, self.blur = data, s, rng, bg, blur
+        self.blurred = _Targets(data.blurred)
+        self.window = (0.0, 0.0)
+
+    def step(self, p, it: int, downscale: int, sh_degree: int) -> Step:
+        d, s, bg = self.data, self.s, self.bg
+        t_lo, t_hi = d.span_us
+        w_us = min(self.rng.uniform(s.window_px_max / 8, s.window_px_max) * d.us_per_px, t_hi - t_lo)
+        t_a = self.rng.uniform(t_lo, t_hi - w_us)
+        t_b = t_a + w_us
+        self.window = (t_a, t_b)
+        pose = d.pose_at(np.array([t_a, t_b]))
+        cam = _camera(d, pose[1], downscale)
+        img_b, _, _, meta = render(p, cam, bg, sh_degree)
+        img_a = render(p, _camera(d, pose[0], downscale), bg, sh_degree)[0]
+        loss = event_loss(img_a, img_b, window_step_sum(d, t_a, t_b, downscale), d.log_eps)
+        if self.blur:
+            j = d.train_idx[int(self.rng.integers(len(d.train_idx)))]
+            E = float(d.exposure_us[j])
+            dsb = max(downscale, s.blur_downscale)
+            k = blur_subframes(float(d.motion_px[j]) / dsb, s.blur_subframes)
+            ts = d.t_us[j] - E / 2 + (np.arange(k) + 0.5) * E / k
+            subs = [render(p, _camera(d, c, dsb), bg, sh_degree)[0] for c in d.pose_at(ts)]
+            loss = loss + s.lambda_blur * photometric_loss(blur_of(subs), self.blurred.get(j, dsb))
+        return Step(loss, meta, cam)
+
+    def where(self) -> str:
+        return f"events {self.window[0]:.0f}-{self.window[1]:.0f} us"
+
+
 def train_variant(variant: str, data: Recon3dData, s: Recon3dSettings,
                   background: torch.Tensor | None = None) -> tuple[dict[str, torch.Tensor], dict]:
-    """Train one variant; returns (params, stats: steps, cpu_s, wall_s, n_gaussians)."""
+    """Train one variant from random Gaussians on the trainer's loop
+    (:func:`gs2e.splat.optimise.optimise`); returns (params, stats: steps,
+    cpu_s, wall_s, n_gaussians)."""
     if variant not in VARIANTS:
         raise InputError(f"unknown recon3d variant '{variant}' (choose from {', '.join(VARIANTS)})")
     if variant != "event_only" and not data.train_idx:
@@ -312,46 +373,17 @@ def train_variant(variant: str, data: Recon3dData, s: Recon3dSettings,
         np.linspace(*data.span_us, 16))
     p = to_params(random_init(train_c2w, data.K, data.width, data.height, s.n_init, rng))
     extent = _extent(train_c2w, look_at_distance(train_c2w))
-    opt = Adam({"means": 0.0, **LRS})
-    lr_cfg = {"max_iterations": s.steps, **POSITION_LR}
+    sched = Schedule(s.steps, POSITION_LR["lr_position_init"], POSITION_LR["lr_position_final"],
+                     tuple(tuple(x) for x in s.resolution_schedule))
+    opt = make_optimizer(load_section("splat"), sched, extent)
     strategy = DensifyStrategy(DensifyConfig(grad_threshold=s.densify_grad_threshold, budget=s.budget),
                                extent, densify_from=s.densify_from, densify_until=int(0.8 * s.steps),
                                densify_every=s.densify_every, opacity_reset_every=10 ** 9)
-    t_lo, t_hi = data.span_us
-    sharp, blurred = _Targets(data.sharp), _Targets(data.blurred)
-    schedule = [list(x) for x in s.resolution_schedule]
+    objective = (_SharpFrames(data, rng, bg) if variant == "sharp"
+                 else _EventWindows(data, s, rng, bg, blur=variant == "event_blur"))
     c0, w0 = time.process_time(), time.perf_counter()
-    for it in progress(range(s.steps), desc=f"recon3d {variant}"):
-        opt.lrs["means"] = position_lr(it, lr_cfg, extent)
-        ds = downscale_at(schedule, it)
-        for k in PARAMS:
-            p[k].requires_grad_(True)
-        if variant == "sharp":
-            j = data.train_idx[int(rng.integers(len(data.train_idx)))]
-            cam = _camera(data, data.c2w[j], ds)
-            img, _, _, meta = render(p, cam, bg, 0)
-            loss = photometric_loss(img, sharp.get(j, ds))
-        else:
-            w_us = rng.uniform(s.window_px_max / 8, s.window_px_max) * data.us_per_px
-            w_us = min(w_us, t_hi - t_lo)
-            t_a = rng.uniform(t_lo, t_hi - w_us)
-            t_b = t_a + w_us
-            pose = data.pose_at(np.array([t_a, t_b]))
-            cam = _camera(data, pose[1], ds)
-            img_b, _, _, meta = render(p, cam, bg, 0)
-            img_a = render(p, _camera(data, pose[0], ds), bg, 0)[0]
-            loss = event_loss(img_a, img_b, window_step_sum(data, t_a, t_b, ds), data.log_eps)
-            if variant == "event_blur":
-                j = data.train_idx[int(rng.integers(len(data.train_idx)))]
-                E = float(data.exposure_us[j])
-                dsb = max(ds, s.blur_downscale)
-                k = blur_subframes(float(data.motion_px[j]) / dsb, s.blur_subframes)
-                ts = data.t_us[j] - E / 2 + (np.arange(k) + 0.5) * E / k
-                subs = [render(p, _camera(data, c, dsb), bg, 0)[0] for c in data.pose_at(ts)]
-                loss = loss + s.lambda_blur * photometric_loss(blur_of(subs), blurred.get(j, dsb))
-        apply_loss(p, opt, loss)
-        if it + 1 < s.steps:
-            strategy.step_post_update(p, opt, it + 1, meta, cam.width, cam.height, ds, gen)
+    optimise(p, opt, strategy, objective, sched, extent, gen, desc=f"recon3d {variant}",
+             context=f"recon3d {variant}: ")
     stats = {"steps": s.steps, "cpu_s": time.process_time() - c0, "wall_s": time.perf_counter() - w0,
              "n_gaussians": int(p["means"].shape[0])}
     log.info("recon3d %s: %d steps, %d Gaussians, %.1f CPU-s (%.1f s wall)", variant, s.steps,

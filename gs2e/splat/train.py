@@ -22,7 +22,6 @@ import torch
 
 from gs2e.common.errors import InputError
 from gs2e.common.log import get_logger, timed
-from gs2e.common.progress import progress
 from gs2e.common.threads import set_threads
 from gs2e.io.scene import IMAGES_DIR, Scene, read_scene
 from gs2e.splat.backend import resolve_backend
@@ -32,24 +31,16 @@ from gs2e.splat.import_ply import import_ply
 from gs2e.splat.init import init_from_points
 from gs2e.splat.loss import photometric_loss
 from gs2e.splat.model import from_params, render, to_params
+from gs2e.splat.optimise import (Schedule, Step, downscale_at, gradient_step, make_optimizer,
+                                 optimise)
 from gs2e.splat.output import write_train_output
-from gs2e.splat.rasterize import NonFiniteError
 from gs2e.splat.scene_stats import choose_sh_degree, detail_budget, view_dependence
-from gs2e.splat.strategy import PARAMS, Adam, DensifyStrategy, GrowingBudget
+from gs2e.splat.strategy import Adam, DensifyStrategy, GrowingBudget
 from gs2e.splat.views import View, load_views, scene_extent, split_views, train_sizes
 
 log = get_logger("gs2e.splat")
 
 __all__ = ["train"]
-
-
-def downscale_at(schedule: list[list[int]], it: int) -> int:
-    """Downscale factor of the coarse-to-fine schedule [[from_iteration, factor], ...]."""
-    d = 1
-    for start, factor in sorted(schedule):
-        if it >= start:
-            d = int(factor)
-    return d
 
 
 def plateau_step(best: float, bad_evals: int, psnr: float, n_it: int, cfg: dict) -> tuple[float, int, bool]:
@@ -81,13 +72,6 @@ def training_dtype(compute_dtype: str, train_size: tuple[int, int]) -> str:
     return "float32" if train_size[0] * train_size[1] >= F32_TRAIN_MIN_PIXELS else "float64"
 
 
-def position_lr(it: int, cfg: dict, extent: float) -> float:
-    """Log-linear decay from lr_position_init to lr_position_final over max_iterations."""
-    t = min(1.0, it / max(1, cfg["max_iterations"]))
-    lo, hi = cfg["lr_position_final"], cfg["lr_position_init"]
-    return extent * math.exp((1 - t) * math.log(hi) + t * math.log(lo))
-
-
 def scene_needs(scene_dir: Path, train_v: list[View], cfg: dict, seed: int) -> dict[str, Any]:
     """SH degree and Gaussian budget of the scene (``auto``: measured from the
     SfM tracks' view dependence and the training images' detail; ``adaptive``
@@ -117,35 +101,47 @@ def initial_params(scene: Scene, scene_dir: Path, cfg: dict, sh_degree: int) -> 
     return to_params(g0)
 
 
-def make_optimizer(cfg: dict, extent: float) -> Adam:
-    """Adam with the per-parameter learning rates of the config (position lr at step 0)."""
-    return Adam({"means": position_lr(0, cfg, extent), "quats": cfg["lr_rotation"],
-                 "log_scales": cfg["lr_scaling"], "opacity_logits": cfg["lr_opacity"],
-                 "sh_dc": cfg["lr_sh_dc"], "sh_rest": cfg["lr_sh_rest"]})
+def photometric_step(p: dict[str, torch.Tensor], cam, gt: torch.Tensor, bg: torch.Tensor,
+                     sh_degree: int, backend: str, compute_dtype: str, lambda_ssim: float):
+    """Render one view and its photometric loss against ``gt``: (loss, the
+    render's meta: radii, 2D-mean gradients for densification)."""
+    img, _, _, meta = render(p, cam, bg, sh_degree, backend, compute_dtype)
+    return photometric_loss(img, gt, lambda_ssim), meta
 
 
 def train_step(p: dict[str, torch.Tensor], opt: Adam, cam, gt: torch.Tensor, bg: torch.Tensor,
                sh_degree: int, backend: str, compute_dtype: str, lambda_ssim: float):
-    """One optimiser step on one view: render, photometric loss, backward,
-    Adam (the parameters ``p`` are updated in place). Returns (loss, the
-    render's meta: radii, 2D-mean gradients for densification)."""
-    for k in PARAMS:
-        p[k].requires_grad_(True)
-    img, _, _, meta = render(p, cam, bg, sh_degree, backend, compute_dtype)
-    loss = photometric_loss(img, gt, lambda_ssim)
-    apply_loss(p, opt, loss)
-    return loss, meta
+    """One optimiser step on one view (:func:`photometric_step`, backward,
+    Adam; ``p`` updated in place): what a step of :func:`train` does, for
+    benchmarks. Returns (loss, meta)."""
+    return gradient_step(p, opt, lambda: photometric_step(p, cam, gt, bg, sh_degree, backend,
+                                                          compute_dtype, lambda_ssim))
 
 
-def apply_loss(p: dict[str, torch.Tensor], opt: Adam, loss: torch.Tensor) -> None:
-    """Backward of ``loss`` to the parameters ``p`` (which require grad), one
-    Adam step on them, and the parameters left without grad state."""
-    loss.backward()
-    grads = {k: p[k].grad for k in PARAMS}
-    for k in PARAMS:
-        p[k].requires_grad_(False)
-        p[k].grad = None
-    opt.step(p, grads)
+class PhotometricObjective:
+    """``gs2e train``'s objective: each step one training view, in a random
+    order per epoch (``rng``; ``order`` holds the views left in the epoch,
+    popped from the end, and is part of a checkpoint), 0.8 L1 + 0.2 D-SSIM
+    (``lambda_ssim``) against its photo at the step's downscale."""
+
+    def __init__(self, views: list[View], rng: np.random.Generator, bg: torch.Tensor, backend: str,
+                 compute_dtype: str, lambda_ssim: float, order: list[int] | None = None):
+        self.views, self.rng, self.bg = views, rng, bg
+        self.backend, self.compute_dtype, self.lambda_ssim = backend, compute_dtype, lambda_ssim
+        self.order = list(order or [])
+        self.view: View | None = None
+
+    def step(self, p, it: int, downscale: int, sh_degree: int) -> Step:
+        if not self.order:
+            self.order = list(self.rng.permutation(len(self.views)))
+        self.view = self.views[self.order.pop()]
+        cam, gt = self.view.camera(downscale)
+        loss, meta = photometric_step(p, cam, gt, self.bg, sh_degree, self.backend,
+                                      self.compute_dtype, self.lambda_ssim)
+        return Step(loss, meta, cam)
+
+    def where(self) -> str:
+        return f"view {self.view.name}" if self.view is not None else "no view yet"
 
 
 # ----------------------------------------------------------------- training
@@ -217,8 +213,10 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
              "n/a" if needs["view_dependence"] is None else f"{needs['view_dependence']:.3f}", needs["budget"])
 
     # ---- the loop's state: everything a checkpoint holds
+    sched = Schedule(cfg["max_iterations"], cfg["lr_position_init"], cfg["lr_position_final"],
+                     schedule, sh_max, cfg["sh_increase_every"])
     p = initial_params(scene, scene_dir, cfg, sh_max)
-    opt = make_optimizer(cfg, extent)
+    opt = make_optimizer(cfg, sched, extent)
     strategy = DensifyStrategy.from_config(cfg, needs["budget"], extent)
     growing = None
     if cfg["budget"] == "adaptive":  # from the detail budget, never below the SfM points
@@ -228,7 +226,7 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
         strategy.ops.budget = growing.budget
     gen = torch.Generator().manual_seed(seed)  # split samples
     rng = np.random.default_rng(seed)  # view order
-    order: list[int] = []  # views left in the current epoch (popped from the end)
+    objective = PhotometricObjective(train_v, rng, bg, backend, compute_dtype, cfg["lambda_ssim"])
     it0, curve, best, bad_evals, train_time, cpu_time = 0, [], -math.inf, 0, 0.0, 0.0
 
     ckpt = Checkpoint(checkpoint_dir or out_dir.with_name(out_dir.name + ".ckpt"),
@@ -240,7 +238,7 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
         opt.load_state_dict(st["opt"])
         gen.set_state(st["gen"])
         rng.bit_generator.state = st["rng"]
-        strategy.stats, order = st["gstats"], st["order"]
+        strategy.stats, objective.order = st["gstats"], list(st["order"])
         cpu_time = st.get("cpu_time", 0.0)
         if growing is not None:
             growing = st["budget"]
@@ -252,66 +250,57 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
                    "bad_evals": bad_evals, "train_time": time.perf_counter() - t_loop,
                    "cpu_time": time.process_time() - c_loop,
                    "opt": opt.state_dict(), "gen": gen.get_state(),
-                   "rng": rng.bit_generator.state, "gstats": strategy.stats, "order": order,
-                   "budget": growing})
+                   "rng": rng.bit_generator.state, "gstats": strategy.stats,
+                   "order": objective.order, "budget": growing})
 
-    it = it0
     stop_reason = "max_iterations"
-    bar = progress(range(it0, cfg["max_iterations"]), desc="training", total=cfg["max_iterations"],
-                   initial=it0)
-    t_loop = time.perf_counter() - train_time
-    c_loop = time.process_time() - cpu_time  # CPU seconds (all threads): robust on a shared machine
-    for it in bar:
-        ds = downscale_at(schedule, it)
-        sh_deg = min(sh_max, it // cfg["sh_increase_every"])
-        opt.lrs["means"] = position_lr(it, cfg, extent)
-        if not order:
-            order = list(rng.permutation(len(train_v)))
-        v = train_v[order.pop()]
-        cam, gt = v.camera(ds)
-        try:
-            loss, meta = train_step(p, opt, cam, gt, bg, sh_deg, backend, compute_dtype,
-                                    cfg["lambda_ssim"])
-        except NonFiniteError as exc:
-            raise NonFiniteError(f"{scene_dir}: training step {it + 1} (view {v.name}): {exc}; "
-                                 "no output written") from exc
-        n_it = it + 1
+    interrupted = False
+
+    def evaluate_and_stop(n_it: int, step: Step, ds: int, sh_deg: int) -> bool:
         # evaluate before this step's densification: a model with freshly split or
         # cloned Gaussians scores 1.5-2 dB lower for one evaluation (temple_ring),
         # which misled the plateau stop and the adaptive budget every other time
-        if n_it % cfg["eval_every"] == 0 or n_it == cfg["max_iterations"]:
-            elapsed = time.perf_counter() - t_loop
-            ev = evaluate(p, test_v or train_v[:4], bg, sh_deg, backend)
-            curve.append({"iteration": n_it, "train_time_s": elapsed,
-                          "cpu_time_s": time.process_time() - c_loop, "psnr": ev["psnr"],
-                          "ssim": ev["ssim"], "n_gaussians": int(p["means"].shape[0]),
-                          "budget": int(strategy.ops.budget), "downscale": ds,
-                          "loss": float(loss.detach())})
-            log.info("it %d: held-out PSNR %.2f dB, SSIM %.4f, %d Gaussians, %.1f s", n_it,
-                     ev["psnr"], ev["ssim"], p["means"].shape[0], elapsed)
-            if growing is not None and cfg["densify_from"] <= n_it < cfg["densify_until"]:
-                strategy.ops.budget = growing.update(n_it, ev["psnr"], ds, int(p["means"].shape[0]))
-            best, bad_evals, stop = plateau_step(best, bad_evals, ev["psnr"], n_it, cfg)
-            if stop:
-                stop_reason = "plateau"
-                break
-        # (not after the last step: its Gaussians would go out untrained)
-        if n_it < cfg["max_iterations"] and strategy.step_post_update(
-                p, opt, n_it, meta, cam.width, cam.height, ds, gen):
+        nonlocal best, bad_evals, stop_reason
+        if not (n_it % cfg["eval_every"] == 0 or n_it == cfg["max_iterations"]):
+            return False
+        elapsed = time.perf_counter() - t_loop
+        ev = evaluate(p, test_v or train_v[:4], bg, sh_deg, backend)
+        curve.append({"iteration": n_it, "train_time_s": elapsed,
+                      "cpu_time_s": time.process_time() - c_loop, "psnr": ev["psnr"],
+                      "ssim": ev["ssim"], "n_gaussians": int(p["means"].shape[0]),
+                      "budget": int(strategy.ops.budget), "downscale": ds,
+                      "loss": float(step.loss.detach())})
+        log.info("it %d: held-out PSNR %.2f dB, SSIM %.4f, %d Gaussians, %.1f s", n_it,
+                 ev["psnr"], ev["ssim"], p["means"].shape[0], elapsed)
+        if growing is not None and cfg["densify_from"] <= n_it < cfg["densify_until"]:
+            strategy.ops.budget = growing.update(n_it, ev["psnr"], ds, int(p["means"].shape[0]))
+        best, bad_evals, stop = plateau_step(best, bad_evals, ev["psnr"], n_it, cfg)
+        if stop:
+            stop_reason = "plateau"
+        return stop
+
+    def after_step(n_it: int, densified: bool) -> bool:
+        nonlocal best, bad_evals, interrupted
+        if densified:
             # the held-out PSNR drops and recovers: restart plateau tracking, or the
             # run would stop during the recovery with a model worse than before
             best, bad_evals = -math.inf, 0
         if interrupt_after is not None and n_it >= interrupt_after and n_it < cfg["max_iterations"]:
             save_checkpoint(n_it)
-            if hasattr(bar, "close"):
-                bar.close()
-            log.info("interrupted after step %d; checkpoint %s", n_it, ckpt.path)
-            return {"interrupted": True, "iteration": n_it, "checkpoint": str(ckpt.path)}
+            interrupted = True
+            return True
         if cfg["checkpoint_every"] and n_it % cfg["checkpoint_every"] == 0 and n_it < cfg["max_iterations"]:
             save_checkpoint(n_it)
-    if hasattr(bar, "close"):
-        bar.close()
-    n_iters = it + 1 if cfg["max_iterations"] > it0 else it0
+        return False
+
+    t_loop = time.perf_counter() - train_time
+    c_loop = time.process_time() - cpu_time  # CPU seconds (all threads): robust on a shared machine
+    n_iters = optimise(p, opt, strategy, objective, sched, extent, gen, start=it0,
+                       before_densify=evaluate_and_stop, after_step=after_step,
+                       context=f"{scene_dir}: ")
+    if interrupted:
+        log.info("interrupted after step %d; checkpoint %s", n_iters, ckpt.path)
+        return {"interrupted": True, "iteration": n_iters, "checkpoint": str(ckpt.path)}
     train_s = time.perf_counter() - t_loop
     cpu_s = time.process_time() - c_loop
     sh_final = min(sh_max, max(0, n_iters - 1) // cfg["sh_increase_every"])
