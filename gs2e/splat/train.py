@@ -144,6 +144,96 @@ class PhotometricObjective:
         return f"view {self.view.name}" if self.view is not None else "no view yet"
 
 
+class _Run:
+    """What :func:`train` adds to the loop (:func:`optimise`) as its hooks:
+    held-out evaluation before each step's densification, the plateau stop,
+    the adaptive budget, checkpoints and interruption; and the state they
+    keep, which a checkpoint holds with the loop's (parameters, Adam, random
+    states, densification statistics, the views left in the epoch)."""
+
+    def __init__(self, cfg, p, opt, gen, rng, strategy, objective, growing, ckpt, eval_views,
+                 bg, backend, interrupt_after):
+        self.cfg, self.p, self.opt, self.gen, self.rng = cfg, p, opt, gen, rng
+        self.strategy, self.objective, self.growing, self.ckpt = strategy, objective, growing, ckpt
+        self.eval_views, self.bg, self.backend = eval_views, bg, backend
+        self.interrupt_after = interrupt_after
+        self.curve: list[dict] = []
+        self.best, self.bad_evals = -math.inf, 0
+        self.stop_reason, self.interrupted = "max_iterations", False
+        self._clock(0.0, 0.0)
+
+    def _clock(self, train_time: float, cpu_time: float) -> None:
+        self.t_loop = time.perf_counter() - train_time
+        self.c_loop = time.process_time() - cpu_time  # CPU seconds (all threads): robust on a shared machine
+
+    def elapsed(self) -> tuple[float, float]:
+        """Wall and CPU seconds of training, resumed runs' included."""
+        return time.perf_counter() - self.t_loop, time.process_time() - self.c_loop
+
+    def resume(self) -> int:
+        """Load the checkpoint if there is one; the step to continue from."""
+        st = self.ckpt.load()
+        if st is None:
+            self._clock(0.0, 0.0)
+            return 0
+        self.p, self.curve, self.best, self.bad_evals = st["params"], st["curve"], st["best"], st["bad_evals"]
+        self.opt.load_state_dict(st["opt"])
+        self.gen.set_state(st["gen"])
+        self.rng.bit_generator.state = st["rng"]
+        self.strategy.stats, self.objective.order = st["gstats"], list(st["order"])
+        if self.growing is not None:
+            self.growing = st["budget"]
+            self.strategy.ops.budget = self.growing.budget
+        self._clock(st["train_time"], st.get("cpu_time", 0.0))
+        log.info("resumed from %s at iteration %d", self.ckpt.path, st["iteration"])
+        return int(st["iteration"])
+
+    def save(self, n_it: int) -> None:
+        train_time, cpu_time = self.elapsed()
+        self.ckpt.save({"params": self.p, "iteration": n_it, "curve": self.curve, "best": self.best,
+                        "bad_evals": self.bad_evals, "train_time": train_time, "cpu_time": cpu_time,
+                        "opt": self.opt.state_dict(), "gen": self.gen.get_state(),
+                        "rng": self.rng.bit_generator.state, "gstats": self.strategy.stats,
+                        "order": self.objective.order, "budget": self.growing})
+
+    def evaluate_and_stop(self, n_it: int, step: Step, ds: int, sh_deg: int) -> bool:
+        # evaluate before this step's densification: a model with freshly split or
+        # cloned Gaussians scores 1.5-2 dB lower for one evaluation (temple_ring),
+        # which misled the plateau stop and the adaptive budget every other time
+        cfg, p = self.cfg, self.p
+        if not (n_it % cfg["eval_every"] == 0 or n_it == cfg["max_iterations"]):
+            return False
+        elapsed, cpu = self.elapsed()
+        ev = evaluate(p, self.eval_views, self.bg, sh_deg, self.backend)
+        self.curve.append({"iteration": n_it, "train_time_s": elapsed, "cpu_time_s": cpu,
+                           "psnr": ev["psnr"], "ssim": ev["ssim"], "n_gaussians": int(p["means"].shape[0]),
+                           "budget": int(self.strategy.ops.budget), "downscale": ds,
+                           "loss": float(step.loss.detach())})
+        log.info("it %d: held-out PSNR %.2f dB, SSIM %.4f, %d Gaussians, %.1f s", n_it,
+                 ev["psnr"], ev["ssim"], p["means"].shape[0], elapsed)
+        if self.growing is not None and cfg["densify_from"] <= n_it < cfg["densify_until"]:
+            self.strategy.ops.budget = self.growing.update(n_it, ev["psnr"], ds, int(p["means"].shape[0]))
+        self.best, self.bad_evals, stop = plateau_step(self.best, self.bad_evals, ev["psnr"], n_it, cfg)
+        if stop:
+            self.stop_reason = "plateau"
+        return stop
+
+    def after_step(self, n_it: int, densified: bool) -> bool:
+        cfg = self.cfg
+        if densified:
+            # the held-out PSNR drops and recovers: restart plateau tracking, or the
+            # run would stop during the recovery with a model worse than before
+            self.best, self.bad_evals = -math.inf, 0
+        last = n_it >= cfg["max_iterations"]
+        if self.interrupt_after is not None and n_it >= self.interrupt_after and not last:
+            self.save(n_it)
+            self.interrupted = True
+            return True
+        if cfg["checkpoint_every"] and n_it % cfg["checkpoint_every"] == 0 and not last:
+            self.save(n_it)
+        return False
+
+
 # ----------------------------------------------------------------- training
 def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
           threads: int | None = None, scene_id: str | None = None,
@@ -216,7 +306,6 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     sched = Schedule(cfg["max_iterations"], cfg["lr_position_init"], cfg["lr_position_final"],
                      schedule, sh_max, cfg["sh_increase_every"])
     p = initial_params(scene, scene_dir, cfg, sh_max)
-    opt = make_optimizer(cfg, sched, extent)
     strategy = DensifyStrategy.from_config(cfg, needs["budget"], extent)
     growing = None
     if cfg["budget"] == "adaptive":  # from the detail budget, never below the SfM points
@@ -224,85 +313,22 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
         growing = GrowingBudget(max(needs["budget"], n0), cfg["budget_max"], cfg["budget_growth"],
                                 cfg["budget_min_gain_db"], floor=n0)
         strategy.ops.budget = growing.budget
-    gen = torch.Generator().manual_seed(seed)  # split samples
     rng = np.random.default_rng(seed)  # view order
-    objective = PhotometricObjective(train_v, rng, bg, backend, compute_dtype, cfg["lambda_ssim"])
-    it0, curve, best, bad_evals, train_time, cpu_time = 0, [], -math.inf, 0, 0.0, 0.0
-
-    ckpt = Checkpoint(checkpoint_dir or out_dir.with_name(out_dir.name + ".ckpt"),
-                      {**cfg, "view_sizes": view_sizes}, scene_dir, seed)
-    st = ckpt.load() if resume else None
-    if st is not None:
-        p, it0, curve, best, bad_evals, train_time = (st["params"], st["iteration"], st["curve"],
-                                                      st["best"], st["bad_evals"], st["train_time"])
-        opt.load_state_dict(st["opt"])
-        gen.set_state(st["gen"])
-        rng.bit_generator.state = st["rng"]
-        strategy.stats, objective.order = st["gstats"], list(st["order"])
-        cpu_time = st.get("cpu_time", 0.0)
-        if growing is not None:
-            growing = st["budget"]
-            strategy.ops.budget = growing.budget
-        log.info("resumed from %s at iteration %d", ckpt.path, it0)
-
-    def save_checkpoint(n_it: int) -> None:
-        ckpt.save({"params": p, "iteration": n_it, "curve": curve, "best": best,
-                   "bad_evals": bad_evals, "train_time": time.perf_counter() - t_loop,
-                   "cpu_time": time.process_time() - c_loop,
-                   "opt": opt.state_dict(), "gen": gen.get_state(),
-                   "rng": rng.bit_generator.state, "gstats": strategy.stats,
-                   "order": objective.order, "budget": growing})
-
-    stop_reason = "max_iterations"
-    interrupted = False
-
-    def evaluate_and_stop(n_it: int, step: Step, ds: int, sh_deg: int) -> bool:
-        # evaluate before this step's densification: a model with freshly split or
-        # cloned Gaussians scores 1.5-2 dB lower for one evaluation (temple_ring),
-        # which misled the plateau stop and the adaptive budget every other time
-        nonlocal best, bad_evals, stop_reason
-        if not (n_it % cfg["eval_every"] == 0 or n_it == cfg["max_iterations"]):
-            return False
-        elapsed = time.perf_counter() - t_loop
-        ev = evaluate(p, test_v or train_v[:4], bg, sh_deg, backend)
-        curve.append({"iteration": n_it, "train_time_s": elapsed,
-                      "cpu_time_s": time.process_time() - c_loop, "psnr": ev["psnr"],
-                      "ssim": ev["ssim"], "n_gaussians": int(p["means"].shape[0]),
-                      "budget": int(strategy.ops.budget), "downscale": ds,
-                      "loss": float(step.loss.detach())})
-        log.info("it %d: held-out PSNR %.2f dB, SSIM %.4f, %d Gaussians, %.1f s", n_it,
-                 ev["psnr"], ev["ssim"], p["means"].shape[0], elapsed)
-        if growing is not None and cfg["densify_from"] <= n_it < cfg["densify_until"]:
-            strategy.ops.budget = growing.update(n_it, ev["psnr"], ds, int(p["means"].shape[0]))
-        best, bad_evals, stop = plateau_step(best, bad_evals, ev["psnr"], n_it, cfg)
-        if stop:
-            stop_reason = "plateau"
-        return stop
-
-    def after_step(n_it: int, densified: bool) -> bool:
-        nonlocal best, bad_evals, interrupted
-        if densified:
-            # the held-out PSNR drops and recovers: restart plateau tracking, or the
-            # run would stop during the recovery with a model worse than before
-            best, bad_evals = -math.inf, 0
-        if interrupt_after is not None and n_it >= interrupt_after and n_it < cfg["max_iterations"]:
-            save_checkpoint(n_it)
-            interrupted = True
-            return True
-        if cfg["checkpoint_every"] and n_it % cfg["checkpoint_every"] == 0 and n_it < cfg["max_iterations"]:
-            save_checkpoint(n_it)
-        return False
-
-    t_loop = time.perf_counter() - train_time
-    c_loop = time.process_time() - cpu_time  # CPU seconds (all threads): robust on a shared machine
-    n_iters = optimise(p, opt, strategy, objective, sched, extent, gen, start=it0,
-                       before_densify=evaluate_and_stop, after_step=after_step,
+    run = _Run(cfg, p, make_optimizer(cfg, sched, extent), torch.Generator().manual_seed(seed), rng,
+               strategy, PhotometricObjective(train_v, rng, bg, backend, compute_dtype,
+                                              cfg["lambda_ssim"]),
+               growing, Checkpoint(checkpoint_dir or out_dir.with_name(out_dir.name + ".ckpt"),
+                                   {**cfg, "view_sizes": view_sizes}, scene_dir, seed),
+               test_v or train_v[:4], bg, backend, interrupt_after)
+    it0 = run.resume() if resume else 0
+    n_iters = optimise(run.p, run.opt, strategy, run.objective, sched, extent, run.gen, start=it0,
+                       before_densify=run.evaluate_and_stop, after_step=run.after_step,
                        context=f"{scene_dir}: ")
-    if interrupted:
-        log.info("interrupted after step %d; checkpoint %s", n_iters, ckpt.path)
-        return {"interrupted": True, "iteration": n_iters, "checkpoint": str(ckpt.path)}
-    train_s = time.perf_counter() - t_loop
-    cpu_s = time.process_time() - c_loop
+    if run.interrupted:
+        log.info("interrupted after step %d; checkpoint %s", n_iters, run.ckpt.path)
+        return {"interrupted": True, "iteration": n_iters, "checkpoint": str(run.ckpt.path)}
+    p, growing, curve, stop_reason = run.p, run.growing, run.curve, run.stop_reason
+    train_s, cpu_s = run.elapsed()
     sh_final = min(sh_max, max(0, n_iters - 1) // cfg["sh_increase_every"])
     final = evaluate(p, test_v, bg, sh_final, backend)
     if growing is not None:
@@ -316,7 +342,7 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
                   "sh_degree_final": sh_final, **{f"time_{k.replace(' ', '_')}_s": t for k, t in timings.items()}})
     write_train_output(out_dir, scene, from_params(p), n_iters, sh_final, stats, curve, scene_id, scene_dir,
                        view_sizes)
-    ckpt.remove()
+    run.ckpt.remove()
     stats["time_total_s"] = time.perf_counter() - t0
     log.info("trained %d iterations (%s): %d Gaussians, held-out PSNR %.2f dB SSIM %.4f, %.1f s",
              n_iters, stop_reason, stats["n_gaussians"], final["psnr"], final["ssim"], train_s)
