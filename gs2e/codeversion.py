@@ -15,7 +15,8 @@ function-level imports alike (a stage's heavy imports sit inside its
 functions), the packages' ``__init__.py`` on the way (their module level: a
 package's lazy ``__getattr__`` runs only when a name is imported from the
 package itself), and, in modules that import by name with ``importlib``, the
-gs2e modules their string constants name (lazy import tables). Not followed:
+gs2e modules their string constants name (lazy import tables: ``module`` or
+``module:function``). Not followed:
 the dispatcher's list of the other stages' CLI modules, which ``gs2e`` imports only to declare their subcommands'
 arguments. No list is kept by hand, so a new import is covered the moment it is
 written (tests/test_codeversion.py runs each stage and checks that every gs2e
@@ -107,10 +108,10 @@ def _imported_names(tree: ast.AST, module: str, is_package: bool, strings: bool)
                 base = node.module or ""
             out.add(base)
             out.update(f"{base}.{a.name}" for a in node.names if a.name != "*")
-    if strings:
-        out.update(n.value for n in ast.walk(tree) if isinstance(n, ast.Constant)
-                   and isinstance(n.value, str) and n.value.startswith(ROOT + ".")
-                   and _MODULE_NAME.match(n.value))
+    if strings:  # "module" or "module:function"
+        names = (n.value.split(":")[0] for n in ast.walk(tree)
+                 if isinstance(n, ast.Constant) and isinstance(n.value, str))
+        out.update(v for v in names if v.startswith(ROOT + ".") and _MODULE_NAME.match(v))
     return out
 
 

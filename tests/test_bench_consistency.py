@@ -88,7 +88,7 @@ def plane_dataset(tmp_path_factory):
 
 
 def _load(tmp: Path, th: float, frames: str = "frames"):
-    from gs2e.bench.run import load_dataset
+    from gs2e.bench.dataset import load_dataset
 
     return load_dataset("deblur", tmp / frames, tmp / f"events_{th}",
                         tmp / f"windows_{frames}_{th}.parquet")
@@ -124,7 +124,8 @@ FAULTS = {
 def edi_curve(datasets) -> list[dict]:
     """Per threshold: pooled grey PSNR of EDI (oracle) and of the blurred frame, and
     whether EDI beat the blurred frame on every frame with visible blur."""
-    from gs2e.bench.run import resolve, run_deblur
+    from gs2e.bench.deblur_task import run as run_deblur
+    from gs2e.bench.run import resolve
     from gs2e.config import load_section
 
     cfg = resolve(load_section("bench"))
@@ -161,7 +162,9 @@ def test_edi_converges_on_consistent_data(plane_dataset):
 def test_video_integration_converges(plane_dataset):
     """Direct integration from the first frame: the smaller the threshold, the
     closer to the sharp frames."""
-    from gs2e.bench.run import load_dataset, resolve, run_video
+    from gs2e.bench.dataset import load_dataset
+    from gs2e.bench.run import resolve
+    from gs2e.bench.video_task import run as run_video
     from gs2e.config import load_section
 
     cfg = resolve(load_section("bench"))

@@ -209,14 +209,14 @@ def _settings(**kw):
 
 
 def _load(plane):
-    from gs2e.bench.run import load_dataset
+    from gs2e.bench.dataset import load_dataset
 
     tmp, traj = plane
     return load_dataset("recon3d", tmp / "frames", tmp / "events", tmp / "windows.parquet", traj)
 
 
 def test_events_supervise_the_reconstruction_and_flipped_events_do_not(plane):
-    from gs2e.bench.run import recon3d_data
+    from gs2e.bench.recon3d import recon3d_data
     from gs2e.events.models import Events
 
     ds = _load(plane)
@@ -267,8 +267,56 @@ def test_task_writes_its_table_strip_and_summary(plane, tmp_path):
 
 
 def test_recon3d_needs_a_trajectory(plane):
-    from gs2e.bench.run import load_dataset
+    from gs2e.bench.dataset import load_dataset
 
     tmp, traj = plane
     with pytest.raises(InputError, match="--trajectory"):
         load_dataset("recon3d", tmp / "frames", tmp / "events", tmp / "windows.parquet", None)
+
+
+def test_a_task_registered_alone_runs_through_the_benchmark(plane, tmp_path):
+    """A toy task added through gs2e.bench.tasks.register alone: the CLI takes
+    it, its dataset is checked for what it declares, its table, strip and the
+    dataset table are written; the built-in names stay the schema's enum."""
+    import pandas as pd
+    import yaml
+
+    from gs2e.bench import tasks as T
+    from gs2e.bench.dataset import score
+    from gs2e.bench.summary import write_summary
+
+    def toy(ds, cfg, user):
+        rows, shown = [], {}
+        for i in range(3):
+            sharp = ds.image("rgb", i)
+            img = 0.9 * sharp
+            rows.append({"method": "darker", "frame": i, "t_us": int(ds.frames["t_us"].iloc[i]),
+                         "t_rel_s": 0.0, "motion_px": 0.0, "n_events": 0, **score(img, sharp),
+                         "theta": math.nan, "time_s": 0.0})
+            shown = {"darker": img, "sharp": sharp}
+        return rows, shown, 2
+
+    schema = yaml.safe_load(Path("gs2e/schemas/config.schema.yaml").read_text())
+    enum = schema["properties"]["bench"]["properties"]["tasks"]["items"]["enum"]
+    assert enum == list(T.task_names())
+    T.register(T.Task("toy_darker", toy, needs_trajectory=True))
+    try:
+        tmp, traj = plane
+        out = tmp_path / "toy.parquet"
+        args = ["bench", "--task", "toy_darker", "--frames", str(tmp / "frames"), "--events",
+                str(tmp / "events"), "--windows", str(tmp / "windows.parquet"), "--out", str(out),
+                "--png", str(tmp_path / "toy.png")]
+        with pytest.raises(InputError, match="toy_darker needs --trajectory"):
+            from gs2e.bench.dataset import load_dataset
+            load_dataset("toy_darker", tmp / "frames", tmp / "events", tmp / "windows.parquet", None)
+        assert main(args + ["--trajectory", str(traj)]) == 0
+        df = pd.read_parquet(out)
+        assert (df["task"] == "toy_darker").all() and len(df) == 3
+        assert np.allclose(df["psnr"], -10 * np.log10(df["mse"]))
+        rows = write_summary([out], tmp_path / "bench.parquet")
+        assert [r["method"] for r in rows] == ["darker"] and rows[0]["n_frames"] == 3
+        assert (tmp_path / "toy.png").stat().st_size > 0
+    finally:
+        T.TASKS.pop("toy_darker")
+    with pytest.raises(InputError, match="unknown bench task 'toy_darker'"):
+        T.get_task("toy_darker")

@@ -7,6 +7,7 @@ import argparse
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from gs2e.bench.tasks import task_names
     from gs2e.cli import add_config_args
 
     p = sub.add_parser(
@@ -19,7 +20,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "poses; see gs2e.bench.recon3d) "
                     "against the sharp frames, plus any --method package.module:function; writes one "
                     "row per method x frame (see gs2e.bench.run) and a strip of example crops.")
-    p.add_argument("--task", required=True, choices=["deblur", "video", "recon3d"])
+    p.add_argument("--task", required=True, choices=task_names())
     p.add_argument("--frames", required=True, help="frames folder of gs2e render")
     p.add_argument("--events", required=True, help="events folder of gs2e events")
     p.add_argument("--windows", required=True, help="windows table of gs2e windows")

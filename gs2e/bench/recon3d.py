@@ -63,10 +63,12 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import torch
 
+from gs2e.bench.dataset import Dataset, grey, intrinsics, motion_px, pooled_psnr, score
 from gs2e.common.color import linear_to_srgb, luminance, srgb_to_linear
 from gs2e.common.errors import InputError
 from gs2e.common.log import get_logger
@@ -195,7 +197,6 @@ def score_view(render_srgb: np.ndarray, sharp_srgb: np.ndarray, eps: float) -> d
     """Scores of one held-out render (H, W, 3) against its sharp frame: luminance
     after the per-image log-affine correction (psnr, ssim, mse, a, b), luminance
     uncorrected (psnr_raw, mse_raw) and colour uncorrected (psnr_rgb)."""
-    from gs2e.bench.run import score
 
     y_pred = luminance(srgb_to_linear(np.clip(render_srgb, 0.0, 1.0)))
     y_gt = luminance(srgb_to_linear(sharp_srgb))
@@ -425,3 +426,81 @@ def split_frames(usable: list[int], test_every: int, min_test: int = 3) -> tuple
     test = usable[step // 2::step]
     held = set(test)
     return [i for i in usable if i not in held], test
+
+
+# ------------------------------------------------------------------ the task
+def recon3d_data(ds: Dataset, settings) -> "object":
+    """The trajectory's training data and held-out frames (gs2e.bench.recon3d)."""
+    from gs2e.bench.deblur import log_steps
+
+    f, ev, traj = ds.frames, ds.events, ds.trajectory
+    t = f["t_us"].to_numpy(np.int64)
+    E = f["exposure_us"].to_numpy(np.float64)
+    lo = max(ds.sim_span_us[0], int(traj.t_us[0]))
+    hi = min(ds.sim_span_us[1], int(traj.t_us[-1]))
+    has_blur = bool((E > 0).any()) and (ds.frames_dir / "blur").is_dir()
+    half = E / 2 if has_blur else np.zeros_like(E)
+    usable = [int(i) for i in np.flatnonzero((t - half >= lo) & (t + half <= hi))]
+    if len(usable) < 2 or hi - lo <= 0:
+        raise InputError(f"{ds.frames_dir}: recon3d needs at least 2 frames inside the simulated "
+                         f"events ({ds.sim_span_us[0]}..{ds.sim_span_us[1]} us), found {len(usable)}")
+    train, test = split_frames(usable, settings.test_every)
+    if not test:
+        raise InputError(f"{ds.frames_dir}: recon3d holds out no frame (bench.recon3d_test_every)")
+    H, W = ds.shape
+    i0, i1 = np.searchsorted(ev.t, [lo, hi], side="right")
+    x, y = ev.x[i0:i1].astype(np.int64), ev.y[i0:i1].astype(np.int64)
+    steps = log_steps(ev.p[i0:i1], x, y, ds.theta_on, ds.theta_off)
+    sharp = {i: torch.from_numpy(np.asarray(ds.image("rgb", i), np.float32)) for i in train + test}
+    blurred = ({i: torch.from_numpy(np.asarray(ds.image("blur", i), np.float32)) for i in train}
+               if has_blur else {})
+    c2w = np.stack([np.asarray(c, np.float64) for c in f["c2w"]])
+    motion = np.array([motion_px(f.iloc[i]) for i in range(len(f))], np.float64)
+    speed = motion[usable] / np.maximum(E[usable], 1.0)  # px per us over each exposure
+    speed = speed[np.isfinite(speed) & (speed > 0) & (E[usable] > 0)]
+    # without motion figures (no exposure): a window of window_px_max spans ~2 frames
+    us_per_px = (1.0 / float(np.median(speed)) if speed.size else
+                 2.0 * float(np.median(np.diff(t))) / settings.window_px_max if len(t) > 1
+                 else float(hi - lo) / settings.window_px_max)
+    return Recon3dData(intrinsics(f, 0), W, H, traj.pose_at, (lo, hi), us_per_px, ev.t[i0:i1],
+                       y * W + x, steps, ds.log_eps, train, test, t, c2w, E, motion, sharp, blurred)
+
+
+def run(ds: Dataset, cfg, user: dict[str, Callable]):
+    """Rows of the recon3d task (one per variant x held-out frame) and the
+    middle held-out frame's corrected luminance per variant."""
+    if user:
+        log.warning("recon3d: user methods (%s) apply to the deblur and video tasks only; not run",
+                    ", ".join(user))
+    s = cfg.recon3d
+    data = recon3d_data(ds, s)
+    f = ds.frames
+    t_first = int(f["t_us"].iloc[data.train_idx[0] if data.train_idx else 0])
+    example = data.test_idx[len(data.test_idx) // 2]
+    log.info("recon3d: %d training frames, %d held out, %d events over %.2f s", len(data.train_idx),
+             len(data.test_idx), len(data.ev_t), (data.span_us[1] - data.span_us[0]) * 1e-6)
+    rows, shown = [], {}
+    for variant in s.variants:
+        p, st = train_variant(variant, data, s)
+        for r in evaluate(p, data, keep=example):
+            img = r.pop("render", None)
+            i = r["frame"]
+            rows.append({"method": variant, **r, "t_rel_s": (r["t_us"] - t_first) * 1e-6,
+                         "motion_px": motion_px(f.iloc[i]), "n_events": len(data.ev_t), "theta": math.nan,
+                         "time_s": st["wall_s"], "cpu_s": st["cpu_s"], "steps": st["steps"],
+                         "n_gaussians": st["n_gaussians"], "n_train_frames": len(data.train_idx)})
+            if img is not None:
+                y = luminance(srgb_to_linear(np.clip(img, 0, 1)))
+                shown[variant] = linear_to_srgb(corrected_luminance(
+                    y, r["log_gain"], r["log_offset"], data.log_eps))
+    shown["sharp"] = grey(ds.image("rgb", example))[..., 0]
+    return rows, shown, example
+
+
+def summary(g, row: dict) -> None:
+    """The recon3d task's columns of a dataset-table row (:mod:`gs2e.bench.summary`)."""
+    row["psnr_raw"] = pooled_psnr(g["mse_raw"].to_numpy(np.float64))
+    row["psnr_rgb"] = float(-10.0 * np.log10(np.mean(10.0 ** (-g["psnr_rgb"].to_numpy(np.float64)
+                                                                 / 10.0))))
+    row["cpu_min"] = float(g["cpu_s"].iloc[0]) / 60.0
+    row["n_gaussians"] = int(g["n_gaussians"].iloc[0])

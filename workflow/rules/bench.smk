@@ -25,12 +25,12 @@ rule bench:
         res("{scene}", "logs", "bench_{task}_{traj}.log"),
     benchmark:
         res("{scene}", "benchmarks", "bench_{task}_{traj}.tsv")
-    # recon3d trains three 3DGS models (minutes each, multi-threaded rasterizer)
-    threads: lambda wc: 2 if wc.task == "recon3d" else 1
+    # per task (gs2e.bench.tasks): recon3d trains three 3DGS models, multi-threaded
+    threads: lambda wc: BENCH_TASKS[wc.task].threads
     resources:
         # every event of the trajectory in memory (19 bytes/event) + frames
         mem_mb=lambda wc, attempt: 3000 * attempt,
-        runtime=lambda wc, attempt: (120 if wc.task == "recon3d" else 60) * attempt,
+        runtime=lambda wc, attempt: BENCH_TASKS[wc.task].runtime_min * attempt,
     shell:
         "{GS2E} bench --task {wildcards.task} --frames {input.frames:q}"
         " --events {input.events:q} --windows {input.windows:q} --trajectory {params.trajectory:q}"

@@ -4,6 +4,7 @@ import shlex
 import sys
 from pathlib import Path
 
+from gs2e.bench.tasks import TASKS as BENCH_TASKS
 from gs2e.codeversion import code_version
 from gs2e.common.atomic import sweep_tree
 from snakemake.logging import logger
@@ -73,7 +74,7 @@ forward_interrupt_to_jobs()
 
 wildcard_constraints:
     scene="[A-Za-z0-9][A-Za-z0-9_.-]*",
-    task="deblur|video|recon3d",
+    task="|".join(BENCH_TASKS),
     traj="[A-Za-z0-9_.-]+",
     fmt="[a-z0-9]+",
 
