@@ -204,3 +204,54 @@ def test_frames_to_tiles_is_the_padded_tile_layout(B, H, W):
     out = np.full((ty * tx * B, TILE, TILE), np.nan, np.float32)
     K.frames_to_tiles(frames, out)
     np.testing.assert_array_equal(out, ref)
+
+
+def test_an_event_model_registered_alone_is_built_and_read_back():
+    """A toy model added through register_model alone: make_model builds it from
+    the config, log_contrast, the sampling bound and the exports' log signal
+    come from its own declarations; the built-in names are the schema's enum."""
+    from pathlib import Path
+
+    import yaml
+
+    from gs2e.events.models import MODELS, log_contrast, register_model
+    from gs2e.events.rendered import bound_log
+    from gs2e.export.event3dgs import LogSignal
+
+    class DoubledIdeal(IdealModel):
+        name = "doubled_ideal"
+
+        @classmethod
+        def from_config(cls, cfg, shape, **common):
+            common.update(theta_on=2 * common["theta_on"], theta_off=2 * common["theta_off"])
+            return cls(shape, log_eps=cfg["log_eps"], **common)
+
+        @classmethod
+        def log_contrast(cls, cfg, on, off):
+            return 2 * on, 2 * off, float(cfg["log_eps"])
+
+        @classmethod
+        def sampling_step(cls, cfg, theta):
+            return 2.0 * theta
+
+    schema = yaml.safe_load(Path("gs2e/schemas/config.schema.yaml").read_text())
+    assert set(schema["properties"]["events"]["properties"]["model"]["enum"]) == set(MODELS)
+    register_model(DoubledIdeal)
+    try:
+        cfg = {**load_section("events", '{"model": "ideal", "theta_on": 0.1, "theta_off": 0.1}'),
+               "model": "doubled_ideal"}
+        ts = np.arange(0, 100_001, 1000, dtype=np.int64)
+        fr = np.exp(np.linspace(0, 1.2, len(ts)))[:, None, None] * np.full((1, 2, 3), 0.2) - 1e-3
+        counts = {}
+        for name in ("ideal", "doubled_ideal"):
+            m, _ = make_model({**cfg, "model": name}, (2, 3), 0)
+            counts[name] = len(m.simulate(ts, fr.astype(np.float32)))
+        assert isinstance(make_model(cfg, (2, 3), 0)[0], DoubledIdeal)
+        assert counts["ideal"] == 6 * 12 and counts["doubled_ideal"] == 6 * 6
+        assert log_contrast(cfg)[0] == pytest.approx(0.2)
+        assert bound_log(cfg) == pytest.approx(2 * bound_log({**cfg, "model": "ideal"}))
+        sig = LogSignal({"model": "doubled_ideal", "theta/on": np.full((2, 3), 0.2),
+                         "theta/off": np.full((2, 3), 0.2)}, (2, 3), "toy")
+        assert sig.offset == cfg["log_eps"] and np.all(sig.step_on == 0.2)
+    finally:
+        MODELS.pop("doubled_ideal")

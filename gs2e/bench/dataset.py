@@ -58,7 +58,7 @@ def load_dataset(task: str, frames_dir: str | Path, events_dir: str | Path,
     """Read and check what ``task`` (a registered name, :mod:`gs2e.bench.tasks`)
     needs; one-line errors naming what is missing."""
     from gs2e.events.io import read_h5
-    from gs2e.events.presets import log_contrast
+    from gs2e.events.models import log_contrast
     from gs2e.export.windows import read_windows
     from gs2e.render.dataset import read_frames_table
 

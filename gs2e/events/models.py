@@ -68,6 +68,7 @@ restarts from that residual with the next frame's drift (Markov property).
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 from dataclasses import dataclass, field
@@ -77,7 +78,7 @@ import numpy as np
 
 from gs2e.common.errors import InputError, ConfigError
 from gs2e.events import _kernels as K
-from gs2e.events.presets import Preset, get_preset
+from gs2e.events.presets import Preset, effective_threshold, get_preset
 from gs2e.events.sensors import resolve_noise
 
 log = logging.getLogger("gs2e.events")
@@ -483,6 +484,47 @@ class _StreamingModel:
                 "pixel_intervals_capped": self.n_capped, "n_frames": self.n_frames,
                 "tile_intervals": self.intervals}
 
+    # what a model declares (the registry, :data:`MODELS`, reads these)
+    name = ""
+
+    @classmethod
+    def from_config(cls, cfg: dict, shape, **common) -> "_StreamingModel":
+        """The model for a validated ``events`` section; ``common``: the keyword
+        arguments every model takes (thresholds, noise, seed, caps)."""
+        raise NotImplementedError
+
+    @classmethod
+    def log_contrast(cls, cfg: dict, on: np.ndarray, off: np.ndarray):
+        """(step_on, step_off, eps): the log(L + eps) steps that fire an ON /
+        OFF event given the model's thresholds ``on`` / ``off`` (:func:`log_contrast`)."""
+        raise NotImplementedError
+
+    @classmethod
+    def sampling_step(cls, cfg: dict, theta: float) -> float:
+        """The smallest log(L + eps) step threshold ``theta`` can fire at (the
+        sampling bound's unit)."""
+        raise NotImplementedError
+
+    @staticmethod
+    def log_signal_of(attrs: dict, config: dict, where: str) -> tuple[float, float, float]:
+        """(scale, offset, divisor) of an events file written by this model
+        (its attributes and config): the log signal log(L * scale + offset),
+        whose steps are theta / divisor."""
+        raise NotImplementedError
+
+    def describe(self, theta_on_nominal: float) -> dict:
+        """Extra entries of the run's metadata."""
+        return {}
+
+    def file_attrs(self) -> dict:
+        """Extra attributes of events.h5 (what :meth:`log_signal_of` reads back)."""
+        return {}
+
+    @classmethod
+    def config_preset(cls, cfg: dict) -> str | None:
+        """The preset the config names, where the model has one (the stats' ``preset``)."""
+        return None
+
     # subclass hooks
     def _init_state(self, f: np.ndarray) -> None: ...
     def _run_signal(self, tiles, off, t0, t1, key, lum, fn) -> int: ...
@@ -497,6 +539,48 @@ class VoltmeterModel(_StreamingModel):
     """
 
     name = "voltmeter"
+
+    @staticmethod
+    def preset_of(cfg: dict) -> Preset:
+        """The config's preset with its ``k1``..``k6`` overrides."""
+        return get_preset(cfg["preset"], {i: cfg.get(f"k{i}") for i in range(1, 7)})
+
+    @classmethod
+    def from_config(cls, cfg: dict, shape, **common) -> "VoltmeterModel":
+        return cls(shape, preset=cls.preset_of(cfg), exit_law=cfg["exit_law"], **common)
+
+    @classmethod
+    def log_contrast(cls, cfg: dict, on: np.ndarray, off: np.ndarray):
+        # the drift k1 (dL/dt) / (L + k2) integrates to a voltage k1 log(L * scale + k2):
+        # a voltage threshold theta is the step theta / k1 of log(L + k2 / scale)
+        p = cls.preset_of(cfg)
+        return on / p.k[0], off / p.k[0], float(p.k[1] / p.intensity_scale)
+
+    @classmethod
+    def sampling_step(cls, cfg: dict, theta: float) -> float:
+        # the bright-pixel limit of the voltage threshold, as a log-intensity step
+        return float(np.log1p(theta / cls.preset_of(cfg).k[0]))
+
+    @staticmethod
+    def log_signal_of(attrs: dict, config: dict, where: str) -> tuple[float, float, float]:
+        preset = json.loads(attrs["preset"]) if isinstance(attrs.get("preset"), str) else attrs.get("preset")
+        if not preset:
+            raise InputError(f"{where}: voltmeter events without their preset (k1..k6)")
+        return float(preset["intensity_scale"]), float(preset["k"][1]), float(preset["k"][0])
+
+    def describe(self, theta_on_nominal: float) -> dict:
+        p = self.preset
+        d = {f"rel_dL_over_L_at_{lum:g}": effective_threshold(p, theta_on_nominal, lum)
+             for lum in (0.1, 0.5, 1.0)}
+        d["bright_limit"] = theta_on_nominal / p.k[0]
+        return {"effective_threshold": d}
+
+    def file_attrs(self) -> dict:
+        return {"preset": self.preset.to_dict()}
+
+    @classmethod
+    def config_preset(cls, cfg: dict) -> str | None:
+        return cfg["preset"]
 
     def __init__(self, shape, preset: Preset | str = "dvs346",
                  exit_law: str = "single_barrier", **kw):
@@ -549,6 +633,22 @@ class IdealModel(_StreamingModel):
     # float64 frames: crossing times exact to ~1e-6 us on log-linear input even
     # for slow ramps (float32 luminance would limit that to ~0.01 us)
     _frame_dtype = np.float64
+
+    @classmethod
+    def from_config(cls, cfg: dict, shape, **common) -> "IdealModel":
+        return cls(shape, log_eps=cfg["log_eps"], **common)
+
+    @classmethod
+    def log_contrast(cls, cfg: dict, on: np.ndarray, off: np.ndarray):
+        return on, off, float(cfg["log_eps"])
+
+    @classmethod
+    def sampling_step(cls, cfg: dict, theta: float) -> float:
+        return float(theta)
+
+    @staticmethod
+    def log_signal_of(attrs: dict, config: dict, where: str) -> tuple[float, float, float]:
+        return 1.0, float(config.get("log_eps", 1e-3)), 1.0
 
     def __init__(self, shape, log_eps: float = 1e-3, **kw):
         super().__init__(shape, **kw)
@@ -604,17 +704,50 @@ def make_model(cfg: dict, shape: tuple[int, int], seed: int, source: str = "fram
                   shot_noise_rate_hz=noise_on["shot_noise_rate_hz"],
                   shot_noise_on_fraction=noise_on["shot_noise_on_fraction"], seed=int(seed),
                   max_events_per_pixel=cfg["max_events_per_pixel"], source=source)
-    if cfg["model"] == "voltmeter":
-        ko = {i: cfg.get(f"k{i}") for i in range(1, 7)}
-        model = VoltmeterModel(shape, preset=get_preset(cfg["preset"], ko),
-                               exit_law=cfg["exit_law"], **common)
-    elif cfg["model"] == "ideal":
-        model = IdealModel(shape, log_eps=cfg["log_eps"], **common)
-    else:
-        raise ConfigError(f"events.model: unknown model '{cfg['model']}'")
+    model = model_class(cfg["model"]).from_config(cfg, shape, **common)
     info = {"theta_on_nominal": th_on, "theta_off_nominal": th_off,
             "theta_sampling": cfg["theta_sampling"], "theta_range": list(cfg["theta_range"]),
             "theta_mismatch_sigma": noise_on["theta_mismatch_sigma"],
             "theta_mismatch_sigma_off": noise_off["theta_mismatch_sigma"],
             "noise": noise_on, "noise_sources": sources}
     return model, info
+
+
+# ----------------------------------------------------------------- the registry
+MODELS: dict[str, type[_StreamingModel]] = {}
+
+
+def register_model(cls: type[_StreamingModel]) -> type[_StreamingModel]:
+    """Add an event model class (its ``name``, ``from_config``, ``log_contrast``,
+    ``sampling_step``, ``log_signal_of`` and kernels) to :data:`MODELS`; for the
+    workflow also add the name to the schema's ``events.model`` enum."""
+    if not cls.name:
+        raise ValueError(f"{cls.__name__}: an event model needs a name")
+    MODELS[cls.name] = cls
+    return cls
+
+
+def model_class(name: str) -> type[_StreamingModel]:
+    if name not in MODELS:
+        raise ConfigError(f"events.model: unknown model '{name}' (choose from {', '.join(MODELS)})")
+    return MODELS[name]
+
+
+def log_contrast(events_cfg: dict, theta_on=None, theta_off=None):
+    """The event model's contrast in log units: (theta_on, theta_off, eps), the
+    log(L + eps) steps that fire an ON / OFF event, L linear luminance in [0, 1].
+
+    ``theta_on`` / ``theta_off``: the model's own thresholds (scalars or (H, W)
+    maps as events.h5 stores them; default: the config's nominal ones).
+    Ideal model: as given, eps = ``log_eps``. DVS-Voltmeter: its drift
+    k1 (dL/dt) / (L + k2) integrates to a voltage k1 log(L * scale + k2), so a
+    voltage threshold theta is the step theta / k1 of log(L + k2 / scale);
+    noise and leak are not part of it.
+    """
+    on = np.asarray(events_cfg["theta_on"] if theta_on is None else theta_on, np.float64)
+    off = np.asarray(events_cfg["theta_off"] if theta_off is None else theta_off, np.float64)
+    return model_class(events_cfg["model"]).log_contrast(events_cfg, on, off)
+
+
+register_model(IdealModel)
+register_model(VoltmeterModel)

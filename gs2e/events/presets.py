@@ -102,26 +102,6 @@ def effective_threshold(preset: Preset, theta: float = 1.0,
     return float(r) if np.ndim(r) == 0 else r
 
 
-def log_contrast(events_cfg: dict, theta_on=None, theta_off=None):
-    """The event model's contrast in log units: (theta_on, theta_off, eps), the
-    log(L + eps) steps that fire an ON / OFF event, L linear luminance in [0, 1].
-
-    ``theta_on`` / ``theta_off``: the model's own thresholds (scalars or (H, W)
-    maps as events.h5 stores them; default: the config's nominal ones).
-    Ideal model: as given, eps = ``log_eps``. DVS-Voltmeter: its drift
-    k1 (dL/dt) / (L + k2) integrates to a voltage k1 log(L * scale + k2), so a
-    voltage threshold theta is the step theta / k1 of log(L + k2 / scale);
-    noise and leak are not part of it.
-    """
-    on = np.asarray(events_cfg["theta_on"] if theta_on is None else theta_on, np.float64)
-    off = np.asarray(events_cfg["theta_off"] if theta_off is None else theta_off, np.float64)
-    if events_cfg["model"] == "voltmeter":
-        k = {i + 1: events_cfg.get(f"k{i + 1}") for i in range(6)}
-        p = get_preset(events_cfg["preset"], k)
-        return on / p.k[0], off / p.k[0], float(p.k[1] / p.intensity_scale)
-    return on, off, float(events_cfg["log_eps"])
-
-
 def effective_threshold_report(theta: float = 1.0) -> list[dict]:
     """Per preset: effective relative threshold at luminance 0.1, 0.5, 1 and
     the bright-pixel limit theta / k1, plus the equivalent log-intensity step."""

@@ -23,8 +23,7 @@ import torch
 
 from gs2e.common.camera import render_camera
 from gs2e.common.errors import ConfigError, InputError
-from gs2e.events.models import TileBatch
-from gs2e.events.presets import get_preset, log_contrast
+from gs2e.events.models import TileBatch, log_contrast, model_class
 from gs2e.events.sensors import get_sensor
 from gs2e.events.sampling import (MODES, SamplerStats, TileSampler, adaptive_samples,
                                   image_luminance, motion_times)
@@ -45,15 +44,13 @@ def bound_log(events_cfg: dict) -> float:
     theta = min(events_cfg["theta_on"], events_cfg["theta_off"])
     if events_cfg.get("theta_sampling", "fixed") != "fixed":
         theta = min(theta, min(events_cfg["theta_range"]))
-    if events_cfg["model"] == "voltmeter":
-        k = {i + 1: events_cfg.get(f"k{i + 1}") for i in range(6)}
-        theta = float(np.log1p(theta / get_preset(events_cfg["preset"], k).k[0]))
+    theta = model_class(events_cfg["model"]).sampling_step(events_cfg, theta)
     return float(events_cfg["sampling"]["bound_fraction"]) * theta
 
 
 def sampling_log_eps(events_cfg: dict) -> float:
     """The dark floor of the signal the sampling bound applies to: the event
-    model's own log signal (:func:`gs2e.events.presets.log_contrast`). Ideal:
+    model's own log signal (:func:`gs2e.events.models.log_contrast`). Ideal:
     log(L + log_eps). DVS-Voltmeter: its voltage drifts at k1 d/dt log(L *
     scale + k2) (mu = k1 dL/dt / (L + k2)), so its signal is log(L + k2 /
     scale), luminance L in [0, 1]: dark pixels, where the ideal model's log

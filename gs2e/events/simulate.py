@@ -39,7 +39,6 @@ from gs2e.common.progress import progress
 from gs2e.events.containers import CONTAINERS, ContainerWriter, container_limits
 from gs2e.events.io import H5EventWriter, TextEventWriter, read_h5, write_npz
 from gs2e.events.models import Events, TileBatch, make_model
-from gs2e.events.presets import effective_threshold
 from gs2e.events.represent import PreviewWriter
 from gs2e.events.stats import StatsAccumulator
 
@@ -138,12 +137,7 @@ def simulate_to_folder(source, cfg: dict, out_dir: str | Path, seed: int,
     model, info = make_model(cfg, shape, model_seed, source=name)
     meta = {"gs2e_version": __version__, "config": cfg, "seed": model_seed,
             "source": name, **info, **(extra_meta or {})}
-    if cfg["model"] == "voltmeter":
-        p = model.preset
-        meta["effective_threshold"] = {
-            f"rel_dL_over_L_at_{lum:g}": effective_threshold(p, info["theta_on_nominal"], lum)
-            for lum in (0.1, 0.5, 1.0)}
-        meta["effective_threshold"]["bright_limit"] = info["theta_on_nominal"] / p.k[0]
+    meta.update(model.describe(info["theta_on_nominal"]))
     acc = StatsAccumulator(shape, name=name)
     t_last = int(t_first)
     span_us = getattr(source, "duration_us", None)
@@ -212,8 +206,7 @@ def simulate_to_folder(source, cfg: dict, out_dir: str | Path, seed: int,
                              "theta/off": model.th_off.astype(np.float32)})
             hw.attrs["theta_on_summary"] = md["theta_on_map"]
             hw.attrs["theta_off_summary"] = md["theta_off_map"]
-            if cfg["model"] == "voltmeter":
-                hw.attrs["preset"] = model.preset.to_dict()
+            hw.attrs.update(model.file_attrs())
         timings["close_s"] = time.perf_counter() - t_start - timings["simulate_s"]
         if cfg["write_npz"]:
             ev_all, _ = read_h5(tmp / "events.h5")
@@ -225,7 +218,7 @@ def simulate_to_folder(source, cfg: dict, out_dir: str | Path, seed: int,
         pixel_samples = sampling.pop("pixel_samples", md["n_frames"] * H * W)
         dur_s = dur_us * 1e-6
         stats.update(n_frames=md["n_frames"], tile_intervals=model.intervals, threads=threads,
-                     model=cfg["model"], preset=cfg["preset"] if cfg["model"] == "voltmeter" else None,
+                     model=cfg["model"], preset=model.config_preset(cfg),
                      theta_on=info["theta_on_nominal"], theta_off=info["theta_off_nominal"],
                      sampling_mode=getattr(source, "sc", {}).get("mode", "frames"),
                      pixel_samples=int(pixel_samples),

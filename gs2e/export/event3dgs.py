@@ -39,6 +39,7 @@ import numpy as np
 
 from gs2e.common.color import linear_to_srgb, luminance, srgb_to_linear
 from gs2e.common.errors import InputError
+from gs2e.events.models import MODELS
 from gs2e.events.represent import event_frame
 from gs2e.export.common import ExportOut
 
@@ -56,19 +57,11 @@ class LogSignal:
         if th_on is None or th_off is None:
             raise InputError(f"{where}: no per-pixel thresholds theta/on, theta/off to integrate events")
         meta = json.loads(attrs["metadata"]) if isinstance(attrs.get("metadata"), str) else {}
-        if model == "ideal":
-            self.scale, self.offset = 1.0, float(meta.get("config", {}).get("log_eps", 1e-3))
-            self.step_on, self.step_off = np.asarray(th_on, np.float64), np.asarray(th_off, np.float64)
-        elif model == "voltmeter":
-            preset = json.loads(attrs["preset"]) if isinstance(attrs.get("preset"), str) else attrs.get("preset")
-            if not preset:
-                raise InputError(f"{where}: voltmeter events without their preset (k1..k6)")
-            k1, k2 = float(preset["k"][0]), float(preset["k"][1])
-            self.scale, self.offset = float(preset["intensity_scale"]), k2
-            self.step_on = np.asarray(th_on, np.float64) / k1
-            self.step_off = np.asarray(th_off, np.float64) / k1
-        else:
+        if model not in MODELS:
             raise InputError(f"{where}: unknown event model {model!r}")
+        self.scale, self.offset, div = MODELS[model].log_signal_of(attrs, meta.get("config", {}), where)
+        self.step_on = np.asarray(th_on, np.float64) / div
+        self.step_off = np.asarray(th_off, np.float64) / div
         if self.step_on.shape != shape:
             raise InputError(f"{where}: threshold maps are {self.step_on.shape}, frames {shape}")
 
