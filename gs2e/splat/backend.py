@@ -62,7 +62,7 @@ def rasterize_gsplat(means, quats, log_scales, opacity_logits, sh, cam, backgrou
     """
     from gsplat import rasterization
 
-    from gs2e.splat.rasterize import NonFiniteError, check_finite
+    from gs2e.splat.finite import NonFiniteError, check_finite
 
     dev = torch.device("cuda")
     dt = means.dtype
