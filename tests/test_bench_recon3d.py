@@ -320,3 +320,27 @@ def test_a_task_registered_alone_runs_through_the_benchmark(plane, tmp_path):
         T.TASKS.pop("toy_darker")
     with pytest.raises(InputError, match="unknown bench task 'toy_darker'"):
         T.get_task("toy_darker")
+
+
+def test_trainer_options_reach_recon3d(plane):
+    """recon3d trains on the trainer's loop: its compute type reaches the
+    renders (float32 passes give other, finite parameters), and a backend that
+    cannot run is a config error naming the key."""
+    from gs2e.bench.dataset import load_dataset
+    from gs2e.bench.recon3d import recon3d_data
+    from gs2e.bench.run import resolve
+    from gs2e.common.errors import ConfigError
+    from gs2e.config import load_section
+
+    tmp, traj = plane
+    ds = load_dataset("recon3d", tmp / "frames", tmp / "events", tmp / "windows.parquet", traj)
+    data = recon3d_data(ds, _settings())
+    p64, _ = R3.train_variant("sharp", data, _settings(steps=40))
+    p32, _ = R3.train_variant("sharp", data, _settings(steps=40, compute_dtype="float32"))
+    assert all(torch.isfinite(p32[k]).all() for k in p32)
+    assert not torch.equal(p64["means"], p32["means"])
+    cfg = load_section("bench")
+    assert resolve(cfg).recon3d.backend == "cpu" and resolve(cfg).recon3d.compute_dtype == "float64"
+    if not torch.cuda.is_available():
+        with pytest.raises(ConfigError, match="bench.recon3d_backend"):
+            resolve({**cfg, "recon3d_backend": "gsplat"})

@@ -118,7 +118,7 @@ def test_float64_and_float32_training_reach_the_same_quality(tiny_scene, tmp_pat
 
 
 def test_auto_compute_dtype_by_training_size():
-    from gs2e.splat.train import F32_TRAIN_MIN_PIXELS, training_dtype
+    from gs2e.splat.optimise import F32_TRAIN_MIN_PIXELS, training_dtype
 
     assert training_dtype("auto", (1280, 960)) == "float32"  # IMX636's training size
     assert training_dtype("auto", (349, 260)) == "float64"   # DAVIS346's

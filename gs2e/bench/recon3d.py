@@ -60,6 +60,7 @@ camera-to-world (4, 4), OpenCV axes.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass
@@ -77,7 +78,7 @@ from gs2e.splat.init import init_from_points
 from gs2e.splat.loss import photometric_loss
 from gs2e.splat.model import render, to_params
 from gs2e.splat.rasterize import SplatCamera
-from gs2e.splat.optimise import Schedule, Step, make_optimizer, optimise
+from gs2e.splat.optimise import Schedule, Step, make_optimizer, optimise, training_dtype
 from gs2e.splat.strategy import DensifyConfig, DensifyStrategy
 from gs2e.splat.views import downscale_area
 
@@ -111,6 +112,8 @@ class Recon3dSettings:
     # [[from_step, downscale factor], ...] as the trainer's coarse-to-fine schedule
     resolution_schedule: tuple = ((0, 2), (800, 1))
     seed: int = 0
+    backend: str = "cpu"  # resolved (gs2e.splat.backend.resolve_backend)
+    compute_dtype: str = "float64"  # auto, float64, float32 (splat.compute_dtype's choices)
 
 
 @dataclass
@@ -301,8 +304,10 @@ def _extent(c2w: np.ndarray, d_hint: float | None) -> float:
 class _SharpFrames:
     """Objective ``sharp``: the photometric loss on one random training frame."""
 
-    def __init__(self, data: Recon3dData, rng: np.random.Generator, bg: torch.Tensor):
+    def __init__(self, data: Recon3dData, rng: np.random.Generator, bg: torch.Tensor,
+                 backend: str, dtype: str):
         self.data, self.rng, self.bg = data, rng, bg
+        self.render = functools.partial(render, backend=backend, grad_dtype=dtype)
         self.sharp = _Targets(data.sharp)
         self.j = None
 
@@ -310,7 +315,7 @@ class _SharpFrames:
         d = self.data
         self.j = d.train_idx[int(self.rng.integers(len(d.train_idx)))]
         cam = _camera(d, d.c2w[self.j], downscale)
-        img, _, _, meta = render(p, cam, self.bg, sh_degree)
+        img, _, _, meta = self.render(p, cam, self.bg, sh_degree)
         return Step(photometric_loss(img, self.sharp.get(self.j, downscale)), meta, cam)
 
     def where(self) -> str:
@@ -325,8 +330,9 @@ class _EventWindows:
     blurred training frame."""
 
     def __init__(self, data: Recon3dData, s: Recon3dSettings, rng: np.random.Generator,
-                 bg: torch.Tensor, blur: bool):
+                 bg: torch.Tensor, blur: bool, dtype: str):
         self.data, self.s, self.rng, self.bg, self.blur = data, s, rng, bg, blur
+        self.render = functools.partial(render, backend=s.backend, grad_dtype=dtype)
         self.blurred = _Targets(data.blurred)
         self.window = (0.0, 0.0)
 
@@ -339,8 +345,8 @@ class _EventWindows:
         self.window = (t_a, t_b)
         pose = d.pose_at(np.array([t_a, t_b]))
         cam = _camera(d, pose[1], downscale)
-        img_b, _, _, meta = render(p, cam, bg, sh_degree)
-        img_a = render(p, _camera(d, pose[0], downscale), bg, sh_degree)[0]
+        img_b, _, _, meta = self.render(p, cam, bg, sh_degree)
+        img_a = self.render(p, _camera(d, pose[0], downscale), bg, sh_degree)[0]
         loss = event_loss(img_a, img_b, window_step_sum(d, t_a, t_b, downscale), d.log_eps)
         if self.blur:
             j = d.train_idx[int(self.rng.integers(len(d.train_idx)))]
@@ -348,7 +354,7 @@ class _EventWindows:
             dsb = max(downscale, s.blur_downscale)
             k = blur_subframes(float(d.motion_px[j]) / dsb, s.blur_subframes)
             ts = d.t_us[j] - E / 2 + (np.arange(k) + 0.5) * E / k
-            subs = [render(p, _camera(d, c, dsb), bg, sh_degree)[0] for c in d.pose_at(ts)]
+            subs = [self.render(p, _camera(d, c, dsb), bg, sh_degree)[0] for c in d.pose_at(ts)]
             loss = loss + s.lambda_blur * photometric_loss(blur_of(subs), self.blurred.get(j, dsb))
         return Step(loss, meta, cam)
 
@@ -380,8 +386,9 @@ def train_variant(variant: str, data: Recon3dData, s: Recon3dSettings,
     strategy = DensifyStrategy(DensifyConfig(grad_threshold=s.densify_grad_threshold, budget=s.budget),
                                extent, densify_from=s.densify_from, densify_until=int(0.8 * s.steps),
                                densify_every=s.densify_every, opacity_reset_every=10 ** 9)
-    objective = (_SharpFrames(data, rng, bg) if variant == "sharp"
-                 else _EventWindows(data, s, rng, bg, blur=variant == "event_blur"))
+    dtype = training_dtype(s.compute_dtype, (data.width, data.height))
+    objective = (_SharpFrames(data, rng, bg, s.backend, dtype) if variant == "sharp"
+                 else _EventWindows(data, s, rng, bg, variant == "event_blur", dtype))
     c0, w0 = time.process_time(), time.perf_counter()
     optimise(p, opt, strategy, objective, sched, extent, gen, desc=f"recon3d {variant}",
              context=f"recon3d {variant}: ")

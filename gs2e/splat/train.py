@@ -32,7 +32,7 @@ from gs2e.splat.init import init_from_points
 from gs2e.splat.loss import photometric_loss
 from gs2e.splat.model import from_params, render, to_params
 from gs2e.splat.optimise import (Schedule, Step, downscale_at, gradient_step, make_optimizer,
-                                 optimise)
+                                 optimise, training_dtype)
 from gs2e.splat.output import write_train_output
 from gs2e.splat.scene_stats import choose_sh_degree, detail_budget, view_dependence
 from gs2e.splat.strategy import Adam, DensifyStrategy, GrowingBudget
@@ -56,20 +56,6 @@ def plateau_step(best: float, bad_evals: int, psnr: float, n_it: int, cfg: dict)
     elif full_res:
         bad_evals += 1
     return best, bad_evals, full_res and n_it >= cfg["min_iterations"] and bad_evals >= cfg["plateau_patience"]
-
-
-F32_TRAIN_MIN_PIXELS = 500_000  # compute_dtype auto: float32 from here (docs/train.md)
-
-
-def training_dtype(compute_dtype: str, train_size: tuple[int, int]) -> str:
-    """What the training passes compute in: ``splat.compute_dtype``, with
-    ``auto`` resolved by the training size (W, H) px: float32 (16 lanes, about
-    2x faster passes) where the views have at least F32_TRAIN_MIN_PIXELS
-    pixels and the passes are most of a step, float64 below, where float32
-    saves little CPU and measured slightly lower held-out PSNR."""
-    if compute_dtype != "auto":
-        return compute_dtype
-    return "float32" if train_size[0] * train_size[1] >= F32_TRAIN_MIN_PIXELS else "float64"
 
 
 def scene_needs(scene_dir: Path, train_v: list[View], cfg: dict, seed: int) -> dict[str, Any]:
