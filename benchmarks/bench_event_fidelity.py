@@ -72,9 +72,8 @@ METHODS = {  # name -> (mode, fps, sampling overrides)
 }
 
 
-def motion_rate_px_per_us(model_dir, traj, sensor: dict, t_us: int) -> float:
+def motion_rate_px_per_us(src: RenderedSource, t_us: int) -> float:
     """Image motion (px per us, :func:`image_motion_px`) at ``t_us``, over 200 us."""
-    src = RenderedSource(model_dir, traj, events_cfg("ideal", "fixed", extra=sensor))
     t1 = min(t_us + 200, src.t1_us)
     r = src.renderer
     return image_motion_px(r.centres(src.pose_at(t_us)), r.centres(src.pose_at(t1))) / max(1, t1 - t_us)
@@ -105,7 +104,7 @@ def case(model_dir, traj, sensor_name: str | None, methods: list[str], ref_rende
     sensor = {"sensor": sensor_name} if sensor_name else {}
     probe = RenderedSource(model_dir, traj, events_cfg("ideal", "fixed", extra=sensor))
     t_mid = (probe.t0_us + probe.t1_us) // 2
-    rate = motion_rate_px_per_us(model_dir, traj, sensor, t_mid)
+    rate = motion_rate_px_per_us(probe, t_mid)
     span_us = int(min(max_span_us, probe.t1_us - t_mid,
                       ref_renders * REF_MOTION_PX / max(rate, 1e-12)))
     span = (t_mid, t_mid + max(span_us, 100))

@@ -163,7 +163,7 @@ def run(model_dir, traj, span, mode, fps=2400.0, bound=1.0, seeds=(0,),
     model_s = dict.fromkeys(models, 0.0)
     times = [np.array([t0], np.int64)]
     for item in src.batches():
-        times.append(item.t1_us if isinstance(item, TileBatch) else item[0].copy())
+        times.append(item.t1_us if isinstance(item, TileBatch) else item[0])
         for k, m in models.items():
             b = time.perf_counter()
             out[k].append(m.process_tiles(item) if isinstance(item, TileBatch) else m.process_batch(*item))

@@ -213,13 +213,19 @@ class RenderedSource:
             self.luminance[:] = buf[len(ts) - 1]
             yield np.array(ts, np.int64), buf[:len(ts)]
 
+    def _first_step_us(self) -> int:
+        """First step of the adaptive and motion clocks: the fixed_fps period,
+        within [dt_min_us, dt_max_us]."""
+        sc = self.sc
+        return int(min(sc["dt_max_us"], max(sc["dt_min_us"], 1e6 / sc["fixed_fps"])))
+
     def motion_clock(self) -> Iterator[int]:
         """Sample times after t0 of mode ``motion`` (:func:`motion_times`)."""
         sc = self.sc
-        dt0 = int(min(sc["dt_max_us"], max(sc["dt_min_us"], 1e6 / sc["fixed_fps"])))
         times = motion_times(lambda t: self.renderer.centres(self.pose_at(t)), image_motion_px,
                              self.t0_us, self.t1_us, float(sc["max_motion_px"]),
-                             int(sc["dt_min_us"]), int(sc["dt_max_us"]), dt0, self.stats)
+                             int(sc["dt_min_us"]), int(sc["dt_max_us"]), self._first_step_us(),
+                             self.stats)
         next(times)
         return times
 
@@ -232,7 +238,7 @@ class RenderedSource:
             return np.log(lum.astype(np.float64) + self.log_eps)
 
         sc = self.sc
-        dt0 = int(min(sc["dt_max_us"], max(sc["dt_min_us"], 1e6 / sc["fixed_fps"])))
+        dt0 = self._first_step_us()
         first = np.log(self.luminance.astype(np.float64) + self.log_eps)  # start() rendered t0
         gen = adaptive_samples(render_log, self.t0_us, self.t1_us, self.bound, int(sc["dt_min_us"]),
                                int(sc["dt_max_us"]), dt0, self.stats, float(sc["outlier_fraction"]),

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable, Protocol
+from typing import Callable, NamedTuple, Protocol
 
 import torch
 
@@ -25,10 +25,10 @@ from gs2e.splat.rasterize import NonFiniteError, SplatCamera
 from gs2e.splat.strategy import PARAMS, Adam, DensifyStrategy
 
 
-@dataclass
-class Step:
+class Step(NamedTuple):
     """One step's loss and the render that densification reads (its ``meta``:
-    radii, 2D-mean gradients) with that render's camera."""
+    radii, 2D-mean gradients) with that render's camera (a tuple, loss first,
+    as :func:`gradient_step` takes it)."""
 
     loss: torch.Tensor
     meta: dict
@@ -148,12 +148,8 @@ def optimise(p: dict[str, torch.Tensor], opt: Adam, strategy: DensifyStrategy,
         for it in bar:
             ds, sh = sched.downscale(it), sched.sh_degree_at(it)
             opt.lrs["means"] = sched.position_lr(it, extent)
-            def loss_of():
-                s = objective.step(p, it, ds, sh)
-                return s.loss, s
-
             try:
-                _, step = gradient_step(p, opt, loss_of)
+                step = gradient_step(p, opt, lambda: objective.step(p, it, ds, sh))
             except NonFiniteError as exc:
                 raise NonFiniteError(f"{context}training step {it + 1} ({objective.where()}): {exc}; "
                                      "no output written") from exc
