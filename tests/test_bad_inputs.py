@@ -108,15 +108,15 @@ def _huge_png(p: Path) -> Path:
 
 
 def _model(tmp: Path) -> Path:
-    from tests.test_render import _plane_model
+    from gs2e.testing import plane_model
 
-    return _plane_model(tmp)
+    return plane_model(tmp)
 
 
 def _trajectory(tmp: Path) -> Path:
-    from tests.test_render import _straight_trajectory
+    from gs2e.testing import straight_trajectory
 
-    return _straight_trajectory(tmp, dx=0.2)
+    return straight_trajectory(tmp, dx=0.2)
 
 
 def _write(p: Path, data: bytes | str) -> Path:

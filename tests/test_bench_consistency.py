@@ -31,13 +31,13 @@ DURATION_S = 0.15
 
 def _fast_pan(tmp: Path) -> Path:
     """The tests' straight pan over the plane, retimed to DURATION_S."""
-    from test_render import _straight_trajectory
+    from gs2e.testing import straight_trajectory
 
     from gs2e.trajectory import load_trajectory
     from gs2e.trajectory.io import save_trajectory
     from gs2e.trajectory.trajectory import Trajectory
 
-    d = load_trajectory(_straight_trajectory(tmp, dx=1.2)).to_arrays()
+    d = load_trajectory(straight_trajectory(tmp, dx=1.2)).to_arrays()
     f = d["t_us"][-1] / (DURATION_S * 1e6)
     d["t_us"] = np.round(d["t_us"] / f).astype(np.int64)
     d["ds_dt"] = d["ds_dt"] * f
@@ -56,10 +56,10 @@ def _render(model: Path, traj: Path, out: Path) -> None:
 def plane_dataset(tmp_path_factory):
     """frames/ (and frames_srgb/, blur averaged in sRGB), events and windows per theta."""
     import gs2e.render.dataset as RD
-    from test_render import _plane_model
+    from gs2e.testing import plane_model
 
     tmp = tmp_path_factory.mktemp("bench_plane")
-    model = _plane_model(tmp)
+    model = plane_model(tmp)
     traj = _fast_pan(tmp)
     _render(model, traj, tmp / "frames")
     # fault: the blur averaged on sRGB values (what a renderer without linear light does)

@@ -189,10 +189,10 @@ STEPS = 250
 def plane(tmp_path_factory):
     """The plane panned past the camera: frames, ideal events (theta 0.1), windows."""
     from test_bench_consistency import _fast_pan, _render
-    from test_render import _plane_model
+    from gs2e.testing import plane_model
 
     tmp = tmp_path_factory.mktemp("recon3d_plane")
-    model = _plane_model(tmp)
+    model = plane_model(tmp)
     traj = _fast_pan(tmp)
     _render(model, traj, tmp / "frames")
     cfg = {"model": "ideal", "theta_on": 0.1, "theta_off": 0.1, "preview": False,

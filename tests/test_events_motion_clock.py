@@ -168,13 +168,13 @@ def test_rendered_source_in_motion_mode_renders_at_its_clock(tmp_path):
     """mode: motion through the workflow's event source: whole frames at the
     clock's times, each the true render at its time, fewer where the bound is
     looser; a config without the bound is refused naming the key."""
-    from test_render import _plane_model, _straight_trajectory
+    from gs2e.testing import plane_model, straight_trajectory
 
     from gs2e.common.errors import ConfigError
     from gs2e.config import check_config, load_config
     from gs2e.events.rendered import RenderedSource
 
-    model, traj = _plane_model(tmp_path), _straight_trajectory(tmp_path, 0.2)
+    model, traj = plane_model(tmp_path), straight_trajectory(tmp_path, 0.2)
 
     def source(px):
         cfg = load_config({"events": {"model": "ideal", "sampling": {

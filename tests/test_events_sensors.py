@@ -145,13 +145,13 @@ def test_rendered_at_the_sensor_matches_the_scene_camera(tmp_path, size):
     """The sensor camera renders what the scene camera sees, scaled and
     cropped as fit_frame does: both paths share one geometry. (Sensors larger
     than the 64x48 scene camera: a smaller one would alias the 0.6 px Gaussians.)"""
-    from test_render import _plane_model, _straight_trajectory
+    from gs2e.testing import plane_model, straight_trajectory
 
     from gs2e.events.rendered import RenderedSource
     from gs2e.events.sampling import image_luminance
 
     w, h = size
-    model, traj = _plane_model(tmp_path), _straight_trajectory(tmp_path, 0.2)
+    model, traj = plane_model(tmp_path), straight_trajectory(tmp_path, 0.2)
     f = tmp_path / "s.yaml"
     f.write_text(f"width: {w}\nheight: {h}\n")
     full = RenderedSource(model, traj, _events_cfg(model="ideal"))
@@ -237,12 +237,12 @@ def test_frames_and_events_share_the_sensor_camera(tmp_path):
     the event stage uses for the same sensor: same array, same intrinsics."""
     import cv2
     import pandas as pd
-    from test_render import _plane_model, _straight_trajectory
+    from gs2e.testing import plane_model, straight_trajectory
 
     from gs2e.cli import main
     from gs2e.events.rendered import RenderedSource
 
-    model, traj = _plane_model(tmp_path), _straight_trajectory(tmp_path, 0.2)
+    model, traj = plane_model(tmp_path), straight_trajectory(tmp_path, 0.2)
     f = tmp_path / "s.yaml"
     f.write_text("width: 96\nheight: 90\n")
     out = tmp_path / "frames"

@@ -10,13 +10,13 @@ import pytest
 
 from gs2e.config import load_config, section_json
 from tests.conftest import run_cli
-from tests.test_render import _plane_model, _straight_trajectory
+from gs2e.testing import plane_model, straight_trajectory
 
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("evscene")
-    return _plane_model(tmp), _straight_trajectory(tmp, dx=0.3)
+    return plane_model(tmp), straight_trajectory(tmp, dx=0.3)
 
 
 @pytest.mark.parametrize("mode", ["tile", pytest.param("adaptive", marks=pytest.mark.slow),

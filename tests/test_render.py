@@ -14,51 +14,8 @@ from gs2e.config import load_config
 from gs2e.io.scene import Camera, Frame, Scene
 from gs2e.render.blur import average_srgb, subframe_times_us, subframes_needed
 
-W, H, F = 64, 48, 60.0
-DEPTH = 2.0
-
-
-def _plane_model(tmp: Path) -> Path:
-    """A textured plane z = DEPTH of small opaque Gaussians, as a gs2e model folder."""
-    from skimage import data
-
-    from gs2e.common.atomic import write_json_atomic
-    from gs2e.splat.init import rgb_to_sh_dc
-    from gs2e.splat.ply import write_ply
-
-    tex = data.astronaut()[::4, ::4] / 255.0  # 128 x 128
-    n = 128
-    xs = (np.arange(n) - n / 2 + 0.5) * 0.03
-    X, Y = np.meshgrid(xs, xs)
-    means = np.stack([X.ravel(), Y.ravel(), np.full(X.size, DEPTH)], 1)
-    quats = np.tile([1.0, 0, 0, 0], (len(means), 1))
-    log_scales = np.full((len(means), 3), np.log(0.02))
-    opac = np.full(len(means), 6.0)
-    sh = rgb_to_sh_dc(tex.reshape(-1, 3))[:, None, :]
-    model = tmp / "model"
-    write_ply(model / "pc.ply", means, quats, log_scales, opac, sh)
-    write_json_atomic(model / "model.json", {"format": "gs2e-splat", "version": 1, "ply": "pc.ply",
-                                             "iterations": 0, "sh_degree": 0})
-    return model
-
-
-def _straight_trajectory(tmp: Path, dx: float, n_in: int = 5) -> Path:
-    """Constant-velocity translation along +x over the plane, identity rotation."""
-    from gs2e.trajectory.io import save_trajectory
-    from gs2e.trajectory.stage import generate
-
-    frames = []
-    for i in range(n_in):
-        T = np.eye(4)
-        T[0, 3] = -dx / 2 + dx * i / (n_in - 1)
-        frames.append(Frame(f"{i}.png", Camera(F, F, W / 2, H / 2), T))
-    cfg = load_config({"trajectory": {"velocity": "1", "smooth_half_width": 0, "view_order": "sequence",
-                                      "interpolation": "linear", "speed_presets": ["medium"],
-                                      "mini_groups": 0, "plot": False}})["trajectory"]
-    tr = generate(Scene(W, H, frames, "test"), cfg, seed=0).trajectories["base_medium"]
-    path = tmp / "straight.npz"
-    save_trajectory(path, tr)
-    return path
+from gs2e.testing import PLANE_DEPTH as DEPTH, PLANE_F as F, PLANE_H as H, PLANE_W as W  # noqa: E402
+from gs2e.testing import plane_model, straight_trajectory  # noqa: E402
 
 
 def test_subframe_rules():
@@ -81,14 +38,14 @@ def test_color_round_trip():
 @pytest.fixture(scope="module")
 def plane(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("plane")
-    return _plane_model(tmp), tmp
+    return plane_model(tmp), tmp
 
 
 def test_static_camera_blur_equals_sharp(plane, tmp_path):
     from gs2e.render.dataset import render_dataset
 
     model, _ = plane
-    traj = _straight_trajectory(tmp_path, dx=1e-9)  # degenerate path: the camera does not move
+    traj = straight_trajectory(tmp_path, dx=1e-9)  # degenerate path: the camera does not move
     cfg = load_config({"render": {"fps": 10.0, "exposure_us": 50_000.0, "write_depth": False}})["render"]
     render_dataset(model, traj, tmp_path / "out", cfg)
     import imageio.v3 as iio
@@ -104,7 +61,7 @@ def test_subframes_from_the_forward_renderer_are_the_sharp_renderers_image(plane
     from gs2e.render.renderer import TrajectoryRenderer
 
     model, _ = plane
-    r = TrajectoryRenderer(model, _straight_trajectory(tmp_path, dx=0.6), background=(0.2, 0.1, 0.0))
+    r = TrajectoryRenderer(model, straight_trajectory(tmp_path, dx=0.6), background=(0.2, 0.1, 0.0))
     first = None
     for t in np.linspace(r.t0_us, r.t1_us, 5):
         c2w = r.pose(float(t))
@@ -127,7 +84,7 @@ def test_constant_velocity_pan_matches_box_filter(plane, tmp_path):
     from gs2e.render.renderer import TrajectoryRenderer
 
     model, _ = plane
-    traj = _straight_trajectory(tmp_path, dx=0.6)
+    traj = straight_trajectory(tmp_path, dx=0.6)
     r = TrajectoryRenderer(model, traj)
     t_mid = (r.t0_us + r.t1_us) // 2
     E = (r.t1_us - r.t0_us) * 0.4
@@ -155,7 +112,7 @@ def test_dataset_records_round_trip(plane, tmp_path):
     from gs2e.trajectory import load_trajectory
 
     model, _ = plane
-    traj_path = _straight_trajectory(tmp_path, dx=0.3)
+    traj_path = straight_trajectory(tmp_path, dx=0.3)
     cfg = load_config({"render": {"fps": 20.0, "exposure_us": 10_000.0}})["render"]
     stats = render_dataset(model, traj_path, tmp_path / "out", cfg, scene_id="plane")
     df = read_frames_table(tmp_path / "out")
@@ -174,7 +131,7 @@ def test_exposure_longer_than_frame_interval_rejected(plane, tmp_path):
     from gs2e.render.dataset import render_dataset
 
     model, _ = plane
-    traj = _straight_trajectory(tmp_path, dx=0.3)
+    traj = straight_trajectory(tmp_path, dx=0.3)
     # The config check rejects it before any job runs ...
     with pytest.raises(ConfigError, match="render.exposure_us"):
         load_config({"render": {"fps": 100.0, "exposure_us": 20_000.0}})

@@ -102,10 +102,10 @@ def test_render_stage_adaptive_against_fixed_rule_on_a_panned_plane(tmp_path):
 
     from gs2e.config import load_config
     from gs2e.render.dataset import render_dataset
-    from test_render import _plane_model, _straight_trajectory
+    from gs2e.testing import plane_model, straight_trajectory
 
-    model = _plane_model(tmp_path)
-    traj = _straight_trajectory(tmp_path, dx=1.2)  # ~1.2 px per 100 ms
+    model = plane_model(tmp_path)
+    traj = straight_trajectory(tmp_path, dx=1.2)  # ~1.2 px per 100 ms
     out = {}
     for name, extra in (("adaptive", {"blur_tolerance_db": 55.0}),
                         ("fixed", {"blur_tolerance_db": None, "blur_max_step_px": 0.25, "blur_max_subframes": 256})):

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from _traj_helpers import TEMPLE, fine_steps, look_at, ring, temple_c2w
+from gs2e.testing import TEMPLE, fine_steps, look_at, ring, temple_c2w
 from gs2e.common.errors import InputError
 from gs2e.common.so3 import geodesic_angle, quat_exp, quat_to_rotmat, rotmat_to_quat
 from gs2e.config import load_section

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from _traj_helpers import TEMPLE, fine_steps, make_scene, ring, temple_c2w
+from gs2e.testing import TEMPLE, fine_steps, make_scene, ring, temple_c2w
 from gs2e.common.errors import ConfigError
 from gs2e.common.so3 import geodesic_angle
 from gs2e.config import load_section

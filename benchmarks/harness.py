@@ -1,0 +1,223 @@
+"""The one harness of gs2e's benchmarks: common flags, timing, a baseline
+revision's checkout, results (CSV + plot) and the report with its headline
+printed last.
+
+Every script is run as ``python benchmarks/bench_<name>.py [--quick] ...``;
+Python puts the script's folder on the import path, so ``import harness``
+needs no path edit, and ``gs2e`` is the installed (editable) package. Code a
+baseline revision runs in a subprocess whose ``PYTHONPATH`` is that
+revision's checkout (:func:`baseline_checkout`, :func:`gs2e_env`).
+
+Conventions every script follows:
+
+* ``--quick`` (from :func:`parser`): a run of about a minute, for ``make bench``;
+* results go to ``benchmarks/results/<name>.csv`` and ``.png``
+  (:func:`write_csv`, :func:`save_plot`);
+* the report ends with one headline line (:func:`report`), naming the machine
+  and its instruction set (:func:`machine`), since absolute times differ by
+  machine and only ratios measured in the same run are compared.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import platform
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterator
+
+BENCHMARKS = Path(__file__).resolve().parent
+REPO = BENCHMARKS.parent
+RESULTS = BENCHMARKS / "results"
+# ../shared/data beside the repo; one level further up for git worktrees (wt/<branch>)
+SHARED = next((p for p in (REPO.parent / "shared" / "data", REPO.parent.parent / "shared" / "data")
+               if p.is_dir()), REPO.parent / "shared" / "data")
+# Real scenes of ../shared/data as scenes-table rows: name -> (layout, input path).
+SHARED_SCENES = {"temple_ring": ("folder", SHARED / "temple_ring"),
+                 "llff_fern": ("folder", SHARED / "llff_fern" / "images"),
+                 "mouse_colmap": ("colmap", SHARED / "mouse_colmap")}
+
+
+# ---------------------------------------------------------------------- flags
+def parser(doc: str | None, quick: str, baseline_rev: str | None = None) -> argparse.ArgumentParser:
+    """The script's argument parser: its description is the first line of the
+    module docstring ``doc``; ``--quick`` with the help ``quick`` (what the
+    quick run does, and how long it takes); with ``baseline_rev``, a
+    ``--baseline-rev`` flag defaulting to it (the revision measured against)."""
+    ap = argparse.ArgumentParser(description=(doc or "").strip().splitlines()[0] if doc else None,
+                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help=quick)
+    if baseline_rev is not None:
+        ap.add_argument("--baseline-rev", default=baseline_rev,
+                        help="git revision whose code is the baseline, run in the same session")
+    return ap
+
+
+# --------------------------------------------------------------------- timing
+@dataclass
+class Timing:
+    """Wall seconds, this process's CPU seconds and its finished children's
+    CPU seconds over a :func:`clock` block (filled when the block ends)."""
+
+    wall_s: float = float("nan")
+    cpu_s: float = float("nan")
+    child_cpu_s: float = float("nan")
+
+
+def child_cpu_s() -> float:
+    """CPU seconds (user + system) of this process's finished children."""
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
+
+
+@contextmanager
+def clock() -> Iterator[Timing]:
+    """``with clock() as t: ...`` then ``t.wall_s``, ``t.cpu_s``, ``t.child_cpu_s``."""
+    t = Timing()
+    w0, c0, k0 = time.perf_counter(), time.process_time(), child_cpu_s()
+    try:
+        yield t
+    finally:
+        t.wall_s = time.perf_counter() - w0
+        t.cpu_s = time.process_time() - c0
+        t.child_cpu_s = child_cpu_s() - k0
+
+
+def median_ms(fn: Callable[[], object], reps: int) -> float:
+    """Median wall time of ``fn()`` in ms over ``reps`` calls, after one
+    untimed call (compiles, warms caches)."""
+    fn()
+    ts = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t0)
+    ts.sort()
+    return 1e3 * (ts[(len(ts) - 1) // 2] + ts[len(ts) // 2]) / 2
+
+
+def best_s(fn: Callable[[], object], reps: int) -> float:
+    """Fastest wall time of ``fn()`` in seconds over ``reps`` calls (no warm-up:
+    for work that does not compile, such as file I/O)."""
+    best = float("inf")
+    for _ in range(max(1, reps)):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def machine() -> str:
+    """The CPU, the CPUs this process may use and the instruction set the
+    kernels are compiled for, e.g. ``AMD EPYC 7B13, 2 CPUs, AVX2+FMA (no
+    AVX-512)``: every figure names it."""
+    model, flags = platform.processor() or platform.machine(), set()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name") and ":" in line:
+                model = line.split(":", 1)[1].strip()
+            elif line.startswith("flags") and ":" in line:
+                flags = set(line.split(":", 1)[1].split())
+    except OSError:
+        pass
+    if "avx512f" in flags:
+        isa = "AVX-512"
+    elif "avx2" in flags:
+        isa = "AVX2+FMA (no AVX-512)" if "fma" in flags else "AVX2 (no AVX-512)"
+    else:
+        isa = platform.machine()
+    return f"{model}, {len(os.sched_getaffinity(0))} CPUs, {isa}"
+
+
+# -------------------------------------------------------------- the baseline
+@contextmanager
+def baseline_checkout(rev: str) -> Iterator[Path]:
+    """A detached git worktree of ``rev`` (removed afterwards): the baseline's
+    code, to run with :func:`gs2e_env`."""
+    with tempfile.TemporaryDirectory(prefix="gs2e_baseline_") as tmp:
+        checkout = Path(tmp) / "checkout"
+        subprocess.run(["git", "worktree", "add", "--detach", str(checkout), rev], cwd=REPO,
+                       check=True, capture_output=True)
+        try:
+            yield checkout
+        finally:
+            subprocess.run(["git", "worktree", "remove", "--force", str(checkout)], cwd=REPO,
+                           capture_output=True)
+
+
+def baseline_source(rev: str, path: str) -> str:
+    """The text of ``path`` (relative to the repository) at revision ``rev``."""
+    return subprocess.run(["git", "show", f"{rev}:{path}"], cwd=REPO, check=True,
+                          capture_output=True, text=True).stdout
+
+
+def gs2e_env(root: Path | str, **extra: str) -> dict:
+    """Environment of a subprocess that imports the gs2e of checkout ``root``
+    (``PYTHONPATH`` comes before the installed package), without progress bars."""
+    path = os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    return {**os.environ, "PYTHONPATH": path, "GS2E_PROGRESS": "0", **extra}
+
+
+def check_gs2e_root(root: Path | str) -> None:
+    """Stop unless the imported gs2e is the one of checkout ``root`` (in a
+    subprocess started with :func:`gs2e_env`)."""
+    import gs2e
+
+    if not Path(gs2e.__file__).resolve().is_relative_to(Path(root).resolve()):
+        raise SystemExit(f"imported {gs2e.__file__}, not the gs2e of {root}")
+
+
+# ------------------------------------------------------------------- results
+def write_csv(name: str, rows) -> Path:
+    """Write ``rows`` (dicts with the same keys, or a DataFrame) to
+    benchmarks/results/<name>.csv; returns the path."""
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    path = RESULTS / f"{name}.csv"
+    if hasattr(rows, "to_csv"):
+        rows.to_csv(path, index=False)
+        return path
+    rows = list(rows)
+    with open(path, "w", newline="") as fh:
+        wr = csv.DictWriter(fh, fieldnames=list(rows[0]) if rows else [])
+        wr.writeheader()
+        wr.writerows(rows)
+    return path
+
+
+def pyplot():
+    """matplotlib.pyplot on the non-interactive Agg backend."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save_plot(fig, name: str, dpi: int = 120) -> Path:
+    """Save ``fig`` as benchmarks/results/<name>.png (tight layout) and close it."""
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    path = RESULTS / f"{name}.png"
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    pyplot().close(fig)
+    return path
+
+
+def report(table, headline: str, files: list[Path] | tuple = ()) -> None:
+    """Print ``table`` (text or a DataFrame), the files written, then the
+    headline as the last line, with the machine it was measured on."""
+    if table is not None:
+        print(table.to_string(index=False) if hasattr(table, "to_string") else str(table))
+    for f in files:
+        print(f"wrote {Path(f).relative_to(REPO) if Path(f).is_relative_to(REPO) else f}")
+    sys.stdout.flush()
+    print(f"{headline} [{machine()}]", flush=True)
