@@ -13,31 +13,31 @@ wall time. The CPU backend uses every core the machine has.
 
 Needs a CUDA device and the gsplat package (``pip install -e .[cuda]``); says
 why not and exits 0 otherwise. Usage:
-    PYTHONPATH=$PWD python benchmarks/bench_backend.py [--quick] [--train-scene DIR]
+    python benchmarks/bench_backend.py [--quick] [--train-scene DIR]
 Writes benchmarks/results/bench_backend.csv (and bench_backend_train.csv) and
 bench_backend.png; the last printed line is the headline.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "benchmarks"))
-from _results import RESULTS, pyplot  # noqa: E402
-from bench_rasterizer import time_call, trained_cameras  # noqa: E402
+import harness
+from harness import RESULTS
+from train_runs import time_call, trained_cameras
 
 KEYS = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
 
 
 def trained_models(names: list[str], reps: int) -> list[dict]:
+    """Forward and forward+backward per call (ms) with each backend on the
+    trained models ``names`` (:func:`train_runs.trained_cameras`), and how
+    far the gsplat images and gradients are from the CPU ones."""
     from gs2e.splat.model import render
 
     rows = []
@@ -47,10 +47,10 @@ def trained_models(names: list[str], reps: int) -> list[dict]:
         for backend in ("cpu", "gsplat"):
             def once(backend=backend):
                 return render(p, cam, bg, int(info["sh_degree"]), backend)
-            t0 = time.perf_counter()
-            once()  # warm-up: compiled kernels (gsplat builds its CUDA code on first use)
+            with harness.clock() as first:
+                once()  # warm-up: compiled kernels (gsplat builds its CUDA code on first use)
             if not rows:
-                print(f"first {backend} call: {time.perf_counter() - t0:.1f} s", flush=True)
+                print(f"first {backend} call: {first.wall_s:.1f} s", flush=True)
             t, _ = time_call(once, p.values(), reps)  # seconds; the gradients land on
             t = {k.replace("_s", "_ms"): 1e3 * v for k, v in t.items()}  # the CPU: GPU waited for
             for x in p.values():
@@ -78,13 +78,13 @@ def warm_gsplat() -> float:
     CUDA code: about 70 s for the build on an H100 machine, cached per machine)."""
     from gs2e.splat.rasterize import SplatCamera, rasterize
 
-    t0 = time.perf_counter()
-    one = dict(means=torch.tensor([[0.0, 0.0, 3.0]]), quats=torch.tensor([[1.0, 0.0, 0.0, 0.0]]),
-               log_scales=torch.full((1, 3), -2.0), opacity_logits=torch.zeros(1),
-               sh=torch.full((1, 1, 3), 0.5))
-    rasterize(*one.values(), SplatCamera(np.eye(4), 20.0, 20.0, 16.0, 12.0, 32, 24),
-              backend="gsplat")
-    return time.perf_counter() - t0
+    with harness.clock() as t:
+        one = dict(means=torch.tensor([[0.0, 0.0, 3.0]]), quats=torch.tensor([[1.0, 0.0, 0.0, 0.0]]),
+                   log_scales=torch.full((1, 3), -2.0), opacity_logits=torch.zeros(1),
+                   sh=torch.full((1, 1, 3), 0.5))
+        rasterize(*one.values(), SplatCamera(np.eye(4), 20.0, 20.0, 16.0, 12.0, 32, 24),
+                  backend="gsplat")
+    return t.wall_s
 
 
 def train_both(scene_dir: Path, iterations: int, work: Path) -> list[dict]:
@@ -97,17 +97,19 @@ def train_both(scene_dir: Path, iterations: int, work: Path) -> list[dict]:
     rows = []
     for backend in ("cpu", "gsplat"):
         cfg = dict(load_section("splat"), backend=backend, max_iterations=iterations)
-        t0 = time.perf_counter()
-        st = train(scene_dir, work / f"model_{backend}", cfg, seed=0, resume=False)
-        rows.append(dict(backend=backend, wall_s=time.perf_counter() - t0,
+        with harness.clock() as t:
+            st = train(scene_dir, work / f"model_{backend}", cfg, seed=0, resume=False)
+        rows.append(dict(backend=backend, wall_s=t.wall_s,
                          **{k: st.get(k) for k in ("iterations", "stop_reason", "train_time_s",
                                                    "n_gaussians", "test_psnr", "test_ssim")}))
         print(f"[train {backend}] {json.dumps(rows[-1])}", flush=True)
     return rows
 
 
-def plot(rows: list[dict], path: Path) -> None:
-    plt = pyplot()
+def plot(rows: list[dict]) -> Path:
+    """Forward+backward per call with each backend, per model and size, as
+    benchmarks/results/bench_backend.png; returns the path."""
+    plt = harness.pyplot()
     labels = sorted({(r["scene"], r["width"], r["height"]) for r in rows},
                     key=lambda s: (s[0], s[1]))
     x = np.arange(len(labels))
@@ -120,14 +122,12 @@ def plot(rows: list[dict], path: Path) -> None:
     ax.set_yscale("log")
     ax.set_ylabel("forward+backward per call (ms, min)")
     ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return harness.save_plot(fig, "bench_backend", dpi=110)
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="demo only, fewer repetitions")
+    ap = harness.parser(__doc__, quick="demo only, fewer repetitions (without CUDA and gsplat: says why "
+                        "and stops at once)")
     ap.add_argument("--models", default="demo,temple_ring,llff_fern",
                     help="trained models to time ('' = none, e.g. with --train-scene alone)")
     ap.add_argument("--train-scene", type=Path, help="a posed scene folder to train on")
@@ -138,7 +138,7 @@ def main() -> int:
 
     ok, why = gsplat_status()
     if not ok:
-        print(f"HEADLINE: gsplat backend not measured: {why}")
+        harness.report(None, f"HEADLINE: gsplat backend not measured: {why}")
         return 0
     print(f"gsplat: {why}; torch {torch.__version__}; CPU threads {torch.get_num_threads()}",
           flush=True)
@@ -146,11 +146,10 @@ def main() -> int:
 
     names = ["demo"] if a.quick else [n for n in a.models.split(",") if n]
     rows = trained_models(names, 3 if a.quick else 7) if names else []
-    RESULTS.mkdir(parents=True, exist_ok=True)
+    files = []
     if rows:
         # cpu rows lack the comparison columns
-        pd.DataFrame(rows).to_csv(RESULTS / "bench_backend.csv", index=False)
-        plot(rows, RESULTS / "bench_backend.png")
+        files += [harness.write_csv("bench_backend", pd.DataFrame(rows)), plot(rows)]
     for r in rows:
         extra = "" if r["backend"] == "cpu" else (
             f"  x{r['speedup_fwd_bwd']:.1f} vs cpu, image PSNR vs cpu {r['psnr_vs_cpu_db']:.1f} dB,"
@@ -160,7 +159,7 @@ def main() -> int:
               f" ms  fwd+bwd {r['fwd_bwd_min_ms']:8.2f} ms{extra}")
     train = train_both(a.train_scene, a.train_iterations, a.work) if a.train_scene else []
     if train:
-        pd.DataFrame(train).to_csv(RESULTS / "bench_backend_train.csv", index=False)
+        files.append(harness.write_csv("bench_backend_train", pd.DataFrame(train)))
     g = [r for r in rows if r["backend"] == "gsplat"]
     parts = [f"gsplat fwd+bwd {min(r['speedup_fwd_bwd'] for r in g):.1f}-"
              f"{max(r['speedup_fwd_bwd'] for r in g):.1f}x faster than the CPU backend "
@@ -170,8 +169,7 @@ def main() -> int:
         c, gs = train
         parts.append(f"training {a.train_iterations} steps: cpu {c['test_psnr']:.2f} dB in "
                      f"{c['wall_s']:.0f} s, gsplat {gs['test_psnr']:.2f} dB in {gs['wall_s']:.0f} s")
-    print(f"results in {RESULTS}")
-    print("HEADLINE: " + ("; ".join(parts) or "nothing measured"))
+    harness.report(None, "HEADLINE: " + ("; ".join(parts) or "nothing measured"), files)
     return 0
 
 

@@ -23,7 +23,7 @@ Runs on the models that ``bench_cost_model.py --run SCENE --sensor S`` trained
   first ``--span-s`` of the trajectory), today and in a checkout of the
   baseline revision, seeds 0 and 1 each: CPU seconds per simulated second and
   event statistics. DVS-Voltmeter is stochastic, so the yardstick is the spread
-  between seeds (per-pixel count distance, :mod:`bench_cost_cuts`).
+  between seeds (per-pixel count distance, :func:`event_runs.count_distance`).
 
 Usage:
     python benchmarks/bench_compositing.py --sensor imx636 --scenes mouse_colmap
@@ -34,34 +34,29 @@ bench_compositing_<sensor>.png; the last printed line is the headline.
 
 from __future__ import annotations
 
-import argparse
 import importlib.util
 import json
 import os
 import subprocess
 import sys
 import tempfile
-import time
+from contextlib import nullcontext
 from pathlib import Path
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "benchmarks"))
-
-from _results import RESULTS, median_ms, pyplot  # noqa: E402
-from bench_cost_cuts import PAPER_FPS, cost_run, count_distance, pixel_counts, run_events  # noqa: E402
+import harness
+from event_runs import PAPER_FPS, cost_run, count_distance, pixel_counts, run_events
+from harness import REPO, median_ms
 
 BASELINE_REV = "468d5aa"  # main before the float32 kernel
 
 
 def baseline_module(rev: str, tmp: Path):
     """gs2e/splat/raster.py of ``rev`` as a module of its own (compiled here)."""
-    src = subprocess.run(["git", "show", f"{rev}:gs2e/splat/raster.py"], cwd=REPO, check=True,
-                         capture_output=True, text=True).stdout
+    src = harness.baseline_source(rev, "gs2e/splat/raster.py")
     path = tmp / f"raster_{rev}.py"
     path.write_text(src.replace("cache=True", "cache=False"))
     spec = importlib.util.spec_from_file_location(f"raster_{rev}", path)
@@ -127,7 +122,7 @@ def bench_kernel(results: Path, events_cfg: dict, scene: str, traj: str, n_poses
               flush=True)
     # training size: forward (float64 compute) + backward, with gradients
     stats = json.loads((results / scene / "splat" / "train_stats.json").read_text())
-    W, H = int(stats["train_width"]), int(stats["train_height"])
+    W = int(stats["train_width"])  # the height follows from the trajectory camera's aspect
     params, info = load_model(results / scene / "splat")
     p = {key: v.detach().float().requires_grad_(True) for key, v in params.items()}
     K = src.traj.K
@@ -232,8 +227,6 @@ def render_command(scene_dir: Path, traj: str) -> list[str]:
 
 
 def bench_render(results: Path, scene: str, traj: str, fps: float, baseline_repo: Path) -> list[dict]:
-    from bench_cost_cuts import child_cpu_s
-
     from gs2e.io.images import read_image
 
     args = render_command(results / scene, traj)
@@ -248,11 +241,10 @@ def bench_render(results: Path, scene: str, traj: str, fps: float, baseline_repo
                 out = Path(tmp) / f"{label}_{rep}"
                 a = list(args)
                 a[a.index("--out") + 1] = str(out)
-                env = dict(os.environ, GS2E_PROGRESS="0", PYTHONPATH=str(repo))
-                c0, w0 = child_cpu_s(), time.perf_counter()
-                subprocess.run([sys.executable, "-m", "gs2e", *a], check=True, env=env,
-                               capture_output=True, cwd=repo)
-                cpu, wall = child_cpu_s() - c0, time.perf_counter() - w0
+                with harness.clock() as t:
+                    subprocess.run([sys.executable, "-m", "gs2e", *a], check=True,
+                                   env=harness.gs2e_env(repo), capture_output=True, cwd=repo)
+                cpu, wall = t.child_cpu_s, t.wall_s
             import pandas as pd
 
             fr = pd.read_parquet(out / "frames.parquet")
@@ -269,8 +261,9 @@ def bench_render(results: Path, scene: str, traj: str, fps: float, baseline_repo
     return rows
 
 
-def plot(kn, ev, path: Path) -> None:
-    plt = pyplot()
+def plot(kn, ev):
+    """The kernels' ms per call, and the events' count against their CPU; the figure."""
+    plt = harness.pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     if kn is not None and len(kn):
         ax = axes[0]
@@ -294,12 +287,13 @@ def plot(kn, ev, path: Path) -> None:
         ax.set_ylabel("events (millions), seeds 0 and 1")
         ax.set_title("gs2e events, fixed 2400 fps")
         ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    return fig
 
 
-def report(kn, ev, stem: Path, sensor: str, rev: str, rn=None) -> None:
-    plot(kn, ev, Path(f"{stem}.png"))
+def report(kn, ev, name: str, sensor: str, rev: str, rn=None, files: list[Path] = ()) -> None:
+    """Draw the plot (benchmarks/results/<name>.png), print the tables, the
+    files and the headline."""
+    files = [*files, harness.save_plot(plot(kn, ev), name)]
     print()
     head = []
     if kn is not None:
@@ -352,16 +346,16 @@ def report(kn, ev, stem: Path, sensor: str, rev: str, rn=None) -> None:
                   f"({ratio:.2f}x; sub-frames {b['subframes']} -> {t['subframes']}); blurred 8-bit values "
                   f"differing {t['blur_u8_frac_differ']:.2e}, by at most {t['blur_u8_max_diff']}")
             head.append(f"{scene} render {ratio:.2f}x less CPU")
-    print(f"wrote {stem}_*.csv and {stem}.png")
-    print(f"compositing at {sensor}, today against {rev}: " + "; ".join(head))
+    harness.report(None, f"compositing at {sensor}, today against {rev}: " + "; ".join(head), files)
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = harness.parser(__doc__, quick="2 poses, 2 reps, 20 ms of events (minutes: still needs "
+                                       "--sensor, --scenes and the cost run's models)",
+                        baseline_rev=BASELINE_REV)
     ap.add_argument("--sensor", required=True, help="the cost run to use (cost_<sensor>)")
     ap.add_argument("--scenes", help="comma-separated scenes of that run")
     ap.add_argument("--parts", default="kernel,events")
-    ap.add_argument("--baseline-rev", default=BASELINE_REV)
     ap.add_argument("--trajectory", default="mini00_medium")
     ap.add_argument("--poses", type=int, default=6)
     ap.add_argument("--reps", type=int, default=5)
@@ -369,16 +363,17 @@ def main() -> None:
     ap.add_argument("--render-fps", type=float, default=3.0,
                     help="frames per second of the render part (the exposure stays the job's)")
     ap.add_argument("--report", action="store_true", help="only reprint and redraw from the CSVs")
-    ap.add_argument("--quick", action="store_true", help="2 poses, 2 reps, 20 ms of events")
     args = ap.parse_args()
     import pandas as pd
 
-    stem = RESULTS / f"bench_compositing_{args.sensor}"
+    name = f"bench_compositing_{args.sensor}"
+    stem = harness.RESULTS / name
     if args.report:
         kn = pd.read_csv(f"{stem}_kernel.csv") if Path(f"{stem}_kernel.csv").exists() else None
         ev = pd.read_csv(f"{stem}_events.csv") if Path(f"{stem}_events.csv").exists() else None
         rn = pd.read_csv(f"{stem}_render.csv") if Path(f"{stem}_render.csv").exists() else None
-        return report(kn, ev, stem, args.sensor, args.baseline_rev, rn)
+        files = [f for p in ("kernel", "events", "render") if (f := Path(f"{stem}_{p}.csv")).exists()]
+        return report(kn, ev, name, args.sensor, args.baseline_rev, rn, files)
     if not args.scenes:
         ap.error("--scenes is required (or --report)")
     if args.quick:
@@ -386,38 +381,28 @@ def main() -> None:
     results, cfg = cost_run(args.sensor)
     parts = set(args.parts.split(","))
     kn_rows, ev_rows, rn_rows = [], [], []
-    with tempfile.TemporaryDirectory(prefix="bench_compositing_base_") as tmp:
+    # the baseline's checkout (a git worktree, removed afterwards) runs its whole commands
+    with tempfile.TemporaryDirectory(prefix="bench_compositing_base_") as tmp, \
+            (harness.baseline_checkout(args.baseline_rev) if parts & {"events", "render"}
+             else nullcontext()) as checkout:
         tmp = Path(tmp)
         base = baseline_module(args.baseline_rev, tmp) if "kernel" in parts else None
-        if parts & {"events", "render"}:
-            checkout = tmp / "checkout"
-            subprocess.run(["git", "worktree", "add", "--detach", str(checkout), args.baseline_rev],
-                           cwd=REPO, check=True, capture_output=True)
-        try:
-            for scene in args.scenes.split(","):
-                if "kernel" in parts:
-                    kn_rows += bench_kernel(results, cfg["events"], scene, args.trajectory, args.poses,
-                                            args.reps, base, tmp)
-                if "events" in parts:
-                    ev_rows += bench_events(results, cfg["events"], scene, args.trajectory, args.span_s,
-                                            checkout)
-                    pd.DataFrame(ev_rows).to_csv(f"{stem}_events.csv", index=False)  # kept if a later part fails
-                if "render" in parts:
-                    rn_rows += bench_render(results, scene, args.trajectory, args.render_fps, checkout)
-        finally:
-            if parts & {"events", "render"}:
-                subprocess.run(["git", "worktree", "remove", "--force", str(checkout)], cwd=REPO,
-                               capture_output=True)
-    kn = pd.DataFrame(kn_rows) if kn_rows else None
-    ev = pd.DataFrame(ev_rows) if ev_rows else None
-    if kn is not None:
-        kn.to_csv(f"{stem}_kernel.csv", index=False)
-    if ev is not None:
-        ev.to_csv(f"{stem}_events.csv", index=False)
-    rn = pd.DataFrame(rn_rows) if rn_rows else None
-    if rn is not None:
-        rn.to_csv(f"{stem}_render.csv", index=False)
-    report(kn, ev, stem, args.sensor, args.baseline_rev, rn)
+        for scene in args.scenes.split(","):
+            if "kernel" in parts:
+                kn_rows += bench_kernel(results, cfg["events"], scene, args.trajectory, args.poses,
+                                        args.reps, base, tmp)
+            if "events" in parts:
+                ev_rows += bench_events(results, cfg["events"], scene, args.trajectory, args.span_s,
+                                        checkout)
+                harness.write_csv(f"{name}_events", pd.DataFrame(ev_rows))  # kept if a later part fails
+            if "render" in parts:
+                rn_rows += bench_render(results, scene, args.trajectory, args.render_fps, checkout)
+    files = []
+    for part, rows in (("kernel", kn_rows), ("events", ev_rows), ("render", rn_rows)):
+        if rows:
+            files.append(harness.write_csv(f"{name}_{part}", pd.DataFrame(rows)))
+    kn, ev, rn = (pd.DataFrame(r) if r else None for r in (kn_rows, ev_rows, rn_rows))
+    report(kn, ev, name, args.sensor, args.baseline_rev, rn, files)
 
 
 if __name__ == "__main__":

@@ -30,82 +30,20 @@ bench_cost_cuts_<sensor>.png; the last printed line is the headline.
 
 from __future__ import annotations
 
-import argparse
-import json
-import os
-import resource
-import subprocess
-import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "benchmarks"))
-
-from _results import RESULTS, pyplot  # noqa: E402
+import harness
+from event_runs import PAPER_FPS, cost_run, count_distance, pixel_counts, run_events
 
 BLUR_N = (8, 16, 32, 64, 128)
 BLUR_REF_N = 256
 BLUR_TOLERANCES_DB = (50.0, 55.0, 60.0)
-PAPER_FPS = 2400.0
-
-
-def cost_run(sensor: str) -> tuple[Path, dict]:
-    """The cost model's results dir for ``sensor`` and its resolved config."""
-    import yaml
-
-    from gs2e.config import load_config
-
-    work = RESULTS / f"cost_{sensor}"
-    if not (work / "config.yaml").exists():
-        raise SystemExit(f"{work}/config.yaml is absent: run "
-                         f"`python benchmarks/bench_cost_model.py --run SCENE --sensor {sensor}` first")
-    return work / "results", load_config(yaml.safe_load((work / "config.yaml").read_text()))
-
-
-def child_cpu_s() -> float:
-    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return ru.ru_utime + ru.ru_stime
 
 
 # ------------------------------------------------------------------ events
-def run_events(scene_dir: Path, traj: str, events_cfg: dict, mode: str, fps: float, bound: float,
-               seed: int, span_s: float, out: Path, repo: Path = REPO) -> dict:
-    """``gs2e events`` on the first span_s of trajectory ``traj`` with the code of
-    checkout ``repo``; stats and events."""
-    from gs2e.events.io import read_h5
-
-    cfg = json.loads(json.dumps(events_cfg))
-    cfg.update(max_duration_s=span_s, containers=[], preview=False, write_text=False, write_npz=False)
-    cfg["sampling"].update(mode=mode, fixed_fps=fps, bound_fraction=bound)
-    cmd = [sys.executable, "-m", "gs2e", "events", "--model", str(scene_dir / "splat"),
-           "--trajectory", str(scene_dir / "trajectories" / f"{traj}.npz"), "-o", str(out),
-           "--seed", str(seed), "--threads", "2", "--config-json", json.dumps(cfg)]
-    env = dict(os.environ, GS2E_PROGRESS="0", PYTHONPATH=str(repo))
-    c0, w0 = child_cpu_s(), time.perf_counter()
-    subprocess.run(cmd, check=True, env=env, capture_output=True, cwd=repo)
-    cpu, wall = child_cpu_s() - c0, time.perf_counter() - w0
-    st = json.loads((out / "stats.json").read_text())["stats"]
-    ev, _ = read_h5(out / "events.h5")
-    return {"cpu_s": cpu, "wall_s": wall, "stats": st, "events": ev}
-
-
-def pixel_counts(ev, width: int, height: int) -> np.ndarray:
-    """Events per pixel and polarity (bench_event_sampling's keys)."""
-    from bench_event_sampling import _keys
-
-    return np.bincount(_keys(ev, width), minlength=2 * width * height)
-
-
-def count_distance(a: np.ndarray, b: np.ndarray) -> float:
-    """sum |a - b| over pixels x polarities, over the mean event count."""
-    return float(np.abs(a - b).sum() / max(1.0, 0.5 * (a.sum() + b.sum())))
-
-
 def bench_events(results: Path, events_cfg: dict, scene: str, traj: str, span_s: float,
                  bounds: list[float], ref_fps: float | None) -> list[dict]:
     rows, counts = [], {}
@@ -170,18 +108,18 @@ def bench_blur(results: Path, cfg: dict, scene: str, traj: str, n_frames: int) -
         blurred, cpu = {}, {}
         for n in (*BLUR_N, BLUR_REF_N):
             ts = np.clip(subframe_times_us(t, E, n), r.t0_us, r.t1_us)
-            c0 = time.process_time()
-            blurred[n] = u8(average_srgb([r.render_pose(r.pose(tk))[0] for tk in ts]))
-            cpu[n] = time.process_time() - c0
+            with harness.clock() as c:
+                blurred[n] = u8(average_srgb([r.render_pose(r.pose(tk))[0] for tk in ts]))
+            cpu[n] = c.cpu_s
         ref = blurred[BLUR_REF_N]
         renders = {n: n for n in BLUR_N}
         sharp = r.render_pose(r.pose(t))[0]
         for tol in BLUR_TOLERANCES_DB:  # the render stage's rule (render.blur_tolerance_db)
-            c0 = time.process_time()
-            img, used, slices = adaptive_blur(lambda tk: r.render_pose(r.pose(tk))[0], t, E,
-                                              (r.t0_us, r.t1_us), tol, 64, known={t: sharp})
+            with harness.clock() as c:
+                img, used, slices = adaptive_blur(lambda tk: r.render_pose(r.pose(tk))[0], t, E,
+                                                  (r.t0_us, r.t1_us), tol, 64, known={t: sharp})
             key = f"adaptive {tol:g} dB"
-            blurred[key], cpu[key], renders[key] = u8(img), time.process_time() - c0, used
+            blurred[key], cpu[key], renders[key] = u8(img), c.cpu_s, used
         for n in [*BLUR_N, *(k for k in blurred if isinstance(k, str))]:
             mse = float(np.mean(((blurred[n] - ref) / 255.0) ** 2))
             rows.append({"scene": scene, "trajectory": traj, "frame": int(fr["frame"]),
@@ -200,8 +138,10 @@ def bench_blur(results: Path, cfg: dict, scene: str, traj: str, n_frames: int) -
 
 
 # ------------------------------------------------------------------ report
-def plot(ev, bl, path: Path) -> None:
-    plt = pyplot()
+def plot(ev, bl):
+    """The events' count against their CPU, and the blurred frames' PSNR
+    against their sub-frames; the figure."""
+    plt = harness.pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     if ev is not None and len(ev):
         ax = axes[0]
@@ -232,12 +172,12 @@ def plot(ev, bl, path: Path) -> None:
         ax.set_ylabel(f"PSNR vs {BLUR_REF_N} sub-frames (dB, 8-bit)\n(dotted: 8-bit rounding noise)")
         ax.set_title("blurred frames")
         ax.legend(fontsize=6)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    return fig
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = harness.parser(__doc__, quick="50 ms per events run, 1 blurred frame per scene (minutes: "
+                                       "still needs --sensor, --scenes and the cost run's models)")
     ap.add_argument("--sensor", required=True, help="the cost run to use (cost_<sensor>)")
     ap.add_argument("--scenes", help="comma-separated scenes of that run")
     ap.add_argument("--report", action="store_true", help="only reprint and redraw from the CSVs")
@@ -249,7 +189,6 @@ def main() -> None:
                     help="also a fixed-rate reference at this rate (one seed), e.g. 24000")
     ap.add_argument("--span-s", type=float, default=0.2, help="simulated span per events run (s)")
     ap.add_argument("--frames", type=int, default=2, help="blurred frames per scene (most motion)")
-    ap.add_argument("--quick", action="store_true", help="accepted for uniformity: 50 ms, 1 frame")
     args = ap.parse_args()
     import pandas as pd
 
@@ -257,11 +196,13 @@ def main() -> None:
         args.span_s, args.frames = 0.05, 1
     if not args.report and not args.scenes:
         ap.error("--scenes is required (or --report)")
-    stem = RESULTS / f"bench_cost_cuts_{args.sensor}"
+    name = f"bench_cost_cuts_{args.sensor}"
+    stem = harness.RESULTS / name
     if args.report:  # reprint and redraw from the CSVs of an earlier run
         ev = pd.read_csv(f"{stem}_events.csv") if Path(f"{stem}_events.csv").exists() else None
         bl = pd.read_csv(f"{stem}_blur.csv") if Path(f"{stem}_blur.csv").exists() else None
-        return report(ev, bl, stem, args.sensor)
+        files = [f for f in (Path(f"{stem}_events.csv"), Path(f"{stem}_blur.csv")) if f.exists()]
+        return report(ev, bl, name, args.sensor, files)
     results, cfg = cost_run(args.sensor)
     parts = set(args.parts.split(","))
     ev_rows, bl_rows = [], []
@@ -273,15 +214,18 @@ def main() -> None:
             bl_rows += bench_blur(results, cfg, scene, args.trajectory, args.frames)
     ev = pd.DataFrame(ev_rows) if ev_rows else None
     bl = pd.DataFrame(bl_rows) if bl_rows else None
+    files = []
     if ev is not None:
-        ev.to_csv(f"{stem}_events.csv", index=False)
+        files.append(harness.write_csv(f"{name}_events", ev))
     if bl is not None:
-        bl.to_csv(f"{stem}_blur.csv", index=False)
-    report(ev, bl, stem, args.sensor)
+        files.append(harness.write_csv(f"{name}_blur", bl))
+    report(ev, bl, name, args.sensor, files)
 
 
-def report(ev, bl, stem: Path, sensor: str) -> None:
-    plot(ev, bl, Path(f"{stem}.png"))
+def report(ev, bl, name: str, sensor: str, files: list[Path]) -> None:
+    """Draw the plot (benchmarks/results/<name>.png), print the tables, the
+    files and the headline."""
+    files = [*files, harness.save_plot(plot(ev, bl), name)]
     print()
     if bl is not None:
         t = bl.groupby("rule", sort=False).agg(
@@ -305,7 +249,6 @@ def report(ev, bl, stem: Path, sensor: str) -> None:
                          f"; against the {g['n_events_ref'].iloc[0]:,.0f} events of the reference: "
                          f"{h['n_events'].iloc[0] / g['n_events_ref'].iloc[0] - 1:+.2%}, count distance "
                          f"{h['count_dist_vs_ref'].iloc[0]:.4f}"))
-    print(f"wrote {stem}_*.csv and {stem}.png")
     head = []
     if bl is not None:
         ad, mid = bl[bl["rule"] == "adaptive 55 dB"], bl[bl["rule"] == "midpoint 64"]
@@ -322,7 +265,7 @@ def report(ev, bl, stem: Path, sensor: str) -> None:
                 head.append(f"{scene} events against the reference: fixed 2400 fps "
                             f"{f['n_events'].mean() / ref - 1:+.2%}, tile 1θ {t1['n_events'].mean() / ref - 1:+.2%} "
                             f"at {t1['cpu_s_per_s'].mean() / f['cpu_s_per_s'].mean():.2f}x the CPU")
-    print(f"cuts at {sensor}: " + "; ".join(head))
+    harness.report(None, f"cuts at {sensor}: " + "; ".join(head), files)
 
 
 if __name__ == "__main__":

@@ -33,16 +33,14 @@ the last line printed is the headline.
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+import harness
+from harness import REPO, RESULTS, SHARED_SCENES
 
-from _results import RESULTS, SHARED_SCENES, pyplot, write_csv  # noqa: E402
-from gs2e.report.io import read_results_benchmarks  # noqa: E402
+from gs2e.report.io import read_results_benchmarks
 
 DEFAULT_RESULTS = REPO / "results"
 STAGES = ("demo_scene", "ingest", "sfm", "train", "trajectory", "render", "events", "windows", "export",
@@ -200,7 +198,8 @@ def _fmt(x: float) -> str:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, quick="no difference: it only reads finished runs' benchmark files "
+                                       "(seconds)")
     ap.add_argument("--results", nargs="+", type=Path, default=None,
                     help=f"results dirs of finished runs (default {DEFAULT_RESULTS})")
     ap.add_argument("--scenes", type=int, default=1050, help="scene count to extrapolate to")
@@ -213,7 +212,6 @@ def main() -> int:
     ap.add_argument("--at-megapixels", type=float, default=2.07,
                     help="image size for the memory prediction (linear fit of peak RSS in megapixels "
                          "when scenes of different sizes were measured); default 1920x1080")
-    ap.add_argument("--quick", action="store_true", help="accepted for uniformity (always quick)")
     ap.add_argument("--run", nargs="+", default=None, choices=sorted(SHARED_SCENES), metavar="SCENE",
                     help=f"first run the workflow on these scenes of ../shared/data ({', '.join(SHARED_SCENES)})")
     ap.add_argument("--sensor", default=None,
@@ -228,7 +226,7 @@ def main() -> int:
     if not jobs:
         print(f"no benchmark files found (looked in {', '.join(map(str, asked))}); "
               "run the workflow first (e.g. `make demo`) and pass --results results")
-        print("cost model: nothing measured")
+        harness.report(None, "cost model: nothing measured")
         return 0
     per_scene_traj = {}
     for j in jobs:
@@ -252,12 +250,12 @@ def main() -> int:
             mp_cache[key] = scene_megapixels(Path(j["results"]), j["scene"])
         j["megapixels"] = mp_cache[key]
     name = f"bench_cost_model_{args.sensor}" if args.sensor else "bench_cost_model"
-    write_csv(f"{name}_jobs", jobs)  # as measured
+    jobs_csv = harness.write_csv(f"{name}_jobs", jobs)  # as measured
     jobs = [{**j, "cpu_s": j["cpu_s"] * factors.get(j["stage"], 1.0),
              "wall_s": j["wall_s"] * factors.get(j["stage"], 1.0)} for j in jobs]
     measured_traj = max((len(v) for v in per_scene_traj.values()), default=None)
     rows = model(jobs, n_traj, args.scenes, args.at_megapixels, measured_traj)
-    csv_path = write_csv(name, rows)
+    csv_path = harness.write_csv(name, rows)
 
     scenes = sorted({(j["results"], j["scene"]) for j in jobs if j["scene"] != "(dataset)"})
     print("measured scenes:")
@@ -287,9 +285,8 @@ def main() -> int:
     peak = max(r["peak_rss_mb"] for r in scaled)
     peak_stage = max(scaled, key=lambda r: r["peak_rss_mb"])["stage"]
     print(f"per scene: {cpu_min_scene:.1f} CPU-min; peak job memory {peak:.0f} MB ({peak_stage})")
-    print(f"wrote {csv_path}, {RESULTS / (name + '_jobs.csv')} and {RESULTS / (name + '.png')}")
 
-    plt = pyplot()
+    plt = harness.pyplot()
     fig, ax = plt.subplots(1, 2, figsize=(10, 3.8))
     names = [r["stage"] for r in scaled]
     ax[0].bar(names, [r["cpu_h_n_scenes"] for r in scaled])
@@ -300,13 +297,13 @@ def main() -> int:
     ax[1].legend(fontsize=8)
     for a in ax:
         a.tick_params(axis="x", rotation=45)
-    fig.tight_layout()
-    fig.savefig(RESULTS / f"{name}.png", dpi=100)
+    png = harness.save_plot(fig, name, dpi=100)
     wall_min_scene = sum(r["wall_s_per_job"] * r["jobs_per_scene"] for r in scaled) / 60
-    print(f"cost model: {cpu_min_scene:.1f} CPU-min per scene x {args.scenes} scenes = {total_h:.0f} CPU-hours "
-          f"(CPU/wall {cpu_min_scene / wall_min_scene:.2f} over the measured jobs, run one after another "
-          f"{wall_min_scene * args.scenes / 60:.0f} h); peak memory per job {peak:.0f} MB ({peak_stage}), "
-          f"independent of the scene count")
+    harness.report(None, f"cost model: {cpu_min_scene:.1f} CPU-min per scene x {args.scenes} scenes = "
+                   f"{total_h:.0f} CPU-hours (CPU/wall {cpu_min_scene / wall_min_scene:.2f} over the "
+                   f"measured jobs, run one after another {wall_min_scene * args.scenes / 60:.0f} h); "
+                   f"peak memory per job {peak:.0f} MB ({peak_stage}), independent of the scene count",
+                   [csv_path, jobs_csv, png])
     return 0
 
 

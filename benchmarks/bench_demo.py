@@ -11,36 +11,27 @@ last printed line is the headline figure.
 
 from __future__ import annotations
 
-import argparse
-import sys
 import tempfile
-import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from _results import RESULTS, pyplot, write_csv  # noqa: E402
-from gs2e.config import load_section  # noqa: E402
-from gs2e.demo.io import generate_demo_scene  # noqa: E402
-from gs2e.demo.world import (RAY_CHUNK, build_world, intrinsics, orbit_c2w,  # noqa: E402
-                             render_view, wall_size)
-
+import harness
+from gs2e.config import load_section
+from gs2e.demo.io import generate_demo_scene
+from gs2e.demo.world import RAY_CHUNK, build_world, intrinsics, orbit_c2w, render_view, wall_size
 
 
 def time_views(world, c2ws, W, H, ss, chunk) -> float:
     """CPU seconds per view (process time: robust to other jobs on the machine)."""
     fx, fy, cx, cy = intrinsics(W, H, 50.0)
     render_view(world, c2ws[0], fx, fy, cx, cy, W, H, ss, chunk)  # warm-up
-    t0 = time.process_time()
-    for c in c2ws:
-        render_view(world, c, fx, fy, cx, cy, W, H, ss, chunk)
-    return (time.process_time() - t0) / len(c2ws)
+    with harness.clock() as t:
+        for c in c2ws:
+            render_view(world, c, fx, fy, cx, cy, W, H, ss, chunk)
+    return t.cpu_s / len(c2ws)
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="fewer views per setting (< 60 s)")
+    ap = harness.parser(__doc__, quick="fewer views per setting (< 60 s)")
     args = ap.parse_args()
     n = 4 if args.quick else 12
     world = build_world(0, *wall_size(3.0))
@@ -55,12 +46,12 @@ def main() -> None:
 
     cfg = load_section("demo")
     with tempfile.TemporaryDirectory() as tmp:
-        w0, c0 = time.perf_counter(), time.process_time()
-        stats = generate_demo_scene(Path(tmp) / "demo", cfg)
-        wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+        with harness.clock() as t:
+            stats = generate_demo_scene(Path(tmp) / "demo", cfg)
+    wall, cpu = t.wall_s, t.cpu_s
 
-    write_csv("bench_demo", rows)
-    plt = pyplot()
+    files = [harness.write_csv("bench_demo", rows)]
+    plt = harness.pyplot()
 
     labels = [f"{r['width']}x{r['height']}\nss{r['supersample']}" for r in rows]
     x = range(len(rows))
@@ -72,18 +63,18 @@ def main() -> None:
     ax.set_ylabel("CPU s per view")
     ax.set_title("gs2e demo-scene ray caster (1 core)")
     ax.legend()
-    fig.tight_layout()
-    fig.savefig(RESULTS / "bench_demo.png", dpi=120)
+    files.append(harness.save_plot(fig, "bench_demo"))
 
-    head = f"{'resolution':>12} {'ss':>3} {'rays':>9} {'one batch s':>12} {'chunked s':>10} {'speedup':>8} {'Mray/s':>7}"
-    print(head)
+    table = [f"{'resolution':>12} {'ss':>3} {'rays':>9} {'one batch s':>12} {'chunked s':>10} {'speedup':>8} "
+             f"{'Mray/s':>7}"]
     for r in rows:
-        print(f"{r['width']:>6}x{r['height']:<5} {r['supersample']:>3} {r['rays_per_view']:>9} "
-              f"{r['s_per_view_one_batch']:>12.3f} {r['s_per_view_chunked']:>10.3f} {r['speedup']:>8.2f} "
-              f"{r['mrays_per_s']:>7.2f}")
+        table.append(f"{r['width']:>6}x{r['height']:<5} {r['supersample']:>3} {r['rays_per_view']:>9} "
+                     f"{r['s_per_view_one_batch']:>12.3f} {r['s_per_view_chunked']:>10.3f} {r['speedup']:>8.2f} "
+                     f"{r['mrays_per_s']:>7.2f}")
     default = next(r for r in rows if (r["width"], r["supersample"]) == (320, 2))
-    print(f"demo-scene default ({stats['n_views']} views 320x240 ss2, {stats['n_points']} points): "
-          f"{wall:.2f} s wall, {cpu:.2f} s CPU; chunked caster {default['speedup']:.2f}x faster than one batch")
+    harness.report("\n".join(table), f"demo-scene default ({stats['n_views']} views 320x240 ss2, "
+                   f"{stats['n_points']} points): {wall:.2f} s wall, {cpu:.2f} s CPU; chunked caster "
+                   f"{default['speedup']:.2f}x faster than one batch", files)
 
 
 if __name__ == "__main__":

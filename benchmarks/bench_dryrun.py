@@ -18,7 +18,6 @@ the headline figure.
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import os
 import re
@@ -26,13 +25,9 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-
-from _results import RESULTS, pyplot, write_csv  # noqa: E402
+from harness import REPO, clock, gs2e_env, parser, pyplot, report, save_plot, write_csv
 
 BIN = Path(sys.executable).parent
 
@@ -57,23 +52,22 @@ def make_selection(root: Path, n: int) -> tuple[Path, int, int]:
 
 def run_measured(cmd: list[str], env: dict, cwd: Path) -> tuple[float, int, int, str]:
     """(wall s, peak RSS of the process in kB, return code, stdout)."""
-    t0 = time.perf_counter()
     with tempfile.TemporaryFile("w+") as out:
-        proc = subprocess.Popen(cmd, env=env, cwd=cwd, stdout=out, stderr=subprocess.STDOUT, text=True)
-        _, status, ru = os.wait4(proc.pid, 0)
-        wall = time.perf_counter() - t0
+        with clock() as t:
+            proc = subprocess.Popen(cmd, env=env, cwd=cwd, stdout=out, stderr=subprocess.STDOUT, text=True)
+            # os.wait4: the peak RSS of this one child (RUSAGE_CHILDREN would be the largest of all)
+            _, status, ru = os.wait4(proc.pid, 0)
         proc.returncode = os.waitstatus_to_exitcode(status)
         out.seek(0)
         text = out.read()
-    return wall, ru.ru_maxrss, proc.returncode, text
+    return t.wall_s, ru.ru_maxrss, proc.returncode, text
 
 
 def bench_one(n: int, configfile: str | None, tmp: Path) -> dict:
     wd = tmp / f"n{n}"
     wd.mkdir()
     _, n_mvi, n_dl = make_selection(wd, n)
-    env = {**os.environ, "PYTHONPATH": str(REPO), "GS2E_PROGRESS": "0",
-           "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}"}
+    env = gs2e_env(REPO, PATH=f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}")
     cmd = [sys.executable, "-m", "gs2e", "scenes", "--out", str(wd / "scenes.tsv")]
     if n_mvi:
         cmd += ["--mvimgnet-root", str(wd / "mvimgnet"), "--mvimgnet-ids", str(wd / "mvi.txt")]
@@ -98,8 +92,7 @@ def bench_one(n: int, configfile: str | None, tmp: Path) -> dict:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="N = 1 and 200 (under 60 s)")
+    ap = parser(__doc__, quick="N = 1 and 200 (under 60 s)")
     ap.add_argument("--configfile", default=None,
                     help="config file on top of config/config.yaml (e.g. config/paper.yaml)")
     ap.add_argument("--sizes", type=int, nargs="+", default=None, help="scene counts to run")
@@ -129,22 +122,21 @@ def main() -> int:
     ax[1].plot(ns, [r["peak_rss_mb"] for r in rows], "o-")
     ax[1].set(xlabel="scenes", ylabel="peak RSS of snakemake -n (MB)", xscale="log", ylim=(0, None))
     fig.suptitle(f"dry-run scaling ({rows[0]['config']})")
-    fig.tight_layout()
-    fig.savefig(RESULTS / "bench_dryrun.png", dpi=100)
+    png = save_plot(fig, "bench_dryrun", dpi=100)
 
-    hdr = f"{'scenes':>7} {'jobs':>7} {'dry-run s':>10} {'ms/scene':>9} {'peak RSS MB':>12} " \
-          f"{'x time':>7} {'x RSS':>6} {'gs2e scenes s':>14}"
-    print(hdr)
+    table = [f"{'scenes':>7} {'jobs':>7} {'dry-run s':>10} {'ms/scene':>9} {'peak RSS MB':>12} "
+             f"{'x time':>7} {'x RSS':>6} {'gs2e scenes s':>14}"]
     for r in rows:
-        print(f"{r['n_scenes']:>7} {r['jobs']:>7} {r['dryrun_s']:>10.2f} {r['ms_per_scene']:>9.1f} "
-              f"{r['peak_rss_mb']:>12.0f} {r['time_ratio_vs_first']:>7.2f} {r['rss_ratio_vs_first']:>6.2f} "
-              f"{r['scenes_cli_s']:>14.2f}")
-    print(f"wrote {csv_path} and {RESULTS / 'bench_dryrun.png'}")
+        table.append(f"{r['n_scenes']:>7} {r['jobs']:>7} {r['dryrun_s']:>10.2f} {r['ms_per_scene']:>9.1f} "
+                     f"{r['peak_rss_mb']:>12.0f} {r['time_ratio_vs_first']:>7.2f} "
+                     f"{r['rss_ratio_vs_first']:>6.2f} {r['scenes_cli_s']:>14.2f}")
     last = rows[-1]
-    print(f"dry-run over {last['n_scenes']} scenes: {last['dryrun_s']:.1f} s ({last['jobs']} jobs), "
-          f"{last['ms_per_scene']:.1f} ms/scene, {last['time_ratio_vs_first']:.1f}x the 1-scene run's "
-          f"{base['dryrun_s']:.1f} s; peak RSS {last['peak_rss_mb']:.0f} MB "
-          f"({last['rss_ratio_vs_first']:.2f}x the 1-scene run's {base['peak_rss_mb']:.0f} MB)")
+    report("\n".join(table),
+           f"dry-run over {last['n_scenes']} scenes: {last['dryrun_s']:.1f} s ({last['jobs']} jobs), "
+           f"{last['ms_per_scene']:.1f} ms/scene, {last['time_ratio_vs_first']:.1f}x the 1-scene run's "
+           f"{base['dryrun_s']:.1f} s; peak RSS {last['peak_rss_mb']:.0f} MB "
+           f"({last['rss_ratio_vs_first']:.2f}x the 1-scene run's {base['peak_rss_mb']:.0f} MB)",
+           [csv_path, png])
     return 0
 
 

@@ -28,7 +28,7 @@ Measured, per method, against the reference:
   sampling and both models, 2 threads) and renders.
 
 Scenes: ``demo``, ``temple_ring``, ``llff_fern`` and ``mouse_colmap`` as built
-(cached) by bench_event_sampling.py. ``--quick``: the tests' textured plane
+(cached) by bench_event_sampling.py (``event_runs.build_scenes``). ``--quick``: the tests' textured plane
 (64 x 48, a fast pan), 5 ms, davis-free (the plane's own camera).
 
 Usage: python benchmarks/bench_event_fidelity.py [--quick] [--scenes demo,temple_ring]
@@ -40,24 +40,13 @@ line printed is the headline.
 
 from __future__ import annotations
 
-import argparse
-import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "benchmarks"))
-
-from _results import pyplot, write_csv  # noqa: E402
-from bench_event_sampling import (build_scenes, count_error, events_cfg,  # noqa: E402
-                                  matched_dt_us, plane_scene, run)
-
-from gs2e.events.rendered import RenderedSource  # noqa: E402
-from gs2e.splat.forward import image_motion_px  # noqa: E402
+import harness
+from event_runs import build_scenes, count_error, events_cfg, matched_dt_us, plane_scene, run
 
 REF_MOTION_PX = 0.05
 BASELINE = "fixed 2400"
@@ -72,8 +61,11 @@ METHODS = {  # name -> (mode, fps, sampling overrides)
 }
 
 
-def motion_rate_px_per_us(src: RenderedSource, t_us: int) -> float:
-    """Image motion (px per us, :func:`image_motion_px`) at ``t_us``, over 200 us."""
+def motion_rate_px_per_us(src, t_us: int) -> float:
+    """Image motion of a ``RenderedSource`` (px per us,
+    :func:`gs2e.splat.forward.image_motion_px`) at ``t_us``, over 200 us."""
+    from gs2e.splat.forward import image_motion_px
+
     t1 = min(t_us + 200, src.t1_us)
     r = src.renderer
     return image_motion_px(r.centres(src.pose_at(t_us)), r.centres(src.pose_at(t1))) / max(1, t1 - t_us)
@@ -101,6 +93,8 @@ def voltmeter_metrics(ev, ref0, ref1, shape) -> dict:
 def case(model_dir, traj, sensor_name: str | None, methods: list[str], ref_renders: int,
          max_span_us: int) -> list[dict]:
     """All methods and the reference on one scene x speed x sensor."""
+    from gs2e.events.rendered import RenderedSource
+
     sensor = {"sensor": sensor_name} if sensor_name else {}
     probe = RenderedSource(model_dir, traj, events_cfg("ideal", "fixed", extra=sensor))
     t_mid = (probe.t0_us + probe.t1_us) // 2
@@ -158,17 +152,17 @@ def summarise(df):
     return pd.DataFrame(out)
 
 
-def report(df) -> None:
+def summary(df) -> tuple[str, str]:
+    """The table of every case and the per-method summary; the headline."""
     import pandas as pd
 
     with pd.option_context("display.width", 200, "display.max_columns", 30):
         cols = ["scene", "speed", "sensor", "method", "span_ms", "renders", "cpu_s_per_s",
                 "count_err", "l1", "dt_p50_us", "dt_p99_us", "on_frac", "on_sample_share",
                 "vm_count_err", "vm_count_spread", "vm_l1", "vm_l1_spread"]
-        print(df[cols].to_string(index=False, float_format=lambda x: f"{x:.4g}"))
         s = summarise(df)
-        print()
-        print(s.to_string(index=False, float_format=lambda x: f"{x:.3g}"))
+        table = "\n".join([df[cols].to_string(index=False, float_format=lambda x: f"{x:.4g}"), "",
+                           s.to_string(index=False, float_format=lambda x: f"{x:.3g}")])
     # the issue's target: no worse than the baseline on every case at <= 1/3 its CPU
     n = int(s.cases.max())
     met = [r.method for r in s.itertuples() if r.method != BASELINE and r.cases == n
@@ -179,15 +173,15 @@ def report(df) -> None:
         f"{m}: L1 {g.l1.min():.3f}-{g.l1.max():.3f} at {r.cpu_ratio_median:.2f}x (median) its CPU"
         for m, g in df.groupby("method", sort=False) if m.startswith("motion")
         for r in s[s.method == m].itertuples())
-    print(f"HEADLINE: {n} cases; {BASELINE} per-pixel L1 {b.l1.min():.3f}-{b.l1.max():.3f}; {spans}; "
-          + (f"no worse everywhere at <= 1/3 the CPU: {', '.join(met)}" if met else
-             "no method is no worse everywhere at <= 1/3 the CPU"))
+    return table, (f"HEADLINE: {n} cases; {BASELINE} per-pixel L1 {b.l1.min():.3f}-{b.l1.max():.3f}; "
+                   f"{spans}; " + (f"no worse everywhere at <= 1/3 the CPU: {', '.join(met)}" if met else
+                                   "no method is no worse everywhere at <= 1/3 the CPU"))
 
 
-def plot(df, path: Path) -> None:
+def plot(df):
     """Per sensor: ideal per-pixel L1 against CPU relative to the baseline on
-    the same case (one point per scene x speed)."""
-    plt = pyplot()
+    the same case (one point per scene x speed); the figure."""
+    plt = harness.pyplot()
     key = ["scene", "speed", "sensor"]
     base = df[df.method == BASELINE].set_index(key).cpu_s_per_s
     rel = df.cpu_s_per_s.to_numpy() / base.loc[list(df[key].itertuples(index=False))].to_numpy()
@@ -205,13 +199,11 @@ def plot(df, path: Path) -> None:
         ax.set_title(f"{sensor}: one point per scene x speed")
         ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    return fig
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="test plane, 5 ms (about a minute)")
+    ap = harness.parser(__doc__, quick="test plane, 5 ms (about a minute)")
     ap.add_argument("--scenes", default="demo,temple_ring,llff_fern,mouse_colmap")
     ap.add_argument("--speeds", default="mild,medium,strong")
     ap.add_argument("--sensors", default="davis346,imx636")
@@ -230,10 +222,23 @@ def main() -> None:
     if args.report:
         paths = args.report.split(",")
         df = pd.concat([pd.read_csv(p) for p in paths], ignore_index=True)
-        plot(df, Path(paths[0]).with_name(Path(paths[0]).stem + "_all.png"))
-        report(df)
+        first = Path(paths[0]).resolve()
+        # an absolute name: the plot goes beside the first CSV
+        png = harness.save_plot(plot(df), str(first.with_name(first.stem + "_all")), dpi=110)
+        harness.report(*summary(df), [png])
         return
-    t_start = time.perf_counter()
+    with harness.clock() as total:
+        df = measure(args)
+    csv = harness.write_csv(name, df.to_dict("records"))
+    png = harness.save_plot(plot(df), name, dpi=110)
+    print(f"{len(df)} rows in {total.wall_s:.0f} s")
+    harness.report(*summary(df), [csv, png])
+
+
+def measure(args):
+    """Every case's rows (one per method) as a table."""
+    import pandas as pd
+
     methods = args.methods.split(",")
     rows = []
     if args.quick:
@@ -249,18 +254,14 @@ def main() -> None:
                 for sensor in args.sensors.split(","):
                     hd = sensor != "davis346"
                     ms = [m for m in methods if not (hd and m == "tile")]
-                    a = time.perf_counter()
-                    for r in case(d / "splat", d / "trajectories" / f"base_{speed}.npz", sensor, ms,
-                                  args.hd_ref_renders if hd else args.ref_renders,
-                                  int(args.max_span_ms * 1e3)):
-                        rows.append({"scene": scene, "speed": speed, "sensor": sensor, **r})
+                    with harness.clock() as t:
+                        for r in case(d / "splat", d / "trajectories" / f"base_{speed}.npz", sensor,
+                                      ms, args.hd_ref_renders if hd else args.ref_renders,
+                                      int(args.max_span_ms * 1e3)):
+                            rows.append({"scene": scene, "speed": speed, "sensor": sensor, **r})
                     print(f"{scene} {speed} {sensor}: span {rows[-1]['span_ms']:.2f} ms, "
-                          f"{time.perf_counter() - a:.0f} s", flush=True)
-    df = pd.DataFrame(rows)
-    csv = write_csv(name, df.to_dict("records"))
-    plot(df, csv.with_suffix(".png"))
-    print(f"{len(df)} rows in {time.perf_counter() - t_start:.0f} s; {csv}")
-    report(df)
+                          f"{t.wall_s:.0f} s", flush=True)
+    return pd.DataFrame(rows)
 
 
 if __name__ == "__main__":

@@ -20,22 +20,16 @@ Writes benchmarks/results/bench_event_io.csv and .png; the last line is the head
 
 from __future__ import annotations
 
-import argparse
 import importlib
 import os
-import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from harness import SHARED, best_s, parser, pyplot, report, save_plot, write_csv
 
-from _results import RESULTS, pyplot, write_csv  # noqa: E402
-
-REAL = ROOT.parent / "shared" / "data" / "events" / "dvxplorer_sample.aedat4"  # skipped if absent
+REAL = SHARED / "events" / "dvxplorer_sample.aedat4"  # skipped if absent
 W, H = 1280, 720
 T0_US = 1_700_000_000_000_000
 EV_DTYPE = np.dtype([("t", "<u8"), ("x", "<u2"), ("y", "<u2"), ("on", "?")])
@@ -61,13 +55,14 @@ def have(module: str) -> bool:
 
 
 def best_of(fn, repeat: int):
-    """(result of the last call, best wall time in s)."""
-    best, out = float("inf"), None
-    for _ in range(repeat):
-        a = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - a)
-    return out, best
+    """(result of the last call, best wall time in s: :func:`harness.best_s`)."""
+    last = [None]
+
+    def call():
+        last[0] = fn()
+
+    best = best_s(call, repeat)
+    return last[0], best
 
 
 def compare(got: dict | None, want: dict) -> str:
@@ -165,13 +160,13 @@ MODULE = {"faery": "faery", "aedat": "aedat", "dv-processing": "dv_processing",
 
 # ---------------------------------------------------------------- writers
 def write_faery(path: Path, kind: str, ev: dict) -> None:
-    from gs2e.events.containers import _aedat4_description
+    from gs2e.events.containers import aedat4_description
 
     import faery
 
     if kind == "aedat4":
         a = _faery_array(ev)
-        with faery.aedat.Encoder(path, _aedat4_description(W, H), faery.aedat.LZ4_DEFAULT) as e:
+        with faery.aedat.Encoder(path, aedat4_description(W, H), faery.aedat.LZ4_DEFAULT) as e:
             for i in range(0, len(a), 1 << 16):
                 e.write(0, a[i:i + (1 << 16)])
     elif kind == "dat":
@@ -267,8 +262,7 @@ def run(n: int, repeat: int, tmp: Path, real: Path) -> list[dict]:
                 shift = int(ev["t"][0])
                 sub = {**ev, "t": ev["t"] - shift}
             path = tmp / f"{container}_{lib.replace('/', '_')}{SUFFIX[container]}"
-            _, s = best_of(lambda: (path.unlink(missing_ok=True), WRITERS[lib](path, container, sub)),
-                           repeat)
+            s = best_s(lambda: (path.unlink(missing_ok=True), WRITERS[lib](path, container, sub)), repeat)
             files[lib] = path
             back_lib = lib if lib in readers else readers[0]
             try:
@@ -317,24 +311,23 @@ def run(n: int, repeat: int, tmp: Path, real: Path) -> list[dict]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="1 M events, one repetition (~15 s)")
+    ap = parser(__doc__, quick="1 M events, one repetition (~15 s)")
     ap.add_argument("--n", type=int, default=None, help="synthetic events (default 5 M, quick 1 M)")
-    ap.add_argument("--real", type=Path, default=REAL, help=f"real AEDAT4 recording (default {REAL})")
+    ap.add_argument("--real", type=Path, default=REAL, help="real AEDAT4 recording")
     args = ap.parse_args()
     n = args.n or (1_000_000 if args.quick else 5_000_000)
     repeat = 1 if args.quick else 3
     with tempfile.TemporaryDirectory(dir=os.environ.get("TMPDIR")) as d:
         rows = run(n, repeat, Path(d), args.real)
-    write_csv("bench_event_io", rows)
+    csv_path = write_csv("bench_event_io", rows)
 
-    print(f"{'container':>9} {'data':>19} {'library':>13} {'op':>10} {'events':>9} {'M ev/s':>7} "
-          f"{'B/ev':>6} {'size':>9}  identical")
+    table = [f"{'container':>9} {'data':>19} {'library':>13} {'op':>10} {'events':>9} {'M ev/s':>7} "
+             f"{'B/ev':>6} {'size':>9}  identical"]
     for r in rows:
-        print(f"{r['container']:>9} {r['data']:>19} {r['library']:>13} {r['op']:>10} {r['n_events']:>9} "
-              f"{r['meps'] if r['meps'] is not None else '-':>7} "
-              f"{r['bytes_per_event'] if r['bytes_per_event'] is not None else '-':>6} "
-              f"{r['sensor_size']:>9}  {r['identical']}{'  (' + r['note'] + ')' if r['note'] else ''}")
+        table.append(f"{r['container']:>9} {r['data']:>19} {r['library']:>13} {r['op']:>10} "
+                     f"{r['n_events']:>9} {r['meps'] if r['meps'] is not None else '-':>7} "
+                     f"{r['bytes_per_event'] if r['bytes_per_event'] is not None else '-':>6} "
+                     f"{r['sensor_size']:>9}  {r['identical']}{'  (' + r['note'] + ')' if r['note'] else ''}")
 
     plt = pyplot()
     from matplotlib.ticker import FormatStrFormatter, NullFormatter
@@ -354,8 +347,7 @@ def main() -> None:
         ax.invert_yaxis()
     fig.suptitle(f"{n / 1e6:g} M synthetic events, 1280x720; green = identical events back, "
                  "red = not (see the CSV's 'identical' column)")
-    fig.tight_layout()
-    fig.savefig(RESULTS / "bench_event_io.png", dpi=120)
+    png = save_plot(fig, "bench_event_io", dpi=120)
 
     def get(container, lib, op, data="synthetic"):
         return next((r for r in rows if r["container"] == container and r["library"] == lib
@@ -370,9 +362,10 @@ def main() -> None:
     gap = next((r for r in rows if r["data"] == "1 s gap across wrap" and r["library"] == "faery"), {})
     real = (f"; DVXplorer recording: faery {real_f['identical']} vs aedat, {real_f['meps']} vs "
             f"{real_a['meps']} M ev/s" if real_f and real_a else "")
-    print(f"headline: faery reads {'/'.join(ok)} with identical events at {min(fr):g}-{max(fr):g} M ev/s "
-          f"and writes {'/'.join(okw)} that read back identical{real}; "
-          f"EVT3 with a quiet gap across a 2^24 us wrap: {gap.get('identical', '-')}")
+    report("\n".join(table),
+           f"headline: faery reads {'/'.join(ok)} with identical events at {min(fr):g}-{max(fr):g} M ev/s "
+           f"and writes {'/'.join(okw)} that read back identical{real}; "
+           f"EVT3 with a quiet gap across a 2^24 us wrap: {gap.get('identical', '-')}", [csv_path, png])
 
 
 if __name__ == "__main__":

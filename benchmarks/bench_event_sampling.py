@@ -24,7 +24,8 @@ sampling, DVS-Voltmeter), in wall seconds per simulated second.
 Scenes: ``demo`` (the make-demo recipe: 2000 training steps), ``temple_ring``
 and ``llff_fern`` from ../shared/data (SfM + 2000 steps at 320 px), built
 once through the workflow into benchmarks/results/bench_event_sampling_cache/
-(about 15-30 min on 2 cores). ``--quick``: the textured plane of the tests
+(about 15-30 min on 2 cores; ``event_runs.build_scenes``, which the other
+event benchmarks share). ``--quick``: the textured plane of the tests
 (64 x 48, panning fast), a 20 ms span, no whole-command run (under 60 s).
 
 Usage: python benchmarks/bench_event_sampling.py [--quick] [--scenes demo,temple_ring]
@@ -34,224 +35,65 @@ line printed is the headline.
 
 from __future__ import annotations
 
-import argparse
 import json
-import os
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "benchmarks"))
+import harness
+from event_runs import build_scenes, count_error, events_cfg, matched_dt_us, plane_scene, run
 
-from _results import RESULTS, SHARED_SCENES, pyplot  # noqa: E402
-
-from gs2e.config import load_config  # noqa: E402
-from gs2e.events.models import Events, TileBatch, make_model  # noqa: E402
-from gs2e.events.rendered import RenderedSource  # noqa: E402
-
-CACHE = RESULTS / "bench_event_sampling_cache"
-THETA_IDEAL = 0.2
 REF_FPS = 24000.0
 FIXED = (600.0, 1200.0, 2400.0, 4800.0)
 BOUNDS = (0.25, 0.5, 1.0, 2.0, 4.0)
 LEGACY_S_PER_S = 160.0  # issue 11: today's event stage on the demo, s per simulated second
-SCENES = {
-    "demo": ("demo", "", "splat.max_iterations=2000"),
-    **{n: (SHARED_SCENES[n][0], str(SHARED_SCENES[n][1]), "ingest.max_side=320;splat.max_iterations=2000")
-       for n in ("temple_ring", "llff_fern")},
-    # its own COLMAP cameras: SfM at 320 px registers too few of its views
-    "mouse_colmap": (SHARED_SCENES["mouse_colmap"][0], str(SHARED_SCENES["mouse_colmap"][1]),
-                     "sfm.reuse_poses=true;ingest.max_side=320;splat.max_iterations=2000"),
-}
 
 
-# ------------------------------------------------------------------ scenes
-def build_scenes(names: list[str]) -> dict[str, Path]:
-    """Trained models and trajectories through the workflow (cached)."""
-    CACHE.mkdir(parents=True, exist_ok=True)
-    rows = ["scene_id\tlayout\tpath\toverrides"]
-    for n in names:
-        layout, path, over = SCENES[n]
-        built = all((CACHE / "results" / n / d).exists() for d in ("splat", "trajectories"))
-        if layout != "demo" and not built and not Path(path).exists():
-            raise SystemExit(f"{path} is missing (../shared/data): cannot benchmark {n}")
-        rows.append(f"{n}\t{layout}\t{path}\t{over}")
-    (CACHE / "scenes.tsv").write_text("\n".join(rows) + "\n")
-    targets = [f"results/{n}/{d}" for n in names for d in ("splat", "trajectories")]
-    env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}",
-               GS2E_PROGRESS="0")
-    todo = [t for t in targets if not (CACHE / t).exists()]
-    if todo:
-        print(f"building {', '.join(todo)} (cached in {CACHE}) ...", flush=True)
-        subprocess.run([str(Path(sys.executable).parent / "snakemake"), "--snakefile",
-                        str(REPO / "Snakefile"), "--cores", "2", "--directory", str(CACHE),
-                        "--config", f"scenes={CACHE / 'scenes.tsv'}", "results_dir=results",
-                        "--", *todo], check=True, env=env)
-    return {n: CACHE / "results" / n for n in names}
-
-
-def plane_scene(tmp: Path) -> tuple[Path, Path]:
-    """The tests' textured plane (64 x 48) and a pan 10x faster than 'strong'."""
-    sys.path.insert(0, str(REPO / "tests"))
-    from test_render import F, H, W, _plane_model
-
-    from gs2e.io.scene import Camera, Frame, Scene
-    from gs2e.trajectory.io import save_trajectory
-    from gs2e.trajectory.stage import generate
-    from gs2e.trajectory.trajectory import Trajectory
-
-    model = _plane_model(tmp)
-    frames = []
-    for i in range(7):
-        a = np.deg2rad(-8 + 16 * i / 6)
-        T = np.eye(4)
-        T[:3, :3] = [[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]]
-        T[0, 3], T[1, 3] = -0.1 + 0.2 * i / 6, 0.05 * np.sin(i)
-        frames.append(Frame(f"{i}.png", Camera(F, F, W / 2, H / 2), T))
-    cfg = load_config({"trajectory": {"view_order": "sequence", "speed_presets": ["strong"],
-                                      "mini_groups": 0, "plot": False,
-                                      "velocity": "0.6*sin(6*t)+1.0"}})["trajectory"]
-    tr = generate(Scene(W, H, frames, "plane"), cfg, seed=0).trajectories["base_strong"]
-    d = tr.to_arrays()
-    d["t_us"] = np.round(d["t_us"] / 10.0).astype(np.int64)
-    d["ds_dt"] = d["ds_dt"] * 10.0
-    path = tmp / "plane_pan.npz"
-    save_trajectory(path, Trajectory.from_arrays(d))
-    return model, path
-
-
-# ------------------------------------------------------------------ runs
-def events_cfg(model: str, mode: str, fps: float = 2400.0, bound: float = 1.0,
-               extra: dict | None = None) -> dict:
-    """The events section for ``model`` sampled by ``mode``; ``extra``: more
-    keys of the section (a ``sampling`` entry is merged into sampling)."""
-    ev = {"model": model, "sampling": {"mode": mode, "fixed_fps": fps, "bound_fraction": bound}}
-    if model == "ideal":
-        ev.update(theta_on=THETA_IDEAL, theta_off=THETA_IDEAL)
-    extra = dict(extra or {})
-    ev["sampling"].update(extra.pop("sampling", {}))
-    ev.update(extra)
-    return load_config({"events": ev})["events"]
-
-
-def run(model_dir, traj, span, mode, fps=2400.0, bound=1.0, seeds=(0,),
-        sample_for=("ideal", "voltmeter"), extra: dict | None = None) -> dict:
-    """One sampling run feeding the ideal model and/or DVS-Voltmeter (one per
-    seed); events, rendered pixel values, sample times and timings (wall, and
-    process CPU of the whole run). Adaptive modes sample the signal of the
-    model they feed (``sample_for`` one model); fixed-rate and motion-clock
-    samples do not depend on it and feed both. ``extra``: see :func:`events_cfg`."""
-    cfg = events_cfg(sample_for[0], mode, fps, bound, extra)
-    src = RenderedSource(model_dir, traj, cfg, span_us=span, batch_frames=64)
-    a, cpu = time.perf_counter(), time.process_time()
-    t0, f0 = src.start()
-    models = {}
-    if "ideal" in sample_for:
-        models["ideal"] = make_model(events_cfg("ideal", mode, fps, bound, extra), src.shape, 0)[0]
-    for s in seeds if "voltmeter" in sample_for else ():
-        models[f"voltmeter{s}"] = make_model(events_cfg("voltmeter", mode, extra=extra), src.shape,
-                                             s)[0]
-    for m in models.values():
-        m.start(t0, f0)
-    out = {k: [] for k in models}
-    model_s = dict.fromkeys(models, 0.0)
-    times = [np.array([t0], np.int64)]
-    for item in src.batches():
-        times.append(item.t1_us if isinstance(item, TileBatch) else item[0])
-        for k, m in models.items():
-            b = time.perf_counter()
-            out[k].append(m.process_tiles(item) if isinstance(item, TileBatch) else m.process_batch(*item))
-            model_s[k] += time.perf_counter() - b
-    for k, m in models.items():
-        out[k].append(m.flush())
-    wall, cpu = time.perf_counter() - a, time.process_time() - cpu
-    st = src.stats
-    return {"events": {k: Events.concat(v) for k, v in out.items()}, "shape": src.shape,
-            "pixel_samples": st.pixel_samples, "renders": st.renders, "rejected": st.rejected,
-            "forced": st.forced, "windows": st.windows, "times_us": np.unique(np.concatenate(times)),
-            "render_s": wall - sum(model_s.values()), "model_s": model_s, "wall_s": wall,
-            "cpu_s": cpu, "duration_us": src.duration_us}
-
-
-def _keys(ev: Events, W: int) -> np.ndarray:
-    return (ev.y.astype(np.int64) * W + ev.x.astype(np.int64)) * 2 + ev.p.astype(np.int64)
-
-
-def count_error(ev: Events, ref: Events, shape) -> float:
-    """sum |n - n_ref| / sum n_ref over pixels x polarities."""
-    H, W = shape
-    a = np.bincount(_keys(ev, W), minlength=2 * H * W)
-    b = np.bincount(_keys(ref, W), minlength=2 * H * W)
-    return float(np.abs(a - b).sum() / max(1, b.sum()))
-
-
-def timestamp_error(ev: Events, ref: Events, shape) -> float:
+def timestamp_error(ev, ref, shape) -> float:
     """Mean |t - t_ref| (us) of events matched in order per pixel and polarity."""
     d = matched_dt_us(ev, ref, shape)
     return float(d.mean()) if len(d) else float("nan")
 
 
-def matched_dt_us(ev: Events, ref: Events, shape) -> np.ndarray:
-    """|t - t_ref| (us) of the events matched in order per pixel and polarity
-    (the k-th ON event of a pixel with the reference's k-th, ...)."""
-    H, W = shape
-
-    def ranked(e):
-        k = _keys(e, W)
-        o = np.lexsort((e.t, k))
-        ks = k[o]
-        return ks * (1 << 32) + (np.arange(len(ks)) - np.searchsorted(ks, ks, side="left")), e.t[o]
-
-    ia_id, ta = ranked(ev)
-    ib_id, tb = ranked(ref)
-    _, ia, ib = np.intersect1d(ia_id, ib_id, assume_unique=True, return_indices=True)
-    return np.abs(ta[ia] - tb[ib])
-
-
+# ------------------------------------------------------------------ the render path and the command
 def legacy_render_ratio(model_dir, traj, t_us: int, n: int) -> tuple[float, float]:
     """ms per frame of the old event-stage render path and of the forward renderer."""
+    from gs2e.events.rendered import RenderedSource
     from gs2e.events.sampling import image_luminance
     from gs2e.render.renderer import TrajectoryRenderer
 
     old = TrajectoryRenderer(model_dir, traj)
-    old.linear_luminance(t_us)
-    a = time.perf_counter()
-    for i in range(n):
-        old.linear_luminance(t_us + 100 * i)
-    old_ms = (time.perf_counter() - a) / n * 1e3
+    old.linear_luminance(t_us)  # untimed: compiles, warms caches
+    with harness.clock() as t_old:
+        for i in range(n):
+            old.linear_luminance(t_us + 100 * i)
     src = RenderedSource(model_dir, traj, events_cfg("ideal", "fixed"))
     out = np.empty(src.shape, np.float32)
     image_luminance(src.renderer.render(src.pose_at(t_us)), out)
-    a = time.perf_counter()
-    for i in range(n):
-        image_luminance(src.renderer.render(src.pose_at(t_us + 100 * i)), out)
-    return old_ms, (time.perf_counter() - a) / n * 1e3
+    with harness.clock() as t_new:
+        for i in range(n):
+            image_luminance(src.renderer.render(src.pose_at(t_us + 100 * i)), out)
+    return t_old.wall_s / n * 1e3, t_new.wall_s / n * 1e3
 
 
 def whole_command(model_dir, traj) -> dict:
     """``gs2e events`` on the whole trajectory with the default config."""
     with tempfile.TemporaryDirectory() as tmp:
-        env = dict(os.environ, GS2E_PROGRESS="0", PYTHONPATH=str(REPO))
-        a = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "gs2e", "events", "--model", str(model_dir),
-                        "--trajectory", str(traj), "-o", f"{tmp}/ev", "--threads", "2"],
-                       check=True, env=env, capture_output=True)
-        wall = time.perf_counter() - a
+        with harness.clock() as t:
+            subprocess.run([sys.executable, "-m", "gs2e", "events", "--model", str(model_dir),
+                            "--trajectory", str(traj), "-o", f"{tmp}/ev", "--threads", "2"],
+                           check=True, env=harness.gs2e_env(harness.REPO), capture_output=True)
         st = json.loads(Path(f"{tmp}/ev/stats.json").read_text())["stats"]
-    return {"wall_s": wall, "simulated_s": st["duration_s"], "simulate_s": st["simulate_s"],
+    return {"wall_s": t.wall_s, "simulated_s": st["duration_s"], "simulate_s": st["simulate_s"],
             "n_events": st["n_events"], "pixel_samples": st["pixel_samples"]}
 
 
 # ------------------------------------------------------------------ main
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="test plane, 20 ms (under 60 s)")
+    ap = harness.parser(__doc__, quick="test plane, 20 ms (under 60 s)")
     ap.add_argument("--scenes", default="demo,temple_ring,llff_fern")
     ap.add_argument("--span-s", type=float, default=0.1, help="simulated span per scene (s)")
     ap.add_argument("--report", metavar="CSV", help="only redraw the plot and reprint from a CSV")
@@ -261,11 +103,26 @@ def main() -> None:
     if args.report:
         df = pd.read_csv(args.report)
         extra = json.loads(Path(args.report).with_suffix(".json").read_text())
-        plot(df, Path(args.report).with_suffix(".png"))
-        report(df, extra)
+        # an absolute name: the plot goes beside the CSV
+        png = harness.save_plot(plot(df), str(Path(args.report).resolve().with_suffix("")), dpi=110)
+        harness.report(*summary(df, extra), [png])
         return
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    t_start = time.perf_counter()
+    with harness.clock() as total:
+        df, extra = measure(args)
+    stem = "bench_event_sampling" + ("_quick" if args.quick else "")
+    csv = harness.write_csv(stem, df)
+    js = harness.RESULTS / f"{stem}.json"
+    js.write_text(json.dumps(extra, indent=1))
+    png = harness.save_plot(plot(df), stem, dpi=110)
+    print(f"measured in {total.wall_s:.0f} s")
+    harness.report(*summary(df, extra), [csv, js, png])
+
+
+def measure(args):
+    """Every scene's runs: the table (one row per sampling setting) and the
+    extra figures (legacy render path, whole command)."""
+    import pandas as pd
+
     tmp = Path(tempfile.mkdtemp(prefix="bench_es_"))
     if args.quick:
         model, traj = plane_scene(tmp)
@@ -322,12 +179,7 @@ def main() -> None:
         extra["legacy"][name] = legacy_render_ratio(model, traj, span[0], 5 if args.quick else 20)
         if name == "demo" and not args.quick:
             extra["whole"][name] = whole_command(model, traj)
-    df = pd.DataFrame(rows)
-    stem = "bench_event_sampling" + ("_quick" if args.quick else "")
-    df.to_csv(RESULTS / f"{stem}.csv", index=False)
-    (RESULTS / f"{stem}.json").write_text(json.dumps(extra, indent=1))
-    plot(df, RESULTS / f"{stem}.png")
-    report(df, extra, f"wrote {RESULTS / stem}.csv/.json/.png in {time.perf_counter() - t_start:.0f} s")
+    return pd.DataFrame(rows), extra
 
 
 def _at(x, xs, ys) -> float:
@@ -344,21 +196,20 @@ def _at(x, xs, ys) -> float:
     return float(np.exp(np.interp(np.log(x), lx, ly)))
 
 
-def report(df, extra: dict, footer: str = "") -> None:
-    """Table; headline: per scene, how many fewer rendered pixel values the
-    tile mode needs than fixed 2400 fps for the same ideal-model errors
-    (count and time), and the whole command's cost on the demo."""
+def summary(df, extra: dict) -> tuple[str, str]:
+    """The table (and the render path's speed-up) and the headline: per
+    scene, how many fewer rendered pixel values the tile mode needs than fixed
+    2400 fps for the same ideal-model errors (count and time), and the whole
+    command's cost on the demo."""
     cols = ["scene", "mode", "fps", "bound_fraction", "pixel_samples_per_s", "ideal_count_err",
             "ideal_t_err_us", "voltmeter_pixel_samples_per_s", "voltmeter_count_err",
             "voltmeter_floor", "ideal_on_frac", "voltmeter_on_frac", "render_s_per_s",
             "voltmeter_s_per_s"]
-    print()
-    print(df[cols].to_string(index=False, float_format="%.4g"))
+    lines = ["", df[cols].to_string(index=False, float_format="%.4g")]
     for name, (old_ms, new_ms) in extra["legacy"].items():
-        print(f"{name}: whole-frame render for events {old_ms:.1f} ms (before: autograd rasterizer, "
-              f"float64) -> {new_ms:.1f} ms (forward-only renderer): {old_ms / new_ms:.1f}x")
-    if footer:
-        print(footer)
+        lines.append(f"{name}: whole-frame render for events {old_ms:.1f} ms (before: autograd "
+                     f"rasterizer, float64) -> {new_ms:.1f} ms (forward-only renderer): "
+                     f"{old_ms / new_ms:.1f}x")
     heads = []
     for name, g in df.groupby("scene", sort=False):
         base = g[(g["mode"] == "fixed") & (g["fps"] == 2400.0)].iloc[0]
@@ -389,11 +240,13 @@ def report(df, extra: dict, footer: str = "") -> None:
         heads.append(f"{name} whole `gs2e events` (default, full {w['simulated_s']:.2f} s trajectory): "
                      f"{sps:.1f} s per simulated s vs {LEGACY_S_PER_S:.0f} before "
                      f"({LEGACY_S_PER_S / sps:.1f}x; target >= 10x)")
-    print("HEADLINE: " + "; ".join(heads))
+    return "\n".join(lines), "HEADLINE: " + "; ".join(heads)
 
 
-def plot(df, path: Path) -> None:
-    plt = pyplot()
+def plot(df):
+    """Per scene: each error against rendered pixel values per simulated
+    second, one curve per sampling mode; the figure."""
+    plt = harness.pyplot()
     scenes = list(dict.fromkeys(df["scene"]))
     fig, axes = plt.subplots(len(scenes), 3, figsize=(14, 3.8 * len(scenes)), squeeze=False)
     for row, name in zip(axes, scenes):
@@ -418,9 +271,7 @@ def plot(df, path: Path) -> None:
             ax.set_title(name, fontsize=9)
             ax.grid(True, which="both", alpha=0.3)
             ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
 
 
 if __name__ == "__main__":

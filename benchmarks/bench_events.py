@@ -31,26 +31,21 @@ printed line is the headline.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from gs2e.events.models import Events, IdealModel, VoltmeterModel  # noqa: E402
-from gs2e.events.presets import PRESETS, effective_threshold  # noqa: E402
-from gs2e.events.synthetic import standard_sequence  # noqa: E402
+from gs2e.events.models import IdealModel, VoltmeterModel
+from gs2e.events.presets import PRESETS, effective_threshold
+from gs2e.events.synthetic import standard_sequence
+from harness import REPO, clock, gs2e_env, parser, pyplot, report, save_plot, write_csv
 
 PUBLIC_MPF = 4.3  # M pixel-frames/s of the public DVS-Voltmeter code (REFERENCE.md §2)
 TARGET_MPF = 65.0
-RESULTS = ROOT / "benchmarks" / "results"
 
 
 # ---------------------------------------------------------------- baseline
@@ -144,9 +139,8 @@ def child_memory(n_frames: int, out: str) -> None:
 def measure_memory(n_frames: int) -> dict:
     import tempfile
     with tempfile.TemporaryDirectory() as d:
-        env = dict(os.environ, PYTHONPATH=str(ROOT), GS2E_PROGRESS="0")
         r = subprocess.run([sys.executable, __file__, "--child-memory", str(n_frames),
-                            str(Path(d) / "out")], capture_output=True, text=True, env=env,
+                            str(Path(d) / "out")], capture_output=True, text=True, env=gs2e_env(REPO),
                            check=True)
     return json.loads(r.stdout.strip().splitlines()[-1])
 
@@ -195,17 +189,17 @@ def whole_commands(ts, frames, repo_path: str | None, reps: int = 3) -> dict:
     with tempfile.TemporaryDirectory() as d:
         root = Path(d)
         seq = write_png_sequence(ts, frames, root / "in")
-        env = dict(os.environ, PYTHONPATH=str(ROOT), GS2E_PROGRESS="0")
+        env = gs2e_env(REPO)
         walls = []
         for _ in range(reps):
             shutil.rmtree(root / "gs2e", ignore_errors=True)
-            a = time.perf_counter()
-            subprocess.run([sys.executable, "-m", "gs2e", "events", str(seq), "--timestamps",
-                            str(root / "in" / "ts.txt"), "--encoding", "linear", "-o",
-                            str(root / "gs2e"), "--set", "preset=dvs346", "--set",
-                            "preview=false", "--seed", "1"], check=True, env=env,
-                           capture_output=True, cwd=root)
-            walls.append(time.perf_counter() - a)
+            with clock() as t:
+                subprocess.run([sys.executable, "-m", "gs2e", "events", str(seq), "--timestamps",
+                                str(root / "in" / "ts.txt"), "--encoding", "linear", "-o",
+                                str(root / "gs2e"), "--set", "preset=dvs346", "--set",
+                                "preview=false", "--seed", "1"], check=True, env=env,
+                               capture_output=True, cwd=root)
+            walls.append(t.wall_s)
         st = json.loads((root / "gs2e" / "stats.json").read_text())["stats"]
         out["gs2e"] = {"wall_s": min(walls), "wall_median_s": float(np.median(walls)),
                        "events": st["n_events"], "on_fraction": st["on_fraction"],
@@ -214,11 +208,11 @@ def whole_commands(ts, frames, repo_path: str | None, reps: int = 3) -> dict:
         code = official_checkout(repo_path, root / "official")
         if code is None:
             return out
-        a = time.perf_counter()
-        r = subprocess.run([sys.executable, "main.py", "--camera_type", "DVS346", "--input_dir",
-                            str(root / "in"), "--output_dir", str(root / "off")], cwd=code,
-                           capture_output=True, text=True)
-        wall = time.perf_counter() - a
+        with clock() as t:
+            r = subprocess.run([sys.executable, "main.py", "--camera_type", "DVS346", "--input_dir",
+                                str(root / "in"), "--output_dir", str(root / "off")], cwd=code,
+                               capture_output=True, text=True)
+        wall = t.wall_s
         if r.returncode != 0:
             out["official_error"] = r.stderr.strip().splitlines()[-1] if r.stderr.strip() else "failed"
             return out
@@ -234,24 +228,24 @@ def time_model(make, ts, frames, batch=32, reps=1):
     for _ in range(reps):
         m = make()
         n = n_on = 0
-        w0, c0 = time.perf_counter(), time.process_time()
-        for i in range(0, len(ts), batch):
-            ev = m.process_batch(ts[i:i + batch], frames[i:i + batch])
+        with clock() as t:
+            for i in range(0, len(ts), batch):
+                ev = m.process_batch(ts[i:i + batch], frames[i:i + batch])
+                n += len(ev)
+                n_on += int(ev.p.sum())
+            ev = m.flush()
             n += len(ev)
             n_on += int(ev.p.sum())
-        ev = m.flush()
-        n += len(ev)
-        n_on += int(ev.p.sum())
-        wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+        wall, cpu = t.wall_s, t.cpu_s
         if best is None or wall < best[0]:
             best = (wall, cpu, n, n_on)
     return best
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--quick", action="store_true", help="under 60 s")
-    ap.add_argument("--child-memory", nargs=2, metavar=("N_FRAMES", "OUT"))
+    ap = parser(__doc__, quick="under 60 s")
+    ap.add_argument("--child-memory", nargs=2, metavar=("N_FRAMES", "OUT"),
+                    help="internal: the memory measurement's child process")
     ap.add_argument("--voltmeter-repo", default=os.environ.get(
         "GS2E_VOLTMETER_REPO", "/work/.mirror/Lynn0306+DVS-Voltmeter/repo"),
         help="checkout (or git dir) of the official DVS-Voltmeter code")
@@ -262,11 +256,11 @@ def main() -> None:
     import numba
 
     threads = numba.get_num_threads()
-    t_gen = time.perf_counter()
-    seq = list(standard_sequence())
-    ts = np.array([t for t, _ in seq], np.int64)
-    frames = np.stack([f for _, f in seq])
-    t_gen = time.perf_counter() - t_gen
+    with clock() as gen:
+        seq = list(standard_sequence())
+        ts = np.array([t for t, _ in seq], np.int64)
+        frames = np.stack([f for _, f in seq])
+    t_gen = gen.wall_s
     H, W = frames.shape[1:]
     pf = (len(ts) - 1) * H * W
     load0 = os.getloadavg()[0]
@@ -303,9 +297,9 @@ def main() -> None:
                  "eff_threshold_rel": effective_threshold(PRESETS["dvs346"], 1.0, 0.5)})
     # in-run baseline: plain numpy, same model, dvs346 (fewer frames in quick mode)
     nb = 49 if args.quick else len(ts)
-    w0, c0 = time.perf_counter(), time.process_time()
-    nbe, nbon = numpy_voltmeter(ts[:nb], frames[:nb], PRESETS["dvs346"], seed=1)
-    wall_b, cpu_b = time.perf_counter() - w0, time.process_time() - c0
+    with clock() as t:
+        nbe, nbon = numpy_voltmeter(ts[:nb], frames[:nb], PRESETS["dvs346"], seed=1)
+    wall_b, cpu_b = t.wall_s, t.cpu_s
     pf_b = (nb - 1) * H * W
     m_ours = VoltmeterModel((H, W), preset="dvs346", seed=1)
     ours_nb = m_ours.simulate(ts[:nb], frames[:nb])
@@ -322,9 +316,7 @@ def main() -> None:
 
     import pandas as pd
     df = pd.DataFrame(rows)
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    df.to_csv(RESULTS / "bench_events.csv", index=False)
-    pd.DataFrame(mem).to_csv(RESULTS / "bench_events_memory.csv", index=False)
+    files = [write_csv("bench_events", df), write_csv("bench_events_memory", pd.DataFrame(mem))]
     with pd.option_context("display.width", 200, "display.max_columns", 20,
                            "display.float_format", "{:.3f}".format):
         print(f"standard sequence: {len(ts)} frames {W}x{H} @2400 fps "
@@ -368,12 +360,10 @@ def main() -> None:
         whole_head = ("official DVS-Voltmeter not measured ("
                       f"{whole.get('official_error', 'no checkout at --voltmeter-repo')})")
         print(whole_head)
-    pd.DataFrame([{"impl": k, **v} for k, v in whole.items() if isinstance(v, dict)]).to_csv(
-        RESULTS / "bench_events_whole.csv", index=False)
+    files.append(write_csv("bench_events_whole", pd.DataFrame(
+        [{"impl": k, **v} for k, v in whole.items() if isinstance(v, dict)])))
 
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     fig, ax = plt.subplots(1, 2, figsize=(11, 4))
     lab = [f"{r['impl']}\n{r['model']} {r['preset']}" for r in rows]
     ax[0].barh(lab, df["mpf_per_s"], label="wall")
@@ -387,16 +377,15 @@ def main() -> None:
     ax[1].set_ylabel("peak RSS (MB)")
     ax[1].set_ylim(0, None)
     ax[1].set_title("streaming pipeline memory")
-    fig.tight_layout()
-    fig.savefig(RESULTS / "bench_events.png", dpi=100)
-    print(f"HEADLINE: {whole_head}; voltmeter dvs346 {ours_b['mpf_per_s']:.1f} M pixel-frames/s wall on "
-          f"{threads} threads, shared machine (1-thread CPU-time: "
-          f"{one['mpf_per_s_cpu_x_threads']:.1f}/core, x2 = "
-          f"{2 * one['mpf_per_s_cpu_x_threads']:.1f}), "
-          f"{ours_b['mev_per_s']:.1f} M events/s; {speed_vs_numpy:.0f}x numpy baseline, "
-          f"{ours_b['mpf_per_s'] / PUBLIC_MPF:.1f}x public DVS-Voltmeter (4.3); peak RSS "
-          f"{mem[0]['peak_rss_mb']:.0f} MB @{mem[0]['n_frames']} vs {mem[1]['peak_rss_mb']:.0f} MB "
-          f"@{mem[1]['n_frames']} frames")
+    files.append(save_plot(fig, "bench_events", dpi=100))
+    report(None, f"HEADLINE: {whole_head}; voltmeter dvs346 {ours_b['mpf_per_s']:.1f} M pixel-frames/s wall "
+                 f"on {threads} threads, shared machine (1-thread CPU-time: "
+                 f"{one['mpf_per_s_cpu_x_threads']:.1f}/core, x2 = "
+                 f"{2 * one['mpf_per_s_cpu_x_threads']:.1f}), "
+                 f"{ours_b['mev_per_s']:.1f} M events/s; {speed_vs_numpy:.0f}x numpy baseline, "
+                 f"{ours_b['mpf_per_s'] / PUBLIC_MPF:.1f}x public DVS-Voltmeter (4.3); peak RSS "
+                 f"{mem[0]['peak_rss_mb']:.0f} MB @{mem[0]['n_frames']} vs {mem[1]['peak_rss_mb']:.0f} MB "
+                 f"@{mem[1]['n_frames']} frames", files)
 
 
 if __name__ == "__main__":

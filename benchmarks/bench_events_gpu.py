@@ -20,28 +20,22 @@ is the headline.
 
 from __future__ import annotations
 
-import argparse
-import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "benchmarks"))
-
-from _results import RESULTS, pyplot, write_csv  # noqa: E402
-
-from gs2e.config import load_config  # noqa: E402
-from gs2e.events.models import Events, make_model  # noqa: E402
-from gs2e.events.rendered import RenderedSource  # noqa: E402
+import harness
+from event_runs import CACHE, pixel_counts
 
 CASES = (("demo", "davis346", 40.0), ("mouse_colmap", "imx636", 10.0))  # scene, sensor, span ms
 METHODS = (("fixed", None), ("motion", 0.5))
 
 
 def events_cfg(mode: str, sensor: str, motion_px: float | None) -> dict:
+    """The ideal model (theta = 0.2) at ``sensor``, sampled by ``mode`` (the
+    motion clock at ``motion_px`` px between samples)."""
+    from gs2e.config import load_config
+
     samp = {"mode": mode, "fixed_fps": 2400.0}
     if motion_px is not None:
         samp["max_motion_px"] = motion_px
@@ -53,6 +47,9 @@ def simulate(scene_dir: Path, speed: str, sensor: str, mode: str, motion_px, bac
              span_ms: float) -> tuple[dict, np.ndarray]:
     """Ideal events over ``span_ms`` from the middle of base_<speed>; the row and
     the per-pixel x polarity counts."""
+    from gs2e.events.models import Events, make_model
+    from gs2e.events.rendered import RenderedSource
+
     traj = scene_dir / "trajectories" / f"base_{speed}.npz"
     cfg = events_cfg(mode, sensor, motion_px)
     probe = RenderedSource(scene_dir / "splat", traj, cfg)
@@ -60,15 +57,15 @@ def simulate(scene_dir: Path, speed: str, sensor: str, mode: str, motion_px, bac
     span = (t0, min(probe.t1_us, t0 + int(span_ms * 1e3)))
     src = RenderedSource(scene_dir / "splat", traj, cfg, backend=backend, span_us=span,
                          batch_frames=64)
-    a, c = time.perf_counter(), time.process_time()
-    t_start, f0 = src.start()
-    model = make_model(cfg, src.shape, 0)[0]
-    model.start(t_start, f0)
-    ev = Events.concat([model.process_batch(*b) for b in src.batches()] + [model.flush()])
-    wall, cpu = time.perf_counter() - a, time.process_time() - c
+    with harness.clock() as t:
+        t_start, f0 = src.start()
+        model = make_model(cfg, src.shape, 0)[0]
+        model.start(t_start, f0)
+        ev = Events.concat([model.process_batch(*b) for b in src.batches()] + [model.flush()])
+    wall, cpu = t.wall_s, t.cpu_s
     sim_s = (span[1] - span[0]) * 1e-6
     H, W = src.shape
-    counts = np.bincount((ev.y.astype(np.int64) * W + ev.x) * 2 + ev.p, minlength=2 * H * W)
+    counts = pixel_counts(ev, W, H)
     return {"scene": scene_dir.name, "speed": speed, "sensor": sensor,
             "method": mode if motion_px is None else f"{mode} {motion_px:g}", "backend": backend,
             "span_ms": sim_s * 1e3, "renders": src.stats.renders, "wall_s_per_s": wall / sim_s,
@@ -76,10 +73,10 @@ def simulate(scene_dir: Path, speed: str, sensor: str, mode: str, motion_px, bac
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--cache", type=Path, default=RESULTS / "bench_event_sampling_cache" / "results")
+    ap = harness.parser(__doc__, quick="demo only, 10 ms spans (needs a CUDA GPU; gsplat's CUDA "
+                                       "code is built once first, untimed)")
+    ap.add_argument("--cache", type=Path, default=CACHE / "results")
     ap.add_argument("--threads", type=int, default=None, help="numba threads (default: all)")
-    ap.add_argument("--quick", action="store_true", help="demo only, 10 ms spans")
     args = ap.parse_args()
     import numba
     import pandas as pd
@@ -88,7 +85,7 @@ def main() -> None:
 
     ok, why = gsplat_status()
     if not ok:
-        print(f"HEADLINE: the event stage on gsplat not measured: {why}")
+        harness.report(None, f"HEADLINE: the event stage on gsplat not measured: {why}")
         return
     cases = CASES[:1] if args.quick else CASES
 
@@ -100,9 +97,9 @@ def main() -> None:
                              "benchmarks/bench_event_fidelity.py (or bench_event_sampling.py) first")
     demo = args.cache / "demo"
     for backend in ("cpu", "gsplat"):  # compile numba's kernels, build gsplat's CUDA code
-        t = time.perf_counter()
-        simulate(demo, "mild", "davis346", "fixed", None, backend, 1.0)
-        print(f"warm-up {backend}: {time.perf_counter() - t:.0f} s", flush=True)
+        with harness.clock() as t:
+            simulate(demo, "mild", "davis346", "fixed", None, backend, 1.0)
+        print(f"warm-up {backend}: {t.wall_s:.0f} s", flush=True)
     rows = []
     for scene, sensor, span_ms in cases:
         span_ms = 10.0 if args.quick else span_ms
@@ -117,7 +114,7 @@ def main() -> None:
                 rows[-1]["l1_vs_cpu"] = rows[-2]["l1_vs_cpu"] = float(l1)
                 print(rows[-2], "\n", rows[-1], flush=True)
     df = pd.DataFrame(rows)
-    csv = write_csv("bench_events_gpu", rows)
+    csv = harness.write_csv("bench_events_gpu", rows)
     key = ["scene", "speed", "sensor", "method"]
     w = df.pivot_table(index=key, columns="backend", values="wall_s_per_s")
     n = df.pivot_table(index=key, columns="backend", values="n_events")
@@ -126,18 +123,18 @@ def main() -> None:
                           "speed-up": w["cpu"] / w["gsplat"], "events cpu": n["cpu"],
                           "events gsplat": n["gsplat"],
                           "L1 gsplat vs cpu": df[df.backend == "cpu"].set_index(key).l1_vs_cpu})
-    print(table.to_string(float_format=lambda x: f"{x:.3g}"))
-    pyplot()  # the Agg backend for pandas' plot
+    harness.pyplot()  # the Agg backend for pandas' plot
     ax = table[["cpu wall s/s", "gsplat wall s/s"]].plot.bar(figsize=(9, 4.5), logy=True)
     ax.set_ylabel("wall s per simulated s")
     ax.set_xticklabels([" ".join(map(str, i)) for i in table.index], rotation=30, ha="right",
                        fontsize=7)
-    ax.figure.tight_layout()
-    ax.figure.savefig(csv.with_suffix(".png"), dpi=110)
+    png = harness.save_plot(ax.figure, "bench_events_gpu", dpi=110)
     sp = table["speed-up"]
-    print(f"HEADLINE: gsplat's event-stage samples run {sp.min():.2f}-{sp.max():.2f}x the CPU "
-          f"renderer's speed ({numba.get_num_threads()} CPU threads); events differ by per-pixel "
-          f"L1 {table['L1 gsplat vs cpu'].min():.3f}-{table['L1 gsplat vs cpu'].max():.3f}")
+    l1 = table["L1 gsplat vs cpu"]
+    harness.report(table.to_string(float_format=lambda x: f"{x:.3g}"),
+                   f"HEADLINE: gsplat's event-stage samples run {sp.min():.2f}-{sp.max():.2f}x the CPU "
+                   f"renderer's speed ({numba.get_num_threads()} CPU threads); events differ by "
+                   f"per-pixel L1 {l1.min():.3f}-{l1.max():.3f}", [csv, png])
 
 
 if __name__ == "__main__":

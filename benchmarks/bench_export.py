@@ -17,18 +17,12 @@ benchmarks/results/bench_export.csv and .png; the last line is the headline.
 
 from __future__ import annotations
 
-import argparse
 import os
 import shutil
-import sys
 import tempfile
-import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from _results import RESULTS, pyplot, write_csv  # noqa: E402
+from harness import REPO, RESULTS, clock, parser, pyplot, report, save_plot, write_csv
 
 FORMATS = ("eventnerf", "e2nerf", "evdeblurnerf", "inceventgs", "event3dgs")
 CFG = {"formats": [], "eventnerf_fit": "pad", "eventnerf_holdout_every": 8, "eventnerf_winsize": None,
@@ -38,7 +32,7 @@ CFG = {"formats": [], "eventnerf_fit": "pad", "eventnerf_holdout_every": 8, "eve
 
 def tiny_tree() -> Path:
     """The tests' tiny demo with events over the whole trajectory (built once)."""
-    from tests.conftest import TINY_OVERRIDES, run_tiny_pipeline
+    from gs2e.testing import TINY_OVERRIDES, run_tiny_pipeline
 
     wd = RESULTS / "export_tree"
     if not (wd / "results" / "summary.parquet").exists():
@@ -70,15 +64,15 @@ def bench_exports(pairs, reps: int) -> list[dict]:
             best = None
             for _ in range(reps):
                 with tempfile.TemporaryDirectory() as tmp:
-                    w0, c0 = time.perf_counter(), time.process_time()
                     try:
-                        man = export_trajectory(scene_dir, traj, fmt, Path(tmp) / "out", CFG)
+                        with clock() as t:
+                            man = export_trajectory(scene_dir, traj, fmt, Path(tmp) / "out", CFG)
                     except GS2EError as exc:
                         rows.append({"scene": scene_dir.name, "trajectory": traj, "format": fmt,
                                      "frames": None, "wall_s": None, "cpu_s": None, "mb": None,
                                      "note": str(exc)[:80]})
                         break
-                    wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+                    wall, cpu = t.wall_s, t.cpu_s
                 frames = man.get("gs2e_frames") or man["splits"]["train"]["gs2e_frames"]
                 if best is None or wall < best["wall_s"]:
                     best = {"scene": scene_dir.name, "trajectory": traj, "format": fmt,
@@ -99,20 +93,20 @@ def bench_loader(results: Path, workers: int, epochs: int) -> tuple[int, float]:
     dl = DataLoader(ds, batch_size=4, num_workers=workers, collate_fn=collate_windows,
                     persistent_workers=workers > 0)
     next(iter(dl))  # start-up (worker processes, first file opens) not counted
-    n, t0 = 0, time.perf_counter()
-    for _ in range(epochs):
-        for b in dl:
-            n += len(b["frame"])
-    return len(ds), n / (time.perf_counter() - t0)
+    n = 0
+    with clock() as t:
+        for _ in range(epochs):
+            for b in dl:
+                n += len(b["frame"])
+    return len(ds), n / t.wall_s
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="the tiny tree, one repetition (< 60 s once built)")
+    ap = parser(__doc__, quick="the tiny tree, one repetition (< 60 s once built)")
     ap.add_argument("--results", type=Path, help="results tree to use")
     args = ap.parse_args()
     os.environ.setdefault("GS2E_PROGRESS", "0")
-    results = args.results or ROOT / "results"
+    results = args.results or REPO / "results"
     pairs = [] if args.quick else trajectories(results)
     if not pairs:
         results = tiny_tree()
@@ -122,7 +116,7 @@ def main() -> None:
     _, w2 = bench_loader(results, 2, 1 if args.quick else 3)
     for r in rows:
         r.update(windows=n_win)
-    write_csv("bench_export", rows + [
+    csv_path = write_csv("bench_export", rows + [
         {"scene": "all", "trajectory": "all", "format": f"dataloader_{k}_workers", "frames": None,
          "wall_s": None, "cpu_s": None, "mb": None, "note": f"{v:.1f} windows/s", "windows": n_win}
         for k, v in ((0, w0), (2, w2))])
@@ -138,17 +132,17 @@ def main() -> None:
     a2.set_xticks(range(len(ok)), labels, rotation=45, ha="right", fontsize=7)
     a2.set_ylabel("export size (MB)")
     fig.suptitle(f"gs2e export on {results} ({len(pairs)} trajectories)", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(RESULTS / "bench_export.png", dpi=120)
+    png = save_plot(fig, "bench_export", dpi=120)
 
-    print(f"{'scene':>8} {'trajectory':>14} {'format':>13} {'frames':>6} {'wall s':>7} {'CPU s':>7} "
-          f"{'MB':>8}  note")
+    table = [f"{'scene':>8} {'trajectory':>14} {'format':>13} {'frames':>6} {'wall s':>7} {'CPU s':>7} "
+             f"{'MB':>8}  note"]
     for r in rows:
         f = lambda v, p: "-" if v is None else f"{v:.{p}f}"  # noqa: E731
-        print(f"{r['scene']:>8} {r['trajectory']:>14} {r['format']:>13} {r['frames'] or '-':>6} "
-              f"{f(r['wall_s'], 2):>7} {f(r['cpu_s'], 2):>7} {f(r['mb'], 2):>8}  {r['note']}")
-    print(f"DataLoader over {n_win} windows (voxel 5 bins + rgb + blur + depth, batch 4): "
-          f"{w0:.1f} windows/s in the main process, {w2:.1f} windows/s with 2 workers")
+        table.append(f"{r['scene']:>8} {r['trajectory']:>14} {r['format']:>13} {r['frames'] or '-':>6} "
+                     f"{f(r['wall_s'], 2):>7} {f(r['cpu_s'], 2):>7} {f(r['mb'], 2):>8}  {r['note']}")
+    report("\n".join(table),
+           f"DataLoader over {n_win} windows (voxel 5 bins + rgb + blur + depth, batch 4): "
+           f"{w0:.1f} windows/s in the main process, {w2:.1f} windows/s with 2 workers", [csv_path, png])
 
 
 if __name__ == "__main__":

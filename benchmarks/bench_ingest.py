@@ -12,21 +12,16 @@ the headline figure.
 
 from __future__ import annotations
 
-import argparse
 import os
 import shutil
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+import cv2
 
-import cv2  # noqa: E402
-from _results import RESULTS, pyplot, write_csv  # noqa: E402
-
-from gs2e.io.ingest import ingest_scene  # noqa: E402
+from gs2e.io.ingest import ingest_scene
+from harness import SHARED, clock, parser, pyplot, report, save_plot, write_csv
 
 
 def _baseline(files: list[Path], out: Path, max_side: int | None) -> None:
@@ -41,9 +36,8 @@ def _baseline(files: list[Path], out: Path, max_side: int | None) -> None:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="one repetition (under 60 s)")
-    ap.add_argument("--data", default=str(REPO.parent / "shared" / "data"))
+    ap = parser(__doc__, quick="one repetition (under 60 s)")
+    ap.add_argument("--data", default=str(SHARED), help="folder of the real scenes")
     args = ap.parse_args()
     os.environ.setdefault("GS2E_PROGRESS", "0")
     data = Path(args.data)
@@ -61,12 +55,12 @@ def main() -> int:
             for max_side in (None, 320):
                 t_base, t_ing = [], []
                 for r in range(reps):
-                    t0 = time.perf_counter()
-                    _baseline(files, tmp / f"base_{name}_{r}", max_side)
-                    t_base.append(time.perf_counter() - t0)
-                    t0 = time.perf_counter()
-                    ingest_scene(src, "folder", tmp / f"ing_{name}_{r}", {"max_side": max_side})
-                    t_ing.append(time.perf_counter() - t0)
+                    with clock() as t:
+                        _baseline(files, tmp / f"base_{name}_{r}", max_side)
+                    t_base.append(t.wall_s)
+                    with clock() as t:
+                        ingest_scene(src, "folder", tmp / f"ing_{name}_{r}", {"max_side": max_side})
+                    t_ing.append(t.wall_s)
                 tb, ti = min(t_base), min(t_ing)
                 rows.append({"scene": name, "views": len(files), "max_side": max_side or 0,
                              "baseline_s": round(tb, 4), "ingest_s": round(ti, 4),
@@ -75,8 +69,7 @@ def main() -> int:
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
-    write_csv("bench_ingest", rows)
-    res = RESULTS
+    csv_path = write_csv("bench_ingest", rows)
     plt = pyplot()
     labels = [f"{r['scene']}\nmax_side={r['max_side'] or 'full'}" for r in rows]
     x = range(len(rows))
@@ -86,17 +79,18 @@ def main() -> int:
     ax.set_xticks(list(x), labels, fontsize=8)
     ax.set_ylabel("wall time (s)")
     ax.legend()
-    fig.tight_layout()
-    fig.savefig(res / "bench_ingest.png", dpi=100)
+    png = save_plot(fig, "bench_ingest", dpi=100)
 
-    hdr = f"{'scene':12s} {'views':>5s} {'max_side':>8s} {'base s':>8s} {'ingest s':>8s} {'img/s':>7s} {'ratio':>6s}"
-    print(hdr)
+    table = [f"{'scene':12s} {'views':>5s} {'max_side':>8s} {'base s':>8s} {'ingest s':>8s} {'img/s':>7s} "
+             f"{'ratio':>6s}"]
     for r in rows:
-        print(f"{r['scene']:12s} {r['views']:5d} {r['max_side'] or 'full':>8} {r['baseline_s']:8.3f} "
-              f"{r['ingest_s']:8.3f} {r['ingest_img_per_s']:7.1f} {r['ratio_ingest_over_baseline']:6.2f}")
+        table.append(f"{r['scene']:12s} {r['views']:5d} {r['max_side'] or 'full':>8} {r['baseline_s']:8.3f} "
+                     f"{r['ingest_s']:8.3f} {r['ingest_img_per_s']:7.1f} "
+                     f"{r['ratio_ingest_over_baseline']:6.2f}")
     head = next((r for r in rows if r["scene"] == "temple_ring" and not r["max_side"]), rows[0])
-    print(f"ingest {head['scene']} full resolution: {head['ingest_img_per_s']:.1f} images/s, "
-          f"{head['ratio_ingest_over_baseline']:.2f}x the bare imread+imwrite baseline")
+    report("\n".join(table),
+           f"ingest {head['scene']} full resolution: {head['ingest_img_per_s']:.1f} images/s, "
+           f"{head['ratio_ingest_over_baseline']:.2f}x the bare imread+imwrite baseline", [csv_path, png])
     return 0
 
 

@@ -13,7 +13,9 @@ photos from ../shared/data, 320 px):
 * ``train_step``: one whole training step (render, 0.8 L1 + 0.2 D-SSIM,
   autograd, the hand-written backward, Adam) at full size in float64;
 * and all of it again with the gs2e of ``--baseline-rev`` (a git worktree,
-  its own workers and caches) on the same inputs: today's speed-up.
+  its own workers and caches; a worker imports the gs2e of the checkout on
+  its ``PYTHONPATH`` and stops if it got another) on the same inputs:
+  today's speed-up.
 
 Targets: ``host`` (numba's and torch's own choice for this CPU) and ``avx2``
 (numba generating code for Haswell, ``NUMBA_CPU_NAME=haswell``: AVX2 + FMA, no
@@ -38,18 +40,14 @@ import os
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-import numpy as np
+import numpy as np  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "benchmarks"))
-
-from _results import RESULTS, median_ms, pyplot, write_csv  # noqa: E402
+import harness  # noqa: E402
+from harness import REPO, median_ms  # noqa: E402
 
 BASELINE_REV = "783ff0e"  # main when issue 44 was filed
 TARGET_ENV = {"host": {}, "avx2": {"NUMBA_CPU_NAME": "haswell", "ATEN_CPU_CAPABILITY": "avx2"}}
@@ -65,13 +63,13 @@ def host_flags() -> list[str]:
 
 
 # ------------------------------------------------------------------ worker
-def worker(scenes: dict[str, str], reps: int) -> list[dict]:
+def worker(scenes: dict[str, str], reps: int, root: str) -> list[dict]:
     """Time every part on every scene in this process (its target is its
-    environment, the gs2e it runs is the first on its path); rows as dicts."""
+    environment, the gs2e it runs the one of checkout ``root``, first on its
+    ``PYTHONPATH``); rows as dicts."""
     import numba
     import torch
 
-    import gs2e
     from gs2e.events.sampling import image_luminance
     from gs2e.splat import raster as R
     from gs2e.splat.forward import ForwardRenderer
@@ -96,8 +94,7 @@ def worker(scenes: dict[str, str], reps: int) -> list[dict]:
                 p[k].grad = None
             opt.step(p, grads)
 
-    if not Path(gs2e.__file__).resolve().is_relative_to(Path(sys.path[0]).resolve()):
-        raise SystemExit(f"worker imported {gs2e.__file__}, not the gs2e of {sys.path[0]}")
+    harness.check_gs2e_root(root)
     numba.set_num_threads(2)
     torch.set_num_threads(2)
     rows = []
@@ -175,22 +172,22 @@ def run_target(target: str, scenes: dict[str, Path], reps: int, root: Path = REP
     """A worker for ``target`` in a fresh process with its own numba cache,
     running the gs2e of ``root`` (this checkout, or the baseline's)."""
     cache = Path(tempfile.mkdtemp(prefix=f"bench_isa_{target}_"))
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache), PYTHONPATH=str(root),
-               **TARGET_ENV[target.split("-")[0]])
+    env = harness.gs2e_env(root, NUMBA_CACHE_DIR=str(cache), **TARGET_ENV[target.split("-")[0]])
     cmd = [sys.executable, __file__, "--worker", json.dumps({k: str(v) for k, v in scenes.items()}),
            "--reps", str(reps), "--root", str(root)]
-    t0 = time.perf_counter()
-    res = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=root)
+    with harness.clock() as t:
+        res = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=root)
     if res.returncode != 0:
         raise SystemExit(f"worker {target} failed:\n{res.stderr[-3000:]}")
     rows = json.loads(res.stdout.strip().splitlines()[-1])
-    print(f"  {target}: {len(rows)} timings in {time.perf_counter() - t0:.0f} s (compiles included)",
-          flush=True)
+    print(f"  {target}: {len(rows)} timings in {t.wall_s:.0f} s (compiles included)", flush=True)
     return [{"target": target, **r} for r in rows]
 
 
-def plot(rows: list[dict], path: Path, targets: list[str]) -> None:
-    plt = pyplot()
+def plot(rows: list[dict], targets: list[str]) -> Path:
+    """ms per call per part and scene, today on each target and the baseline on
+    the first, as benchmarks/results/bench_isa.png; returns the path."""
+    plt = harness.pyplot()
     parts = list(dict.fromkeys(r["part"] for r in rows))
     scenes = list(dict.fromkeys(r["scene"] for r in rows))
     fig, axes = plt.subplots(1, len(scenes), figsize=(4.2 * len(scenes), 3.8), squeeze=False)
@@ -207,25 +204,22 @@ def plot(rows: list[dict], path: Path, targets: list[str]) -> None:
         ax.set_xticks(x + 0.4 - w / 2, parts, rotation=60, ha="right")
         ax.set(ylabel="ms per call (2 threads)", title=sc, yscale="log")
     axes[0][0].legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    return harness.save_plot(fig, "bench_isa", dpi=110)
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="the demo only, 3 repetitions")
+    ap = harness.parser(__doc__, quick="the demo only, 3 repetitions (a few minutes: every worker compiles)",
+                        baseline_rev=BASELINE_REV)
     ap.add_argument("--scenes", default="demo,temple_ring,llff_fern")
     ap.add_argument("--targets", default=None, help="host,avx2 (default: both where the host has AVX-512)")
-    ap.add_argument("--baseline-rev", default=BASELINE_REV)
     ap.add_argument("--reps", type=int, default=9)
     ap.add_argument("--worker", help=argparse.SUPPRESS)
     ap.add_argument("--root", help=argparse.SUPPRESS)
     args = ap.parse_args()
-    if args.worker:
-        sys.path.insert(0, args.root)  # the gs2e to time: this checkout or the baseline's
-        print(json.dumps(worker(json.loads(args.worker), args.reps)))
+    if args.worker:  # the gs2e to time, this checkout's or the baseline's, is on PYTHONPATH
+        print(json.dumps(worker(json.loads(args.worker), args.reps, args.root)))
         return 0
-    from bench_event_sampling import build_scenes
+    from event_runs import build_scenes
 
     flags = host_flags()
     avx512 = "avx512f" in flags
@@ -235,15 +229,9 @@ def main() -> int:
     print(f"host: {os.cpu_count()} CPUs, flags {' '.join(flags)}; targets {', '.join(targets)}"
           + ("" if avx512 else " (no AVX-512 here: host code is AVX2 code)"), flush=True)
     scenes = build_scenes(names)
-    checkout = Path(tempfile.mkdtemp(prefix="bench_isa_base_")) / "repo"
-    subprocess.run(["git", "worktree", "add", "--detach", str(checkout), args.baseline_rev], cwd=REPO,
-                   check=True, capture_output=True)
-    try:
+    with harness.baseline_checkout(args.baseline_rev) as checkout:
         rows = [r for t in targets for r in run_target(t, scenes, reps)]
         base_rows = [r for t in targets for r in run_target(f"{t}-baseline", scenes, reps, checkout)]
-    finally:
-        subprocess.run(["git", "worktree", "remove", "--force", str(checkout)], cwd=REPO,
-                       capture_output=True)
     base = {(r["scene"], r["part"], r["target"].split("-")[0]): r["ms"] for r in base_rows}
     host = {(r["scene"], r["part"]): r for r in rows if r["target"] == "host"}
     for r in rows:
@@ -252,17 +240,15 @@ def main() -> int:
         r["avx2_throughput_vs_host"] = (h["ms"] / r["ms"]) if r["target"] == "avx2" and h else None
         r["baseline_ms"] = base.get((r["scene"], r["part"], r["target"]))
         r["speedup_vs_baseline"] = (r["baseline_ms"] / r["ms"]) if r["baseline_ms"] else None
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    write_csv("bench_isa", rows)
-    plot(rows, RESULTS / "bench_isa.png", targets)
-    print(f"\n{'scene':12s} {'part':13s} {'target':6s} {'ms':>8s} {'ns/px':>8s} {'ns/pair':>8s} "
-          f"{'avx2/host':>9s} {'vs ' + args.baseline_rev:>10s}")
+    files = [harness.write_csv("bench_isa", rows), plot(rows, targets)]
+    table = [f"\n{'scene':12s} {'part':13s} {'target':6s} {'ms':>8s} {'ns/px':>8s} {'ns/pair':>8s} "
+             f"{'avx2/host':>9s} {'vs ' + args.baseline_rev:>10s}"]
     for r in rows:
         a = r["avx2_throughput_vs_host"]
         s = r["speedup_vs_baseline"]
-        print(f"{r['scene']:12s} {r['part']:13s} {r['target']:6s} {r['ms']:8.2f} {r['ns_per_px']:8.1f} "
-              f"{r['ns_per_pair']:8.1f} {'-' if a is None else f'{a:.2f}':>9s} "
-              f"{'-' if s is None else f'{s:.2f}x':>10s}")
+        table.append(f"{r['scene']:12s} {r['part']:13s} {r['target']:6s} {r['ms']:8.2f} {r['ns_per_px']:8.1f} "
+                     f"{r['ns_per_pair']:8.1f} {'-' if a is None else f'{a:.2f}':>9s} "
+                     f"{'-' if s is None else f'{s:.2f}x':>10s}")
     t0 = targets[0]
     sp = {p: [r["speedup_vs_baseline"] for r in rows if r["part"] == p and r["target"] == t0
               and r["speedup_vs_baseline"]] for p in ("fwd_f32", "bwd_f64", "event_sample", "train_step")}
@@ -272,7 +258,9 @@ def main() -> int:
     if "avx2" in targets and "host" in targets:
         fr = [r["avx2_throughput_vs_host"] for r in rows if r["avx2_throughput_vs_host"]]
         extra = f"; AVX2 code at {min(fr):.2f}-{max(fr):.2f} of the host's throughput"
-    print(f"\nheadline ({isa}, {len(names)} scene(s)): today against {args.baseline_rev}: {line}{extra}")
+    harness.report("\n".join(table),
+                   f"headline ({isa}, {len(names)} scene(s)): today against {args.baseline_rev}: {line}{extra}",
+                   files)
     return 0
 
 

@@ -13,35 +13,36 @@ cameras and points (``sfm.reuse_poses``), same seed.
 Also checked: the ``mvimgnet`` layout of the same capture ingests to the same
 views, sizes and cameras as ``colmap``.
 
-Usage: python benchmarks/bench_mixed_views.py [--sensor davis346|imx636] [--work DIR]
+Usage: python benchmarks/bench_mixed_views.py [--quick] [--sensor davis346|imx636] [--work DIR]
 
-Writes benchmarks/results/bench_mixed_views.csv (one row per held-out view)
-and bench_mixed_views.png; the last printed line is the headline.
+``--quick``: only the ingest check (mvimgnet against colmap; the ingested
+scenes are cached in ``--work``), no SfM or training, nothing written.
+
+Writes benchmarks/results/bench_mixed_views.csv (one row per held-out view),
+bench_mixed_views.json (per variant) and bench_mixed_views.png; the last
+printed line is the headline.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import shutil
 import sys
-import time
 from pathlib import Path
 
 os.environ.setdefault("GS2E_PROGRESS", "0")
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
 
-import gs2e  # noqa: E402,F401  (first: sets OMP_WAIT_POLICY before torch loads)
+# first: importing gs2e sets OMP_WAIT_POLICY before torch loads
+from gs2e.config import load_section  # noqa: E402
 
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from gs2e.config import load_section  # noqa: E402
+import harness  # noqa: E402
+from harness import RESULTS  # noqa: E402
 
-RESULTS = REPO / "benchmarks" / "results"
-DATA = REPO.parent / "shared" / "data"
+DATA = harness.SHARED
 
 
 def squeezed_copy(scene_dir: Path, out: Path) -> None:
@@ -67,8 +68,9 @@ def squeezed_copy(scene_dir: Path, out: Path) -> None:
     tmp.rename(out)
 
 
-def prepare(work: Path) -> dict[str, Path]:
-    """Ingested scenes (cached): colmap and mvimgnet layouts, and the squeezed copy."""
+def prepare(work: Path, squeezed: bool = True) -> dict[str, Path]:
+    """Ingested scenes (cached): colmap and mvimgnet layouts, and (if
+    ``squeezed``) the squeezed copy."""
     from gs2e.io.ingest import ingest_scene
 
     src = DATA / "mouse_colmap"
@@ -78,6 +80,8 @@ def prepare(work: Path) -> dict[str, Path]:
         if not d.exists():
             ingest_scene(src, layout, d, load_section("ingest"))
         out[layout] = d
+    if not squeezed:
+        return out
     sq = work / "ingest_squeezed"
     if not sq.exists():
         squeezed_copy(out["colmap"], sq)
@@ -108,9 +112,8 @@ def run_variant(name: str, scene_dir: Path, work: Path, target: tuple[int, int],
     for d in (sfm, model, views):
         shutil.rmtree(d, ignore_errors=True)
     run_sfm(scene_dir, sfm, dict(load_section("sfm"), reuse_poses=True), seed=seed, threads=2)
-    t0, c0 = time.perf_counter(), time.process_time()
-    stats = train(sfm, model, load_section("splat"), seed=seed, threads=2, target_size=target)
-    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    with harness.clock() as t:
+        stats = train(sfm, model, load_section("splat"), seed=seed, threads=2, target_size=target)
     rows = render_views(model, sfm, views, "test")
     src = read_scene(scene_dir)  # the views' orientation in the capture
     orient = {f.name: ("portrait" if src.frame_size(i)[1] > src.frame_size(i)[0] else "landscape")
@@ -122,15 +125,13 @@ def run_variant(name: str, scene_dir: Path, work: Path, target: tuple[int, int],
         r.update(variant=name, orientation=true_orient[r["view"]], stored_as=orient[r["view"]])
     return {"variant": name, "rows": rows, "test_psnr": stats["test_psnr"], "test_ssim": stats["test_ssim"],
             "iterations": stats["iterations"], "n_gaussians": stats["n_gaussians"],
-            "train_size": f"{stats['train_width']}x{stats['train_height']}", "wall_s": wall, "cpu_s": cpu}
+            "train_size": f"{stats['train_width']}x{stats['train_height']}", "wall_s": t.wall_s, "cpu_s": t.cpu_s}
 
 
-def plot(df: pd.DataFrame, path: Path, title: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+def plot(df: pd.DataFrame, title: str) -> Path:
+    """Mean held-out PSNR per orientation and variant, as
+    benchmarks/results/bench_mixed_views.png; returns the path."""
+    plt = harness.pyplot()
     fig, ax = plt.subplots(figsize=(6.5, 3.6))
     groups = ["landscape", "portrait", "all"]
     variants = list(dict.fromkeys(df["variant"]))
@@ -147,14 +148,14 @@ def plot(df: pd.DataFrame, path: Path, title: str) -> None:
     ax.set_ylim(max(0, lo - 3), df["psnr"].max() + 1.5)
     ax.set_title(title, fontsize=9)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    return harness.save_plot(fig, "bench_mixed_views")
 
 
 def main() -> int:
     from gs2e.events.sensors import SENSORS
 
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = harness.parser(__doc__, quick="only the ingest check, mvimgnet against colmap (no SfM or "
+                        "training, nothing written; under a minute)")
     ap.add_argument("--sensor", default="davis346", choices=list(SENSORS))
     ap.add_argument("--work", type=Path, default=RESULTS / "bench_mixed_views_work")
     ap.add_argument("--seed", type=int, default=0)
@@ -166,14 +167,17 @@ def main() -> int:
 
     target = tuple(get_sensor({**load_section("events"), "sensor": a.sensor}).size)
     a.work.mkdir(parents=True, exist_ok=True)
-    scenes = prepare(a.work)
+    scenes = prepare(a.work, squeezed=not a.quick)
     mvimgnet_same = same_views(scenes["colmap"], scenes["mvimgnet"])
+    if a.quick:
+        harness.report(None, f"mouse_colmap: mvimgnet layout ingests the same views as colmap: "
+                       f"{'yes' if mvimgnet_same else 'NO'} (quick: no SfM or training)")
+        return 0
     runs = [run_variant(n, scenes[k], a.work, target, a.seed)
             for n, k in [("own size", "colmap"), ("squeezed", "squeezed")]]
     df = pd.DataFrame([r for run in runs for r in run["rows"]])
     df["sensor"] = a.sensor
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    df.to_csv(RESULTS / "bench_mixed_views.csv", index=False)
+    files = [harness.write_csv("bench_mixed_views", df)]
     print(f"mouse_colmap, {a.sensor} ({target[0]}x{target[1]}), seed {a.seed}; "
           f"mvimgnet layout ingests the same views as colmap: {'yes' if mvimgnet_same else 'NO'}")
     print(f"{'variant':10s} {'train at':>9s} {'steps':>6s} {'Gauss.':>7s} {'CPU s':>7s} "
@@ -187,11 +191,12 @@ def main() -> int:
     own, sq = runs
     title = (f"mouse_colmap held-out PSNR at {a.sensor}: own size {own['test_psnr']:.2f} dB, "
              f"squeezed {sq['test_psnr']:.2f} dB")
-    plot(df, RESULTS / "bench_mixed_views.png", title)
-    (RESULTS / "bench_mixed_views.json").write_text(json.dumps(
+    files.append(plot(df, title))
+    files.append(RESULTS / "bench_mixed_views.json")
+    files[-1].write_text(json.dumps(
         {k: v for r in runs for k, v in [(r["variant"], {x: y for x, y in r.items() if x != "rows"})]},
         indent=1))
-    print(f"{title} ({own['test_psnr'] - sq['test_psnr']:+.2f} dB)")
+    harness.report(None, f"{title} ({own['test_psnr'] - sq['test_psnr']:+.2f} dB)", files)
     return 0
 
 

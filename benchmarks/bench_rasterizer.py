@@ -12,12 +12,12 @@ the demo, temple_ring and llff_fern models of bench_event_sampling.py
 (trained 2000 steps at 320 px; built and cached by that script's workflow),
 rendered at their training size and at twice it (640 px), float32 like
 training: forward and forward+backward with today's kernels and with the
-baseline pixel-major kernels (benchmarks/_raster_v0.py, the kernels before
+baseline pixel-major kernels (benchmarks/raster_v0.py, the kernels before
 the SIMD rewrite, which split tiles over threads in contiguous blocks),
 swapped in within the same run; projection, SH and binning are today's for
 both. The images and gradients of both are compared.
 
-Usage: PYTHONPATH=$PWD python benchmarks/bench_rasterizer.py [--quick]
+Usage: python benchmarks/bench_rasterizer.py [--quick]
 Writes benchmarks/results/bench_rasterizer.csv and .png; the last printed line
 is the headline.
 """
@@ -29,21 +29,22 @@ import os
 # before numpy/torch/numba load OpenMP: no spin-waiting on a shared machine
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-import argparse
 import ctypes
+import resource
 import shutil
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
+import harness
 from gs2e.splat import raster as R
 from gs2e.splat.rasterize import SplatCamera, rasterize
 from gs2e.splat.reference import render_reference
+from train_runs import time_call, trained_cameras
 
 HERE = Path(__file__).resolve().parent
 KEYS = ("means", "quats", "log_scales", "opacity_logits", "sh")
@@ -70,30 +71,9 @@ def make_scene(n, width, height, seed=0, dtype=torch.float32):
 
 def time_render(fn, p, cam, reps):
     """Wall seconds of forward and forward+backward (loss = sum of outputs):
-    dict of median and min over ``reps``, plus median process CPU seconds."""
+    dict of median and min over ``reps``, plus median process CPU seconds
+    (:func:`train_runs.time_call`)."""
     return time_call(lambda: fn(*(p[k] for k in KEYS), cam, p["background"]), p.values(), reps)
-
-
-def time_call(render_once, params, reps):
-    """As :func:`time_render`, for a closure returning (image, alpha, depth, meta)."""
-    t_f, t_fb, c_fb = [], [], []
-    meta = None
-    params = list(params)
-    for _ in range(reps):
-        for x in params:
-            x.grad = None
-        c0 = time.process_time()
-        t0 = time.perf_counter()
-        img, alpha, depth, meta = render_once()
-        t1 = time.perf_counter()
-        (img.sum() + alpha.sum()).backward()
-        t2 = time.perf_counter()
-        c_fb.append(time.process_time() - c0)
-        t_f.append(t1 - t0)
-        t_fb.append(t2 - t0)
-    return dict(fwd_s=float(np.median(t_f)), fwd_min_s=float(np.min(t_f)),
-                fwd_bwd_s=float(np.median(t_fb)), fwd_bwd_min_s=float(np.min(t_fb)),
-                fwd_bwd_cpu_s=float(np.median(c_fb))), meta
 
 
 def c_vs_numba(reps, quick):
@@ -115,10 +95,9 @@ def c_vs_numba(reps, quick):
     bg = np.zeros(4, np.float32)
     tmp = Path(tempfile.mkdtemp())
     so = tmp / "raster_fwd_c.so"
-    t0 = time.perf_counter()
-    subprocess.run([gcc, "-O3", "-march=native", "-fopenmp", "-shared", "-fPIC",
-                    str(HERE / "raster_fwd_c.c"), "-o", str(so), "-lm"], check=True)
-    t_build = time.perf_counter() - t0
+    with harness.clock() as build:
+        subprocess.run([gcc, "-O3", "-march=native", "-fopenmp", "-shared", "-fPIC",
+                        str(HERE / "raster_fwd_c.c"), "-o", str(so), "-lm"], check=True)
     lib = ctypes.CDLL(str(so))
     ptr = lambda a: a.ctypes.data_as(ctypes.c_void_p)  # noqa: E731
     out_c = np.empty((256, 256, 4), np.float32)
@@ -130,42 +109,23 @@ def c_vs_numba(reps, quick):
             ptr(out_c), ptr(T_c), ptr(nc_c)]
     t_c, t_nb = [], []
     for _ in range(reps):
-        t0 = time.perf_counter()
-        lib.raster_fwd(*args)
-        t_c.append(time.perf_counter() - t0)
-        t0 = time.perf_counter()
-        out_n, T_n, nc_n = R.rasterize_forward(m2f, con, op, feats, bg, 256, 256, off, gids)
-        t_nb.append(time.perf_counter() - t0)
+        with harness.clock() as t:
+            lib.raster_fwd(*args)
+        t_c.append(t.wall_s)
+        with harness.clock() as t:
+            out_n, T_n, nc_n = R.rasterize_forward(m2f, con, op, feats, bg, 256, 256, off, gids)
+        t_nb.append(t.wall_s)
     shutil.rmtree(tmp, ignore_errors=True)
-    return dict(numba_s=float(np.median(t_nb)), c_s=float(np.median(t_c)), c_build_s=t_build,
+    return dict(numba_s=float(np.median(t_nb)), c_s=float(np.median(t_c)), c_build_s=build.wall_s,
                 numba_min_s=float(np.min(t_nb)), c_min_s=float(np.min(t_c)),
                 max_abs_diff=float(np.abs(out_c - out_n).max()),
                 same_ncontrib=bool(np.array_equal(nc_c, nc_n)))
 
 
-def trained_cameras(names: list[str]):
-    """(name, params with gradients on, model info, camera) for each trained
-    model of bench_event_sampling.py, seen from a third of the way along its
-    base_medium trajectory at its training size and at twice it."""
-    from bench_event_sampling import build_scenes
-    from gs2e.splat.model import load_model
-    from gs2e.trajectory import load_trajectory
-
-    for name, d in build_scenes(names).items():
-        p, info = load_model(d / "splat")
-        for x in p.values():
-            x.requires_grad_(True)
-        tr = load_trajectory(d / "trajectories" / "base_medium.npz")
-        c2w = tr.pose_at(np.array([tr.duration_us // 3]))[0]
-        for scale in (1, 2):
-            K = tr.K * scale
-            yield name, p, info, SplatCamera.from_c2w(c2w, K[0, 0], K[1, 1], K[0, 2], K[1, 2],
-                                                      tr.width * scale, tr.height * scale)
-
-
 def trained_models(reps: int, quick: bool) -> list[dict]:
-    """fwd and fwd+bwd on trained models, today's kernels vs the baseline."""
-    import _raster_v0 as v0
+    """fwd and fwd+bwd on trained models (:func:`train_runs.trained_cameras`),
+    today's kernels vs the baseline."""
+    import raster_v0 as v0
     from gs2e.splat.model import render
 
     def v0_forward(*args):  # the baseline splits tiles by prange's contiguous blocks
@@ -202,12 +162,11 @@ def trained_models(reps: int, quick: bool) -> list[dict]:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="fewer repetitions (< 60 s)")
-    ap.add_argument("--out", default=str(HERE / "results"), help="output folder")
+    ap = harness.parser(__doc__, quick="fewer repetitions (< 60 s)")
+    ap.add_argument("--out", default=str(harness.RESULTS), help="output folder")
     args = ap.parse_args(argv)
     reps = 3 if args.quick else 7
-    out_dir = Path(args.out)
+    out_dir = Path(args.out).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
     import numba
     threads = numba.get_num_threads()
@@ -215,10 +174,10 @@ def main(argv=None):
           f"OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY')}")
 
     # warm-up: compile or load the numba cache
-    t0 = time.perf_counter()
-    p, cam = make_scene(100, 32, 32)
-    time_render(rasterize, p, cam, 1)
-    t_warm = time.perf_counter() - t0
+    with harness.clock() as warm:
+        p, cam = make_scene(100, 32, 32)
+        time_render(rasterize, p, cam, 1)
+    t_warm = warm.wall_s
 
     rows = []
     for (w, h, n) in [(256, 256, 50_000), (512, 384, 200_000)]:
@@ -244,7 +203,6 @@ def main(argv=None):
         ratio[sc] = (td["fwd_bwd_s"] / t["fwd_bwd_s"], td["fwd_bwd_min_s"] / t["fwd_bwd_min_s"])
         dense_ns = td["fwd_bwd_min_s"] / (w * h * n) * 1e9
         dense_pairs = w * h * n
-    import resource
     peak_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # kB -> GB
 
     trained = trained_models(reps, args.quick)
@@ -262,8 +220,6 @@ def main(argv=None):
     import pandas as pd
     df = pd.DataFrame(rows)
     df["threads"] = threads
-    csv = out_dir / "bench_rasterizer.csv"
-    df.to_csv(csv, index=False)
     with pd.option_context("display.width", 140, "display.max_columns", 20):
         print(df.to_string(index=False, float_format=lambda x: f"{x:.4f}"))
     print(f"numba warm-up (compile or cache load): {t_warm:.1f} s")
@@ -294,9 +250,7 @@ def main(argv=None):
     print(f"load average during the run: {os.getloadavg()} (shared machine: min is the "
           "least-disturbed repetition)")
 
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = harness.pyplot()
     fig, ax = plt.subplots(figsize=(12, 4.5))
     sub = df[df.backend.isin(["gs2e-numba", "dense-torch", "simd", "pixel-major (baseline)"])]
     labels = [f"{r.scene}\n{r.backend}" for r in sub.itertuples()]
@@ -309,19 +263,24 @@ def main(argv=None):
     ax.axhline(0.5, color="k", ls=":", lw=1, label="target 0.5 s (256x256/50k)")
     ax.set_title(f"gs2e CPU rasterizer, {threads} threads")
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out_dir / "bench_rasterizer.png", dpi=120)
+    if out_dir == harness.RESULTS.resolve():
+        files = [harness.write_csv("bench_rasterizer", df), harness.save_plot(fig, "bench_rasterizer")]
+    else:  # --out: the same files in another folder
+        files = [out_dir / "bench_rasterizer.csv", out_dir / "bench_rasterizer.png"]
+        df.to_csv(files[0], index=False)
+        fig.tight_layout()
+        fig.savefig(files[1], dpi=120)
 
     r0, r1 = rows[0], rows[1]
     big = list(ratio)[-1]
     fb = [sp[2] for sp in speedups]
-    print(f"HEADLINE: trained models, forward+backward {min(fb):.2f}-{max(fb):.2f}x faster than the "
-          f"pixel-major baseline (forward {min(sp[1] for sp in speedups):.2f}-"
-          f"{max(sp[1] for sp in speedups):.2f}x) over {len(speedups)} scene/size pairs; "
-          f"random 256x256/50k {r0['fwd_bwd_min_s']:.3f} s min / "
-          f"{r0['fwd_bwd_s']:.3f} s median (target <= 0.5), 512x384/200k {r1['fwd_bwd_min_s']:.3f} / "
-          f"{r1['fwd_bwd_s']:.3f} s, {ratio[big][1]:.0f}x (min) / {ratio[big][0]:.0f}x (median) faster "
-          f"than the dense torch reference ({big}), {threads} threads")
+    harness.report(None, f"HEADLINE: trained models, forward+backward {min(fb):.2f}-{max(fb):.2f}x faster than "
+                   f"the pixel-major baseline (forward {min(sp[1] for sp in speedups):.2f}-"
+                   f"{max(sp[1] for sp in speedups):.2f}x) over {len(speedups)} scene/size pairs; "
+                   f"random 256x256/50k {r0['fwd_bwd_min_s']:.3f} s min / "
+                   f"{r0['fwd_bwd_s']:.3f} s median (target <= 0.5), 512x384/200k {r1['fwd_bwd_min_s']:.3f} / "
+                   f"{r1['fwd_bwd_s']:.3f} s, {ratio[big][1]:.0f}x (min) / {ratio[big][0]:.0f}x (median) faster "
+                   f"than the dense torch reference ({big}), {threads} threads", files)
     return 0
 
 

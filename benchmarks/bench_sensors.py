@@ -13,8 +13,8 @@ DVXplorer recording, which the ``dvxplorer`` row is the sim-to-real check for.
 
 Model: ``--model`` / ``--trajectory``; default results/demo/{splat,
 trajectories/base_medium.npz} (``make demo``), else the cache that
-bench_event_sampling.py builds. ``--quick``: the tests' textured plane,
-5 ms (under 60 s).
+bench_event_sampling.py builds. ``--quick``: the tests' textured plane
+(``event_runs.plane_scene``), 5 ms (under 60 s).
 
 Usage: python benchmarks/bench_sensors.py [--quick] [--span-ms 50]
 Writes benchmarks/results/bench_sensors[_quick].csv and .png; the last line
@@ -23,33 +23,28 @@ printed is the headline.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "benchmarks"))
+import harness
+from event_runs import CACHE, plane_scene
+from harness import REPO
 
-from _results import RESULTS, pyplot, write_csv  # noqa: E402
+from gs2e.events.sensors import SENSORS
 
-from gs2e.events.sensors import SENSORS  # noqa: E402
-
-REAL = REPO.parent / "shared" / "data" / "events" / "dvxplorer_sample.aedat4"
+REAL = harness.SHARED / "events" / "dvxplorer_sample.aedat4"
 
 
 def find_model(args) -> tuple[Path, Path]:
     if args.model:
         return Path(args.model), Path(args.trajectory)
-    for root in (REPO / "results" / "demo",
-                 RESULTS / "bench_event_sampling_cache" / "results" / "demo"):
+    for root in (REPO / "results" / "demo", CACHE / "results" / "demo"):
         if (root / "splat").is_dir() and (root / "trajectories" / "base_medium.npz").is_file():
             return root / "splat", root / "trajectories" / "base_medium.npz"
     raise SystemExit("no trained demo model: run `make demo` or pass --model/--trajectory")
@@ -81,43 +76,59 @@ def run_events(model: Path, traj: Path, span_us: tuple[int, int], sensor: str | 
         cut = Path(d) / "span.npz"
         t0 = cut_trajectory(traj, span_us, cut)
         cfg["max_duration_s"] = (span_us[1] - t0) * 1e-6
-        env = dict(os.environ, GS2E_PROGRESS="0", PYTHONPATH=str(REPO))
-        a = time.perf_counter()
-        proc = subprocess.Popen([sys.executable, "-m", "gs2e", "events", "--model", str(model),
-                                 "--trajectory", str(cut), "-o", str(out), "--threads", "2",
-                                 "--config-json", json.dumps(cfg)],
-                                env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-        _, status, ru = os.wait4(proc.pid, 0)
-        wall = time.perf_counter() - a
+        with harness.clock() as t:
+            proc = subprocess.Popen([sys.executable, "-m", "gs2e", "events", "--model", str(model),
+                                     "--trajectory", str(cut), "-o", str(out), "--threads", "2",
+                                     "--config-json", json.dumps(cfg)],
+                                    env=harness.gs2e_env(REPO), stdout=subprocess.DEVNULL,
+                                    stderr=subprocess.PIPE)
+            _, status, ru = os.wait4(proc.pid, 0)  # this child's own peak RSS
         err = proc.stderr.read().decode()
         proc.stderr.close()
         if os.waitstatus_to_exitcode(status) != 0:
             raise SystemExit(f"gs2e events failed for sensor {sensor}: {err.strip()[-500:]}")
     st = json.loads((out / "stats.json").read_text())["stats"]
-    return {"wall_s": wall, "peak_rss_mb": ru.ru_maxrss / 1024.0, **st}
+    return {"wall_s": t.wall_s, "peak_rss_mb": ru.ru_maxrss / 1024.0, **st}
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="test plane, 5 ms (under 60 s)")
+    ap = harness.parser(__doc__, quick="test plane, 5 ms (under 60 s)")
     ap.add_argument("--model")
     ap.add_argument("--trajectory")
     ap.add_argument("--span-ms", type=float, default=50.0)
     ap.add_argument("--real", default=str(REAL), help="real recording for the sim-to-real columns")
     args = ap.parse_args()
-    t_start = time.perf_counter()
+    with harness.clock() as total:
+        rows, traj, span_ms = measure(args)
+    stem = "bench_sensors" + ("_quick" if args.quick else "")
+    csv = harness.write_csv(stem, rows)
+    png = harness.save_plot(plot(rows), stem, dpi=110)
+    import pandas as pd
+
+    big = rows[len(SENSORS)]  # imx636, the largest array
+    base = rows[0]
+    print(f"measured in {total.wall_s:.0f} s")
+    harness.report(
+        "\n" + pd.DataFrame(rows).to_string(index=False, float_format="%.4g"),
+        f"HEADLINE: {span_ms:g} ms of {traj.stem}: imx636 (1280x720) "
+        f"{big['events_per_wall_s'] / 1e6:.2f} M events/s wall, {big['simulate_s_per_s']:.0f} s per "
+        f"simulated s, peak RSS {big['peak_rss_mb']:.0f} MB; the trajectory camera "
+        f"({base['width']}x{base['height']}) {base['events_per_wall_s'] / 1e6:.2f} M events/s, "
+        f"{base['simulate_s_per_s']:.0f} s per simulated s, {base['peak_rss_mb']:.0f} MB", [csv, png])
+
+
+def measure(args) -> tuple[list[dict], Path, float]:
+    """One row per sensor (and the real recording); the trajectory and the
+    span (ms) simulated."""
+    from gs2e.trajectory import load_trajectory
+
     tmp = Path(tempfile.mkdtemp(prefix="bench_sensors_"))
     if args.quick:
-        sys.path.insert(0, str(REPO / "benchmarks"))
-        from bench_event_sampling import plane_scene
-
         model, traj = plane_scene(tmp)
         span_ms = 5.0
     else:
         model, traj = find_model(args)
         span_ms = args.span_ms
-    from gs2e.trajectory import load_trajectory
-
     tr = load_trajectory(traj)
     mid = int((tr.t_us[0] + tr.t_us[-1]) // 2)
     span = (mid, mid + int(span_ms * 1000))
@@ -152,25 +163,13 @@ def main() -> None:
                      "rate_hz_per_px": real.get("density_mean_hz"),
                      "on_fraction": real.get("on_fraction"),
                      "iei_median_ms": real.get("iei_median_ms")})
-    stem = "bench_sensors" + ("_quick" if args.quick else "")
-    write_csv(stem, rows)
-    plot(rows, RESULTS / f"{stem}.png")
-    import pandas as pd
-
-    print()
-    print(pd.DataFrame(rows).to_string(index=False, float_format="%.4g"))
-    big = rows[len(SENSORS)]  # imx636, the largest array
-    base = rows[0]
-    print(f"wrote {RESULTS / stem}.csv/.png in {time.perf_counter() - t_start:.0f} s")
-    print(f"HEADLINE: {span_ms:g} ms of {traj.stem}: imx636 (1280x720) "
-          f"{big['events_per_wall_s'] / 1e6:.2f} M events/s wall, {big['simulate_s_per_s']:.0f} s per "
-          f"simulated s, peak RSS {big['peak_rss_mb']:.0f} MB; the trajectory camera "
-          f"({base['width']}x{base['height']}) {base['events_per_wall_s'] / 1e6:.2f} M events/s, "
-          f"{base['simulate_s_per_s']:.0f} s per simulated s, {base['peak_rss_mb']:.0f} MB")
+    return rows, traj, span_ms
 
 
-def plot(rows: list[dict], path: Path) -> None:
-    plt = pyplot()
+def plot(rows: list[dict]):
+    """Per sensor: wall s per simulated s, peak RSS and event rate (beside the
+    real recording's); the figure."""
+    plt = harness.pyplot()
     sim = [r for r in rows if r["wall_s"] is not None]
     fig, axes = plt.subplots(1, 3, figsize=(14, 4))
     names = [r["sensor"].split(" ")[0] for r in sim]
@@ -187,9 +186,7 @@ def plot(rows: list[dict], path: Path) -> None:
     for ax in axes:
         ax.tick_params(axis="x", rotation=30, labelsize=8)
         ax.grid(True, axis="y", alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
 
 
 if __name__ == "__main__":

@@ -19,30 +19,17 @@ is the headline (mouse_colmap: CPU at ``auto`` against native, views registered)
 
 from __future__ import annotations
 
-import argparse
 import os
-import resource
 import shutil
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "benchmarks"))
-
-from _results import RESULTS, SHARED_SCENES, pyplot, write_csv  # noqa: E402
-
-from gs2e.config import load_config  # noqa: E402
-from gs2e.io.ingest import ingest_scene  # noqa: E402
-from gs2e.sfm.colmap_sfm import run_sfm, sift_image_size  # noqa: E402
-
-
-def _cpu_s() -> float:
-    """CPU seconds of this process, all threads (COLMAP runs in-process)."""
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return r.ru_utime + r.ru_stime
+import harness
+from gs2e.config import load_config
+from gs2e.io.ingest import ingest_scene
+from gs2e.sfm.colmap_sfm import run_sfm, sift_image_size
+from harness import SHARED_SCENES
 
 
 def _subset(src: Path, layout: str, n_views: int | None, tmp: Path) -> Path:
@@ -58,16 +45,19 @@ def _subset(src: Path, layout: str, n_views: int | None, tmp: Path) -> Path:
 
 
 def run_one(scene: str, scene_dir: Path, size, tmp: Path, threads: int) -> dict:
+    """``gs2e sfm`` of ``scene_dir`` with SIFT at ``size`` (px, ``auto`` or
+    None for the photos' own size): its statistics, wall and CPU seconds of
+    this process, all threads (COLMAP runs in-process)."""
     cfg = load_config({})["sfm"]
     cfg["max_image_size"] = size
     out = tmp / f"sfm_{scene}_{size}"
-    c0, t0 = _cpu_s(), time.perf_counter()
-    try:
-        st = run_sfm(scene_dir, out, cfg, seed=0, threads=threads)
-        err = ""
-    except Exception as exc:  # a size too small to register is a result, not a crash
-        st, err = {}, str(exc).splitlines()[0][:120]
-    cpu, wall = _cpu_s() - c0, time.perf_counter() - t0
+    with harness.clock() as t:
+        try:
+            st = run_sfm(scene_dir, out, cfg, seed=0, threads=threads)
+            err = ""
+        except Exception as exc:  # a size too small to register is a result, not a crash
+            st, err = {}, str(exc).splitlines()[0][:120]
+    cpu, wall = t.cpu_s, t.wall_s
     shutil.rmtree(out, ignore_errors=True)
     return {"scene": scene, "max_image_size": "native" if size is None else size,
             "sift_px": sift_image_size(cfg), "n_views": st.get("n_views"),
@@ -79,8 +69,10 @@ def run_one(scene: str, scene_dir: Path, size, tmp: Path, threads: int) -> dict:
             "wall_s": wall, "cpu_s": cpu, "error": err}
 
 
-def plot(rows: list[dict], path: Path) -> None:
-    plt = pyplot()
+def plot(rows: list[dict]) -> Path:
+    """CPU seconds and views registered against the SIFT size, per scene, as
+    benchmarks/results/bench_sfm_size.png; returns the path."""
+    plt = harness.pyplot()
     fig, ax = plt.subplots(1, 2, figsize=(10, 3.6))
     for scene in sorted({r["scene"] for r in rows}):
         rs = [r for r in rows if r["scene"] == scene]
@@ -92,13 +84,11 @@ def plot(rows: list[dict], path: Path) -> None:
     ax[1].set(xlabel="longer side SIFT sees (px)", ylabel="views registered (fraction)",
               title="registration", ylim=(0, 1.05))
     ax[0].legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    return harness.save_plot(fig, "bench_sfm_size", dpi=110)
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="mouse_colmap's first 16 views, auto and native")
+    ap = harness.parser(__doc__, quick="mouse_colmap's first 16 views, auto and native (a few minutes)")
     ap.add_argument("--sizes", default="800,1024,1600,native",
                     help="comma-separated SIFT sizes for mouse_colmap (px, auto or native)")
     ap.add_argument("--threads", type=int, default=2)
@@ -131,22 +121,23 @@ def main() -> int:
                   f"{r['cpu_s']:.1f} CPU-s {r['error']}", flush=True)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    write_csv("bench_sfm_size", rows)
-    plot(rows, RESULTS / "bench_sfm_size.png")
+    files = [harness.write_csv("bench_sfm_size", rows), plot(rows)]
     hdr = ("scene", "max_image_size", "sift_px", "n_registered", "n_views", "n_points", "reproj_px",
            "gt_rot_deg", "gt_center_pct", "extraction_s", "matching_s", "mapping_s", "undistortion_s",
            "cpu_s")
-    print("\n" + " | ".join(hdr))
+    table = ["\n" + " | ".join(hdr)]
     for r in rows:
-        print(" | ".join("-" if r[k] is None else f"{r[k]:.3g}" if isinstance(r[k], float) else str(r[k])
-                         for k in hdr))
+        table.append(" | ".join("-" if r[k] is None else f"{r[k]:.3g}" if isinstance(r[k], float) else str(r[k])
+                                for k in hdr))
     m = {r["max_image_size"]: r for r in rows if r["scene"] == "mouse_colmap"}
     if "auto" in m and "native" in m:
         a, n = m["auto"], m["native"]
-        print(f"\nheadline: mouse_colmap SfM at auto ({a['sift_px']} px) {a['cpu_s']:.0f} CPU-s against "
-              f"{n['cpu_s']:.0f} at the photos' size ({n['cpu_s'] / a['cpu_s']:.2f}x less), "
-              f"{a['n_registered']}/{a['n_views']} views registered (native {n['n_registered']})")
+        head = (f"headline: mouse_colmap SfM at auto ({a['sift_px']} px) {a['cpu_s']:.0f} CPU-s against "
+                f"{n['cpu_s']:.0f} at the photos' size ({n['cpu_s'] / a['cpu_s']:.2f}x less), "
+                f"{a['n_registered']}/{a['n_views']} views registered (native {n['n_registered']})")
+    else:  # --sizes without both: no ratio to give
+        head = "headline: mouse_colmap SfM measured at " + ", ".join(str(s) for s in m) + " (no auto/native pair)"
+    harness.report("\n".join(table), head, files)
     return 0
 
 

@@ -26,7 +26,7 @@ has the same event count and the same bytes, and so has every other product
 file (JSON/parquet tables, which carry run times, excepted); any difference
 makes the exit status 1.
 
-    python benchmarks/bench_slurm.py --quick   # tiny demo (tests.conftest.TINY_OVERRIDES)
+    python benchmarks/bench_slurm.py --quick   # tiny demo (gs2e.testing.TINY_OVERRIDES)
     python benchmarks/bench_slurm.py           # the default demo (config/scenes.tsv row)
 
 ``--quick`` takes about 3-4 minutes on 2 cores, not the house rule's 60 s:
@@ -49,7 +49,6 @@ last printed line is the headline figure.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import hashlib
 import os
@@ -58,16 +57,11 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "benchmarks"))
-
-from _results import RESULTS, pyplot, write_csv  # noqa: E402
-from gs2e.report.io import read_results_benchmarks  # noqa: E402
-from tests.conftest import TINY_OVERRIDES, slurm_local, why_no_slurm_cluster  # noqa: E402
+from gs2e.report.io import read_results_benchmarks
+from gs2e.testing import TINY_OVERRIDES, slurm_local, why_no_slurm_cluster
+from harness import REPO, clock, gs2e_env, parser, pyplot, report, save_plot, write_csv
 
 BIN = Path(sys.executable).parent
 PROFILE = REPO / "workflow" / "profiles" / "slurm"
@@ -94,10 +88,9 @@ def warmup_overrides(quick: bool) -> str:
 
 
 def bench_env() -> dict:
-    return {**os.environ, "GS2E_PROGRESS": "0", "GS2E_SLURM_PARTITION": PARTITION,
-            "GS2E_SLURM_DIR": os.environ.get("GS2E_SLURM_DIR", "/tmp/gs2e-slurm"),
-            "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}",
-            "PYTHONPATH": os.pathsep.join(p for p in (str(REPO), os.environ.get("PYTHONPATH")) if p)}
+    return gs2e_env(REPO, GS2E_SLURM_PARTITION=PARTITION,
+                    GS2E_SLURM_DIR=os.environ.get("GS2E_SLURM_DIR", "/tmp/gs2e-slurm"),
+                    PATH=f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}")
 
 
 def run_workflow(wd: Path, scene: str, overrides: str, cores: int, env: dict,
@@ -111,15 +104,14 @@ def run_workflow(wd: Path, scene: str, overrides: str, cores: int, env: dict,
     cmd = ["timeout", "-k", "30", str(timeout_s), str(BIN / "snakemake"),
            "--snakefile", str(REPO / "Snakefile"), *extra, "--cores", str(cores),
            "--directory", str(wd), "--config", f"scenes={wd / 'scenes.tsv'}"]
-    t0 = time.perf_counter()
-    proc = subprocess.run(cmd, cwd=REPO, env=env, stdout=subprocess.PIPE,
-                          stderr=subprocess.STDOUT, text=True, timeout=timeout_s + 90)
-    wall = time.perf_counter() - t0
+    with clock() as t:
+        proc = subprocess.run(cmd, cwd=REPO, env=env, stdout=subprocess.PIPE,
+                              stderr=subprocess.STDOUT, text=True, timeout=timeout_s + 90)
     (wd / "snakemake.out").write_text(proc.stdout)
     if proc.returncode != 0:
         raise SystemExit(f"{'Slurm' if slurm else 'local'} run failed (exit {proc.returncode}); "
                          f"output in {wd / 'snakemake.out'}:\n{proc.stdout[-4000:]}")
-    return wall, proc.stdout
+    return t.wall_s, proc.stdout
 
 
 def job_times(wd: Path) -> dict[str, tuple[float, float]]:
@@ -208,9 +200,7 @@ def collect(wd: Path, wall_s: float, load: float) -> dict:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true",
-                    help="tiny demo (tests.conftest.TINY_OVERRIDES), ~3-4 min; default: the real demo")
+    ap = parser(__doc__, quick="tiny demo (gs2e.testing.TINY_OVERRIDES), ~3-4 min; default: the real demo")
     ap.add_argument("--cores", type=int, default=2,
                     help="--cores of both runs (Slurm: CPUs per job; must fit the node)")
     ap.add_argument("--no-warmup", action="store_true",
@@ -244,9 +234,9 @@ def main() -> None:
         print(f"local run: {wall:.1f} s", flush=True)
 
         if slurm_local("status", env).returncode != 0:
-            t0 = time.perf_counter()
-            proc = slurm_local("start", env, 600)
-            start_s = time.perf_counter() - t0
+            with clock() as t:
+                proc = slurm_local("start", env, 600)
+            start_s = t.wall_s
             if proc.returncode != 0:
                 raise SystemExit(f"slurm_local.sh start failed:\n{proc.stderr[-3000:]}")
             started = True
@@ -333,13 +323,13 @@ def main() -> None:
         rows[0].update({k: "" for k in rows[1] if k not in rows[0]})
     else:
         print(f"note: squeue knows {len(st)} of the {n_sub} Slurm jobs: no queue/run split", file=sys.stderr)
-    write_csv(name, rows)
+    files = [write_csv(name, rows)]
     job_rows = [{"job": j, "local_s": round(loc["jobs"][j][0], 2),
                  "slurm_s": round(slu["jobs"].get(j, (float("nan"),))[0], 2),
                  "local_cpu_s": round(loc["jobs"][j][1], 2),
                  "slurm_cpu_s": round(slu["jobs"].get(j, (0, float("nan")))[1], 2)}
                 for j in loc["jobs"]]
-    write_csv(f"{name}_jobs", job_rows)
+    files.append(write_csv(f"{name}_jobs", job_rows))
 
     plt = pyplot()
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [1, 2.2]})
@@ -370,8 +360,7 @@ def main() -> None:
     ax2.set_ylabel("job wall time inside the job (s)")
     ax2.set_title("per-job compute (Snakemake benchmark files)")
     ax2.legend()
-    fig.tight_layout()
-    fig.savefig(RESULTS / f"{name}.png", dpi=120)
+    files.append(save_plot(fig, name, dpi=120))
 
     print(f"{'mode':>6} {'wall s':>8} {'ratio':>6} {'jobs':>5} {'job wall sum':>13} {'job CPU sum':>12} "
           f"{'rest s':>8} {'s/job over local':>17} {'events':>8} {'load':>5}")
@@ -397,9 +386,9 @@ def main() -> None:
     print(f"overhead per job without the jobs' own times: {rows[1]['non_job_overhead_per_job_s']:.1f} s")
     for p in problems:
         print(f"PROBLEM: {p}")
-    print(f"full pipeline on the {demo}: local {loc['wall_s']:.0f} s, Slurm {slu['wall_s']:.0f} s "
-          f"({slu['wall_s'] / loc['wall_s']:.1f}x), {n_jobs} jobs, {overhead:.1f} s overhead per job; "
-          f"events {identical}")
+    report(None, f"full pipeline on the {demo}: local {loc['wall_s']:.0f} s, Slurm {slu['wall_s']:.0f} s "
+                 f"({slu['wall_s'] / loc['wall_s']:.1f}x), {n_jobs} jobs, {overhead:.1f} s overhead per job; "
+                 f"events {identical}", files)
     if problems:
         sys.exit(1)
 

@@ -27,10 +27,11 @@ trajectories (demo scene, 256 x 192, DVS-Voltmeter) and its
 
 Everything runs through the stage commands (``gs2e trajectory``, ``render``,
 ``events``, ``windows``, ``bench``) on the trained models that
-benchmarks/bench_event_sampling.py builds and caches (demo: the make-demo
-recipe; temple_ring, llff_fern from ../shared/data: SfM + 2000 steps at
-320 px). ``--quick``: the tests' textured plane (64 x 48) panned at three
-speeds, ideal model only (under 60 s, no training).
+benchmarks/bench_event_sampling.py builds and caches (``event_runs.build_scenes``;
+demo: the make-demo recipe; temple_ring, llff_fern from ../shared/data: SfM +
+2000 steps at 320 px). ``--quick``: the tests' textured plane (64 x 48,
+``gs2e.testing.plane_model``) panned at three speeds, ideal model only (under
+60 s, no training).
 
 Targets (issue 29), reported met or not in the headline: ``strong`` moves
 >= 20 px (median) over the exposure; the three speeds' blurred PSNR lie >= 3
@@ -44,25 +45,16 @@ printed is the headline.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
 import shutil
-import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "benchmarks"))
-sys.path.insert(0, str(REPO / "tests"))
-
-from _results import RESULTS, pyplot, write_csv  # noqa: E402
-
-from gs2e.cli import main  # noqa: E402
+from gs2e.cli import main
+from harness import RESULTS, clock, parser, pyplot, report, save_plot, write_csv
 
 SPEEDS = ("mild", "medium", "strong")
 SENSOR = "davis346"
@@ -79,11 +71,11 @@ MISSING = ("blurred_psnr", "edi_oracle_psnr", "edi_chosen_psnr", "edi_chosen_the
 
 def gs2e(*argv: str) -> float:
     """Run one gs2e command in this process; its wall time (s)."""
-    t0 = time.perf_counter()
-    rc = main([str(a) for a in argv])
+    with clock() as t:
+        rc = main([str(a) for a in argv])
     if rc != 0:
         raise SystemExit(f"gs2e {argv[0]} failed ({rc})")
-    return time.perf_counter() - t0
+    return t.wall_s
 
 
 def frames_motion(frames_dir: Path) -> tuple[float, float, int]:
@@ -155,9 +147,9 @@ def run_trajectory(out: Path, model_dir: Path, traj: Path, render_extra: list[st
 
 
 def full_rows(scenes: list[str], work: Path, models: list[str], span_s: float) -> list[dict]:
-    import bench_event_sampling as B
+    from event_runs import build_scenes
 
-    built = B.build_scenes(scenes)
+    built = build_scenes(scenes)
     rows = []
     for scene in scenes:
         sdir = built[scene]
@@ -180,13 +172,12 @@ def full_rows(scenes: list[str], work: Path, models: list[str], span_s: float) -
 
 def _plane_pans(work: Path) -> list[Path]:
     """The tests' straight pan over the plane at three speeds (image speeds x3 apart)."""
-    from test_render import _straight_trajectory
-
+    from gs2e.testing import straight_trajectory
     from gs2e.trajectory import load_trajectory
     from gs2e.trajectory.io import save_trajectory
     from gs2e.trajectory.trajectory import Trajectory
 
-    base = load_trajectory(_straight_trajectory(work, dx=1.2)).to_arrays()
+    base = load_trajectory(straight_trajectory(work, dx=1.2)).to_arrays()
     paths = []
     for speed, dur_s in zip(SPEEDS, (1.2, 0.4, 0.133)):
         traj = work / f"pan_{speed}.npz"
@@ -202,9 +193,9 @@ def _plane_pans(work: Path) -> list[Path]:
 
 def quick_rows(work: Path) -> list[dict]:
     """The tests' plane, panned at three speeds (image speeds x3 apart)."""
-    from test_render import _plane_model
+    from gs2e.testing import plane_model
 
-    model = _plane_model(work)
+    model = plane_model(work)
     rows = []
     for speed, traj in zip(SPEEDS, _plane_pans(work)):
         out = work / speed
@@ -255,9 +246,9 @@ def recon3d_rows_full(scenes: list[str], work: Path, results: Path | None, r3_cf
                 origin = f"workflow {src}"
             else:
                 if built is None:
-                    import bench_event_sampling as B
+                    from event_runs import build_scenes
 
-                    built = B.build_scenes([s for s in scenes if not (
+                    built = build_scenes([s for s in scenes if not (
                         results is not None and (results / s / "windows").is_dir())])
                 tdir = work / "recon3d" / scene / "trajectories"
                 if not tdir.exists():
@@ -276,9 +267,9 @@ def recon3d_rows_full(scenes: list[str], work: Path, results: Path | None, r3_cf
 
 def recon3d_rows_quick(work: Path) -> list[dict]:
     """The tests' plane panned at three speeds, a tiny recon3d on each."""
-    from test_render import _plane_model
+    from gs2e.testing import plane_model
 
-    model = _plane_model(work)
+    model = plane_model(work)
     rows = []
     for speed, traj in zip(SPEEDS, _plane_pans(work)):
         out = work / "recon3d" / speed
@@ -319,7 +310,8 @@ def scene_axes(rows: list[dict]):
     return fig, list(zip(axes[0], scenes))
 
 
-def recon3d_plot(rows: list[dict], path: Path) -> None:
+def recon3d_plot(rows: list[dict], name: str) -> Path:
+    """PSNR per speed and variant, one panel per scene: benchmarks/results/<name>.png."""
     fig, panels = scene_axes(rows)
     for ax, scene in panels:
         for v, c in zip(R3_VARIANTS, ("tab:blue", "tab:orange", "k")):
@@ -331,14 +323,11 @@ def recon3d_plot(rows: list[dict], path: Path) -> None:
         ax.set_title(scene)
         ax.grid(alpha=0.3)
     panels[0][0].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    return save_plot(fig, name, dpi=110)
 
 
-def recon3d_report(rows: list[dict], name: str, t0: float) -> None:
-    csv = write_csv(name, rows)
-    png = RESULTS / f"{name}.png"
-    recon3d_plot(rows, png)
+def recon3d_report(rows: list[dict], files: list[Path], wall_s: float) -> None:
+    """The PSNR / SSIM table, the targets and the headline; ``wall_s``: the run's wall time."""
     print(f"{'scene':>12s} {'variant':>11s} " + " ".join(f"{s:>15s}" for s in SPEEDS) + "   CPU-min")
     for scene in dict.fromkeys(r["scene"] for r in rows):
         for v in R3_VARIANTS:
@@ -352,14 +341,14 @@ def recon3d_report(rows: list[dict], name: str, t0: float) -> None:
     t = recon3d_targets(rows)
     for k, v in t.items():
         print(f"  {k}: {'met' if v else 'NOT met'}")
-    print(f"wrote {csv} and {png} in {time.perf_counter() - t0:.0f} s")
+    print(f"ran in {wall_s:.0f} s")
     mild = [r for r in rows if r["speed"] == "mild"]
     parts = []
     for scene in dict.fromkeys(r["scene"] for r in mild):
         by = {r["variant"]: r["psnr"] for r in mild if r["scene"] == scene}
         parts.append(f"{scene} " + " / ".join(f"{by.get(v, math.nan):.1f}" for v in R3_VARIANTS))
-    print(f"headline: recon3d {sum(t.values())}/{len(t)} targets met; at mild, event-only / "
-          f"event+blur / sharp (dB): {'; '.join(parts)}")
+    report(None, f"headline: recon3d {sum(t.values())}/{len(t)} targets met; at mild, event-only / "
+                 f"event+blur / sharp (dB): {'; '.join(parts)}", files)
 
 
 def targets(rows: list[dict]) -> dict[str, bool]:
@@ -377,7 +366,8 @@ def targets(rows: list[dict]) -> dict[str, bool]:
     return out
 
 
-def plot(rows: list[dict], path: Path) -> None:
+def plot(rows: list[dict], name: str) -> Path:
+    """PSNR against motion per scene and event model: benchmarks/results/<name>.png."""
     fig, panels = scene_axes(rows)
     for ax, scene in panels:
         for model, ls in (("ideal", "-"), ("voltmeter", "--")):
@@ -395,13 +385,12 @@ def plot(rows: list[dict], path: Path) -> None:
         ax.set_title(scene)
         ax.grid(alpha=0.3)
     panels[0][0].legend(fontsize=6)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    return save_plot(fig, name, dpi=110)
 
 
 def main_cli() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true")
+    ap = parser(__doc__, quick="the tests' textured plane panned at three speeds, ideal model only "
+                               "(under 60 s, no training)")
     ap.add_argument("--scenes", default="demo,temple_ring,llff_fern")
     ap.add_argument("--models", default="ideal", help="event models: ideal,voltmeter")
     ap.add_argument("--span-s", type=float, default=0.3,
@@ -412,7 +401,7 @@ def main_cli() -> None:
                     help="recon3d: a workflow's results folder; its scenes' base trajectories "
                          "(whole, as simulated there) are used where present")
     ap.add_argument("--recon3d-config", default="{}",
-                    help="recon3d: JSON of bench.recon3d_* keys (default: config.yaml's)")
+                    help="recon3d: JSON of bench.recon3d_* keys ({}: config.yaml's)")
     ap.add_argument("--model", default="ideal", help="recon3d: event model of the cached real scenes")
     ap.add_argument("--speeds", default=",".join(SPEEDS), help="recon3d: speed presets to run")
     args = ap.parse_args()
@@ -428,26 +417,25 @@ def main_cli() -> None:
         work = RESULTS / f"{name}_work"
         shutil.rmtree(work, ignore_errors=True)
         work.mkdir(parents=True)
-        t0 = time.perf_counter()
-        rows = (recon3d_rows_quick(work) if args.quick else recon3d_rows_full(
-            args.scenes.split(","), work, args.results, json.loads(args.recon3d_config), args.model,
-            tuple(args.speeds.split(","))))
-        recon3d_report(rows, name, t0)
+        with clock() as run:
+            rows = (recon3d_rows_quick(work) if args.quick else recon3d_rows_full(
+                args.scenes.split(","), work, args.results, json.loads(args.recon3d_config), args.model,
+                tuple(args.speeds.split(","))))
+            files = [write_csv(name, rows), recon3d_plot(rows, name)]
+        recon3d_report(rows, files, run.wall_s)
         return
     name = "bench_tasks_quick" if args.quick else "bench_tasks"
     work = RESULTS / f"{name}_work"
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir(parents=True)
-    t0 = time.perf_counter()
-    from gs2e.common.log import setup_logging
+    with clock() as run:
+        from gs2e.common.log import setup_logging
 
-    setup_logging(False)
-    logging.getLogger("gs2e").setLevel(logging.WARNING)
-    rows = (quick_rows(work) if args.quick
-            else full_rows(args.scenes.split(","), work, args.models.split(","), args.span_s))
-    csv = write_csv(name, rows)
-    png = RESULTS / f"{name}.png"
-    plot(rows, png)
+        setup_logging(False)
+        logging.getLogger("gs2e").setLevel(logging.WARNING)
+        rows = (quick_rows(work) if args.quick
+                else full_rows(args.scenes.split(","), work, args.models.split(","), args.span_s))
+        files = [write_csv(name, rows), plot(rows, name)]
     cols = ("scene", "speed", "events", "n_frames", "motion_px_p50", "motion_px_p90", "blurred_psnr",
             "edi_oracle_psnr", "edi_chosen_psnr", "edi_chosen_theta", "integrate_psnr_0_5s",
             "integrate_psnr_end", "complementary_psnr_end", "deblur_s", "video_s")
@@ -457,12 +445,12 @@ def main_cli() -> None:
     t = targets(rows)
     for k, v in t.items():
         print(f"  {k}: {'met' if v else 'NOT met'}")
-    print(f"wrote {csv} and {png} in {time.perf_counter() - t0:.0f} s")
+    print(f"ran in {run.wall_s:.0f} s")
     strong = [r for r in rows if r["speed"] == "strong" and r["events"] == "ideal"]
     gains = ", ".join(f"{r['scene']} {r['blurred_psnr']:.1f} -> {r['edi_oracle_psnr']:.1f} dB "
                       f"({r['motion_px_p50']:.0f} px)" for r in strong)
-    print(f"headline: {sum(t.values())}/{len(t)} targets met; strong, blurred -> EDI (oracle, ideal): "
-          f"{gains}")
+    report(None, f"headline: {sum(t.values())}/{len(t)} targets met; strong, blurred -> EDI (oracle, ideal): "
+                 f"{gains}", files)
 
 
 if __name__ == "__main__":

@@ -21,26 +21,20 @@ bench_train.png; the last printed line is the headline.
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
-import sys
-import time
 from pathlib import Path
 
 os.environ.setdefault("GS2E_PROGRESS", "0")
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
 
-import gs2e  # noqa: E402,F401  (first: sets OMP_WAIT_POLICY before torch loads)
+# first: importing gs2e sets OMP_WAIT_POLICY before torch loads
+from gs2e.config import load_section  # noqa: E402
 
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from gs2e.config import load_section  # noqa: E402
+import harness  # noqa: E402
+from train_runs import prepare  # noqa: E402
 
-RESULTS = REPO / "benchmarks" / "results"
-DATA = REPO.parent / "shared" / "data"
 PAPER_PSNR, PAPER_SSIM = 29.8, 0.92
 # scaled with the run length; densify_every and eval_every are not (rounds that come
 # too often explode the Gaussian count; evaluations are the curve's resolution)
@@ -63,44 +57,6 @@ def settings(base: dict) -> dict[str, dict]:
             "full-res": dict(base, resolution_schedule=[[0, 1]], sh_degree=3)}
 
 
-# photo folders of the real scenes under ../shared/data
-PHOTOS = {"temple_ring": "temple_ring", "llff_fern": "llff_fern/images"}
-
-
-def prepare(work: Path, name: str, data: Path, max_side: int | None = None) -> Path:
-    """A trainable scene folder (cached in ``work``); real scenes ingested at
-    ``max_side`` px long side if given, then posed by SfM."""
-    from gs2e.demo.io import generate_demo_scene
-
-    if name == "demo-small":
-        out = work / "demo_small"
-        if not (out / "scene.json").exists():
-            generate_demo_scene(out, load_section("demo", json.dumps(
-                {"n_views": 16, "width": 128, "height": 96, "n_points": 3000})))
-        return out
-    out = work / f"{name}_sfm"
-    if (out / "scene.json").exists():
-        return out
-    import subprocess
-
-    def gs2e_cli(*args):
-        env = {**os.environ, "PYTHONPATH": str(REPO)}
-        subprocess.run([sys.executable, "-m", "gs2e", *map(str, args)], check=True, env=env,
-                       capture_output=True)
-
-    ing = work / f"{name}_ingest"
-    if name == "demo":
-        raw = work / "demo_raw"
-        if not (raw / "scene.json").exists():
-            gs2e_cli("demo-scene", "--out", raw)
-        gs2e_cli("ingest", "--layout", "demo", "--src", raw, "--out", ing)
-    else:
-        size = ["--config-json", json.dumps({"max_side": max_side})] if max_side else []
-        gs2e_cli("ingest", "--layout", "folder", "--src", data / PHOTOS[name], "--out", ing, *size)
-    gs2e_cli("sfm", "--scene", ing, "--out", out)
-    return out
-
-
 def run_one(scene_dir: Path, out: Path, cfg: dict, threads: int | None) -> tuple[dict, pd.DataFrame]:
     from gs2e.splat.train import train
 
@@ -115,16 +71,15 @@ def time_to_reach(curve: pd.DataFrame, psnr: float, col: str = "cpu_time_s") -> 
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="small demo scene only (< 60 s)")
+    ap = harness.parser(__doc__, quick="small demo scene only (< 60 s)")
     ap.add_argument("--scenes", default=None, help="comma list of demo, temple_ring (full mode)")
     ap.add_argument("--iterations", type=int, default=None,
                     help="steps per run (schedule scaled to it); default: quick 300, full 1500")
     ap.add_argument("--no-baseline", action="store_true", help="only the gs2e defaults")
     ap.add_argument("--threads", type=int, default=None)
-    ap.add_argument("--data", type=Path, default=DATA, help="shared data folder (default ../shared/data)")
+    ap.add_argument("--data", type=Path, default=harness.SHARED, help="shared data folder (../shared/data)")
     ap.add_argument("--name", default="bench_train", help="stem of the CSV/PNG files written")
-    ap.add_argument("--work", type=Path, default=RESULTS / "work_train", help="scene/model cache")
+    ap.add_argument("--work", type=Path, default=harness.RESULTS / "work_train", help="scene/model cache")
     a = ap.parse_args()
 
     scenes = ["demo-small"] if a.quick else (a.scenes or "demo,temple_ring").split(",")
@@ -139,14 +94,13 @@ def main() -> int:
     if a.quick:
         base["eval_every"] = 50
         base["densify_every"] = min(base["densify_every"], 50)
-    RESULTS.mkdir(parents=True, exist_ok=True)
     a.work.mkdir(parents=True, exist_ok=True)
 
     rows, finals = [], []
     for scene in scenes:
-        t = time.perf_counter()
-        sdir = prepare(a.work, scene, a.data)
-        print(f"[{scene}] scene ready in {time.perf_counter() - t:.1f} s: {sdir}", flush=True)
+        with harness.clock() as t:
+            sdir = prepare(a.work, scene, a.data)
+        print(f"[{scene}] scene ready in {t.wall_s:.1f} s: {sdir}", flush=True)
         for name, cfg in settings(base).items():
             if a.no_baseline and name != "gs2e":
                 continue
@@ -164,9 +118,8 @@ def main() -> int:
                   f"SH {f['sh']}): PSNR {f['psnr']:.2f} dB SSIM {f['ssim']:.4f}", flush=True)
 
     df = pd.DataFrame(rows)
-    df.to_csv(RESULTS / f"{a.name}.csv", index=False)
     fin = pd.DataFrame(finals)
-    fin.to_csv(RESULTS / f"{a.name}_final.csv", index=False)
+    files = [harness.write_csv(a.name, df), harness.write_csv(f"{a.name}_final", fin)]
 
     print("\nheld-out PSNR/SSIM against training time (every evaluation):")
     with pd.option_context("display.width", 160, "display.max_rows", 400):
@@ -186,7 +139,7 @@ def main() -> int:
             ratios[scene] = (target, tg, tb, tb / tg if tg == tg else float("nan"))
             print(f"[{scene}] {target:.2f} dB (baseline final - 0.1): baseline after {tb:.1f} CPU-s, "
                   f"gs2e after {tg:.1f} CPU-s -> {ratios[scene][3]:.2f}x less CPU")
-    _plot(df, scenes, RESULTS / f"{a.name}.png")
+    files.append(plot(df, scenes, a.name))
 
     heads = []
     for scene in scenes:
@@ -195,16 +148,15 @@ def main() -> int:
             if scene in ratios and np.isfinite(ratios[scene][3]) else ""
         heads.append(f"{scene} {f['psnr']:.2f} dB / SSIM {f['ssim']:.3f} in {f['train_s']:.0f} s "
                      f"({f['iterations']} it, {f['gaussians']} G){extra}")
-    print(f"train: {'; '.join(heads)} (paper bar {PAPER_PSNR} dB / {PAPER_SSIM} SSIM)")
+    harness.report(None, f"train: {'; '.join(heads)} (paper bar {PAPER_PSNR} dB / {PAPER_SSIM} SSIM)",
+                   files)
     return 0
 
 
-def _plot(df: pd.DataFrame, scenes: list[str], path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+def plot(df: pd.DataFrame, scenes: list[str], stem: str) -> Path:
+    """Held-out PSNR and SSIM against training wall time, per scene and
+    setting, as benchmarks/results/<stem>.png; returns the path."""
+    plt = harness.pyplot()
     fig, axes = plt.subplots(2, len(scenes), figsize=(5.5 * len(scenes), 7), squeeze=False)
     for j, scene in enumerate(scenes):
         for name, g in df[df.scene == scene].groupby("setting"):
@@ -217,9 +169,7 @@ def _plot(df: pd.DataFrame, scenes: list[str], path: Path) -> None:
         axes[1, j].set_ylabel("held-out SSIM")
         axes[1, j].set_xlabel("training wall time (s, 2 CPU cores)")
         axes[0, j].legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return harness.save_plot(fig, stem, dpi=110)
 
 
 if __name__ == "__main__":

@@ -34,6 +34,14 @@ held-out PSNR/SSIM (every 8th view) against CPU seconds (all threads) every
 evaluation at or before 5, 10 and 20 CPU-minutes (a run that ended earlier
 gives its final evaluation, marked ``ended``).
 
+``--quick``: the small demo scene of bench_train.py (16 views 128x96,
+ground-truth poses), 300 steps per setting, evaluated every 50 (about a
+minute; a model folder that exists is reused).
+
+A setting that runs another checkout's code is a child process whose
+``PYTHONPATH`` is that checkout (:func:`harness.gs2e_env`); it stops if it
+imported another gs2e.
+
 Writes benchmarks/results/bench_train_budget.csv (every curve point),
 bench_train_budget_at.csv (the table) and bench_train_budget.png; the last
 printed line is the headline (held-out PSNR at 10 CPU-minutes).
@@ -43,28 +51,25 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "benchmarks"))
-
-from _results import RESULTS, pyplot  # noqa: E402
-from bench_train import DATA, PHOTOS, prepare  # noqa: E402
+import harness
+from harness import REPO, RESULTS
+from train_runs import PHOTOS, prepare
 
 SETTINGS = {"auto": {}, "adaptive": {"budget": "adaptive"}}
 MARKS_MIN = (5, 10, 20)
 
 
 def child(repo: str, scene_dir: str, out: str, overrides: str, threads: int) -> None:
-    """Train in this process with ``repo``'s code; print the statistics as JSON.
+    """Train in this process with ``repo``'s code (the process is started
+    with :func:`harness.gs2e_env`); print the statistics as JSON.
     ``overrides`` may hold ``_target_size`` [W, H] (the event sensor's array)
     and ``_seed`` (the training seed, default 0: settings that differ only in
     it give the seed-to-seed spread)."""
-    sys.path.insert(0, repo)
-    import gs2e  # noqa: F401  (first: thread settings before torch loads)
+    harness.check_gs2e_root(repo)  # imports gs2e first: thread settings before torch loads
     from gs2e.config import load_section
     from gs2e.splat.train import train
 
@@ -78,12 +83,13 @@ def child(repo: str, scene_dir: str, out: str, overrides: str, threads: int) -> 
 
 
 def run(repo: Path, scene_dir: Path, out: Path, overrides: dict, threads: int):
+    """Train ``scene_dir`` into ``out`` with ``repo``'s code in a fresh process
+    (unless ``out`` holds a run already): (statistics, curve)."""
     import pandas as pd
 
     if not (out / "curve.parquet").exists():
-        env = {**os.environ, "PYTHONPATH": str(repo), "GS2E_PROGRESS": "0"}
         subprocess.run([sys.executable, __file__, "--child", str(repo), str(scene_dir), str(out),
-                        json.dumps(overrides), str(threads)], check=True, env=env,
+                        json.dumps(overrides), str(threads)], check=True, env=harness.gs2e_env(repo),
                        capture_output=True)
     stats = json.loads((out / "train_stats.json").read_text())
     return stats, pd.read_parquet(out / "curve.parquet")
@@ -126,8 +132,10 @@ def at_marks(curve, stats) -> list[dict]:
     return rows
 
 
-def plot(df, path: Path) -> None:
-    plt = pyplot()
+def plot(df) -> Path:
+    """Held-out PSNR and Gaussians against CPU-minutes, per scene and setting,
+    as benchmarks/results/bench_train_budget.png; returns the path."""
+    plt = harness.pyplot()
     scenes = list(dict.fromkeys(df["scene"]))
     fig, axes = plt.subplots(2, len(scenes), figsize=(5.5 * len(scenes), 7), squeeze=False)
     for j, scene in enumerate(scenes):
@@ -141,13 +149,11 @@ def plot(df, path: Path) -> None:
         axes[1, j].set_ylabel("Gaussians")
         axes[1, j].set_xlabel("CPU-minutes (all threads)")
         axes[0, j].legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return harness.save_plot(fig, "bench_train_budget", dpi=110)
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = harness.parser(__doc__, quick="the small demo scene, 300 steps per setting (about a minute)")
     ap.add_argument("--child", nargs=5, help=argparse.SUPPRESS)
     ap.add_argument("--scenes", default="temple_ring,llff_fern")
     ap.add_argument("--settings", default="auto,adaptive")
@@ -158,12 +164,13 @@ def main() -> int:
     ap.add_argument("--replay-stop", action="append", default=[], metavar="PATIENCE,DELTA_DB",
                     help="with --cost-run: also replay this plateau stop rule on the curves")
     ap.add_argument("--iterations", type=int, default=None,
-                    help="steps per run (default 3000; with --cost-run the configured max_iterations)")
+                    help="steps per run (default 3000, --quick 300; with --cost-run the configured "
+                    "max_iterations)")
     ap.add_argument("--max-side", type=int, default=640)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--baseline-repo", type=Path, default=None,
                     help="another checkout: its code trains the 'auto' setting as 'baseline'")
-    ap.add_argument("--data", type=Path, default=DATA)
+    ap.add_argument("--data", type=Path, default=harness.SHARED)
     ap.add_argument("--work", type=Path, default=RESULTS / "work_train_budget",
                     help="scenes and models (a model folder that exists is reused)")
     a = ap.parse_args()
@@ -184,9 +191,15 @@ def main() -> int:
     runs = [(s, REPO, settings[s]) for s in a.settings.split(",") if s]
     if a.baseline_repo:
         runs.insert(0, ("baseline", a.baseline_repo.resolve(), {}))
+    if a.quick and a.cost_run:
+        ap.error("--quick trains the small demo scene, not the cost model's scenes (--cost-run)")
+    if a.quick:
+        a.scenes = "demo-small"
     if a.iterations is None:
-        a.iterations = 0 if a.cost_run else 3000
+        a.iterations = 0 if a.cost_run else 300 if a.quick else 3000
     base = {"max_iterations": a.iterations} if a.iterations else {}
+    if a.quick:
+        base["eval_every"] = 50
     if a.cost_run:
         from gs2e.config import load_config
         import yaml
@@ -218,7 +231,7 @@ def main() -> int:
             if not (sdir / "scene.json").exists():
                 print(f"skipping {scene}: {sdir} is absent (run bench_cost_model.py --run first)")
                 continue
-        elif not (a.data / PHOTOS[scene]).exists():
+        elif scene != "demo-small" and not (a.data / PHOTOS[scene]).exists():
             print(f"skipping {scene}: {a.data / PHOTOS[scene]} is absent")
             continue
         else:
@@ -249,11 +262,9 @@ def main() -> int:
         print("train budget: nothing to run")
         return 0
     df, tab = pd.DataFrame(points), pd.DataFrame(table)
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    df.to_csv(RESULTS / "bench_train_budget.csv", index=False)
-    plot(df, RESULTS / "bench_train_budget.png")
+    files = [harness.write_csv("bench_train_budget", df), plot(df)]
     if len(tab):
-        tab.to_csv(RESULTS / "bench_train_budget_at.csv", index=False)
+        files.append(harness.write_csv("bench_train_budget_at", tab))
         with pd.option_context("display.width", 160):
             print(tab.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
     if a.cost_run:
@@ -272,25 +283,28 @@ def main() -> int:
                              "psnr_gain_db": r.psnr - ref.psnr, "cpu_min": r.cpu_time_s / 60,
                              "cpu_ratio": r.cpu_time_s / ref.cpu_time_s})
         rep = pd.DataFrame(rows)
-        rep.to_csv(RESULTS / f"bench_train_budget_stop_rules_{a.cost_run}.csv", index=False)
+        files.append(harness.write_csv(f"bench_train_budget_stop_rules_{a.cost_run}", rep))
         print("plateau stop rules replayed on the curves (against patience 3, 0.1 dB):")
         with pd.option_context("display.width", 160):
             print(rep.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
         if not len(tab):
             last = rep[(rep.patience == rules[-1][0]) & (rep.min_delta_db == rules[-1][1])]
-            print(f"stop rule patience {int(rules[-1][0])}, {rules[-1][1]:g} dB against patience 3, 0.1 dB: " + "; ".join(
-                f"{r.scene}/{r.setting} {r.psnr_gain_db:+.2f} dB at {r.cpu_ratio:.2f}x the CPU" for r in last.itertuples()))
+            harness.report(None, f"stop rule patience {int(rules[-1][0])}, {rules[-1][1]:g} dB against "
+                           "patience 3, 0.1 dB: " + "; ".join(
+                               f"{r.scene}/{r.setting} {r.psnr_gain_db:+.2f} dB at {r.cpu_ratio:.2f}x the CPU"
+                               for r in last.itertuples()), files)
             return 0
         one = tab[tab.cpu_min == MARKS_MIN[0]]
-        print(f"training at {a.cost_run}'s size, plateau stop; CPU-min to within 0.2 dB of the first "
-              "setting's final PSNR / whole run, final PSNR: " + "; ".join(
-                  f"{r.scene}/{r.setting} {r.cpu_min_near_first:.2f} / {r.run_cpu_min:.2f} CPU-min, "
-                  f"{r.final_psnr:.2f} dB ({r.iterations} it)" for r in one.itertuples()))
+        harness.report(None, f"training at {a.cost_run}'s size, plateau stop; CPU-min to within 0.2 dB of the "
+                       "first setting's final PSNR / whole run, final PSNR: " + "; ".join(
+                           f"{r.scene}/{r.setting} {r.cpu_min_near_first:.2f} / {r.run_cpu_min:.2f} CPU-min, "
+                           f"{r.final_psnr:.2f} dB ({r.iterations} it)" for r in one.itertuples()), files)
         return 0
     ten = tab[tab.cpu_min == 10]
-    print("train budget: held-out PSNR at 10 CPU-min, 640 px: " + "; ".join(
+    size = "demo-small 128x96" if a.quick else f"{a.max_side} px"
+    harness.report(None, f"train budget: held-out PSNR at 10 CPU-min, {size}: " + "; ".join(
         f"{r.scene}/{r.setting} {r.psnr:.2f} dB ({r.n_gaussians} G{', ended' if r.ended else ''})"
-        for r in ten.itertuples()))
+        for r in ten.itertuples()), files)
     return 0
 
 

@@ -23,46 +23,42 @@ Writes benchmarks/results/bench_trajectory.csv and .png; last line = headline.
 
 from __future__ import annotations
 
-import argparse
 import os
 
 for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
     os.environ.setdefault(_v, "1")  # one core
 
-import json  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
-import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "tests"))
-
-from _traj_helpers import TEMPLE, make_scene, ring, temple_c2w  # noqa: E402
 from gs2e.common.so3 import geodesic_angle  # noqa: E402
 from gs2e.config import load_section  # noqa: E402
 from gs2e.io.scene import write_scene_json  # noqa: E402
+from gs2e.testing import TEMPLE, make_scene, ring, temple_c2w  # noqa: E402
 from gs2e.trajectory.curve import pose_deltas, smooth_poses, translation_scale  # noqa: E402
 from gs2e.trajectory.io import write_outputs  # noqa: E402
 from gs2e.trajectory.stage import generate  # noqa: E402
 from gs2e.trajectory.trajectory import (build_base_path, timed_trajectory,  # noqa: E402
                                         timestamps_us)
 from gs2e.trajectory.velocity import parse_velocity_expression, reparameterise  # noqa: E402
-
-OUT = REPO / "benchmarks" / "results"
+from harness import (REPO, best_s, clock, gs2e_env, parser, pyplot, report,  # noqa: E402
+                     save_plot, write_csv)
 
 
 def best_of(fn, reps):
+    """(fastest wall s, median wall s, the last call's result) over ``reps``
+    calls of ``fn()`` (no warm-up); :func:`harness.best_s` where only the
+    fastest is needed."""
     ts = []
     res = None
     for _ in range(reps):
-        t0 = time.perf_counter()
-        res = fn()
-        ts.append(time.perf_counter() - t0)
+        with clock() as t:
+            res = fn()
+        ts.append(t.wall_s)
     return min(ts), float(np.median(ts)), res
 
 
@@ -105,11 +101,8 @@ def fine_step_error(c2w_fn, s_targets, alpha, beta_n, n=32, n_steps=2000):
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="fewer repetitions (< 60 s)")
-    args = ap.parse_args()
+    args = parser(__doc__, quick="fewer repetitions (< 60 s)").parse_args()
     reps = 3 if args.quick else 7
-    OUT.mkdir(parents=True, exist_ok=True)
     real = TEMPLE.exists()
     c2w = temple_c2w(30) if real else ring(30, noise=0.01)
     scene_name = "temple_ring (30 of 47 real views)" if real else "synthetic ring (30 views)"
@@ -127,8 +120,8 @@ def main() -> None:
         c = dict(cfg, gamma=M / 30)
         tb, tb_med, p = best_of(lambda: build_base_path(c2w, c, v), reps)
         tr = timed_trajectory(p, timestamps_us(10.0, len(p.s)), np.eye(3), 1, 1, {})
-        tq, _, _ = best_of(lambda: tr.pose_at(tr.t_us), reps)
-        tbase, _, ref = best_of(lambda: baseline_dense(c2w, c, v), max(1, reps // 2))
+        tq = best_s(lambda: tr.pose_at(tr.t_us), reps)
+        tbase = best_s(lambda: baseline_dense(c2w, c, v), max(1, reps // 2))
         # accuracy on 2000 steps spread along the path (the measure itself is costly)
         from gs2e.trajectory.trajectory import eval_at_s
         err_ours = fine_step_error(lambda s: eval_at_s(p.curve, p.arc, s), p.s,
@@ -142,7 +135,7 @@ def main() -> None:
         print(f"{M:>9} {r['build_us_per_pose']:>14.4f} {r['pose_at_us_per_pose']:>16.4f} "
               f"{r['scipy_us_per_pose']:>14.4f} {r['speedup_vs_scipy']:>6.1f}x "
               f"{err_ours:>15.2e} {err_base:>16.2e}")
-        del p, tr, ref
+        p = tr = None  # frees the 1e6-pose arrays before the next size
 
     # whole stage
     scene = make_scene(c2w, 640, 480)
@@ -150,17 +143,15 @@ def main() -> None:
     generate(scene, sc, 0)
     t_gen, t_gen_med, res = best_of(lambda: generate(scene, sc, 0), reps)
     with tempfile.TemporaryDirectory() as td:
-        t_write, _, _ = best_of(lambda: write_outputs(Path(td) / "o", res, sc, "s", plot=False), reps)
-        t_plot, _, _ = best_of(lambda: write_outputs(Path(td) / "p", res, sc, "s", plot=True),
-                               max(1, reps // 2))
+        t_write = best_s(lambda: write_outputs(Path(td) / "o", res, sc, "s", plot=False), reps)
+        t_plot = best_s(lambda: write_outputs(Path(td) / "p", res, sc, "s", plot=True), max(1, reps // 2))
         (Path(td) / "scene").mkdir()
         write_scene_json(scene, Path(td) / "scene")
-        env = dict(os.environ, PYTHONPATH=str(REPO), GS2E_PROGRESS="0")
-        t0 = time.perf_counter()
-        r = subprocess.run([sys.executable, "-m", "gs2e", "trajectory", "--scene",
-                            str(Path(td) / "scene"), "--out", str(Path(td) / "cli")],
-                           env=env, capture_output=True, text=True)
-        t_cli = time.perf_counter() - t0
+        with clock() as t:
+            r = subprocess.run([sys.executable, "-m", "gs2e", "trajectory", "--scene",
+                                str(Path(td) / "scene"), "--out", str(Path(td) / "cli")],
+                               env=gs2e_env(REPO), capture_output=True, text=True)
+        t_cli = t.wall_s
         assert r.returncode == 0, r.stderr
     n_poses = sum(len(t.t_us) for t in res.trajectories.values())
     print(f"\nwhole stage, 30 views, gamma=5, presets {cfg['speed_presets']}, "
@@ -176,19 +167,16 @@ def main() -> None:
              "paper_stage_s": paper_s}
     rows.append(stage)
 
-    import csv
+    # one column per key of any row (sorted), empty where a row lacks it
     keys = sorted({k for r in rows for k in r})
-    with open(OUT / "bench_trajectory.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=keys)
-        w.writeheader()
-        w.writerows(rows)
-    plot(rows, OUT / "bench_trajectory.png", scene_name)
-    print(f"\nwrote {OUT / 'bench_trajectory.csv'} and {OUT / 'bench_trajectory.png'}")
+    csv_path = write_csv("bench_trajectory", [{k: r.get(k, "") for k in keys} for r in rows])
+    png = plot(rows, scene_name)
+    print()
     r6 = rows[2]
-    print(f"trajectory: {r6['build_us_per_pose']:.3f} us/pose at M=1e6 (target 0.2, paper 0.5; "
-          f"scipy baseline {r6['scipy_us_per_pose']:.2f} us = {r6['speedup_vs_scipy']:.0f}x slower); "
-          f"whole stage {t_gen:.3f} s compute, {t_gen + t_write:.3f} s with files "
-          f"(target 1 s, paper ~45 s = {paper_s / (t_gen + t_write):.0f}x)")
+    report(None, f"trajectory: {r6['build_us_per_pose']:.3f} us/pose at M=1e6 (target 0.2, paper 0.5; "
+                 f"scipy baseline {r6['scipy_us_per_pose']:.2f} us = {r6['speedup_vs_scipy']:.0f}x slower); "
+                 f"whole stage {t_gen:.3f} s compute, {t_gen + t_write:.3f} s with files "
+                 f"(target 1 s, paper ~45 s = {paper_s / (t_gen + t_write):.0f}x)", [csv_path, png])
 
 
 def baseline_step_error(c2w, c, v):
@@ -216,11 +204,9 @@ def baseline_step_error(c2w, c, v):
     return fine_step_error(fn, st, c["alpha"], beta_n)
 
 
-def plot(rows, path, scene_name):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+def plot(rows, scene_name) -> Path:
+    """The figure, saved as benchmarks/results/bench_trajectory.png; its path."""
+    plt = pyplot()
     rr = [r for r in rows if r["M"] != "stage"]
     Ms = [r["M"] for r in rr]
     fig, (a0, a1) = plt.subplots(1, 2, figsize=(11, 4.2))
@@ -241,9 +227,7 @@ def plot(rows, path, scene_name):
     a1.set_ylabel("max relative per-step speed error")
     a1.set_title("achieved vs requested speed profile", fontsize=9)
     a1.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    return save_plot(fig, "bench_trajectory", dpi=90)
 
 
 if __name__ == "__main__":

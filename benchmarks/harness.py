@@ -36,7 +36,8 @@ from typing import Callable, Iterator
 
 BENCHMARKS = Path(__file__).resolve().parent
 REPO = BENCHMARKS.parent
-RESULTS = BENCHMARKS / "results"
+# GS2E_BENCH_RESULTS: elsewhere (the harness's own test writes to a temporary folder)
+RESULTS = Path(os.environ.get("GS2E_BENCH_RESULTS") or BENCHMARKS / "results")
 # ../shared/data beside the repo; one level further up for git worktrees (wt/<branch>)
 SHARED = next((p for p in (REPO.parent / "shared" / "data", REPO.parent.parent / "shared" / "data")
                if p.is_dir()), REPO.parent / "shared" / "data")

@@ -210,6 +210,7 @@ def test_an_event_model_registered_alone_is_built_and_read_back():
     """A toy model added through register_model alone: make_model builds it from
     the config, log_contrast, the sampling bound and the exports' log signal
     come from its own declarations; the built-in names are the schema's enum."""
+    import json
     from pathlib import Path
 
     import yaml
@@ -224,11 +225,11 @@ def test_an_event_model_registered_alone_is_built_and_read_back():
         @classmethod
         def from_config(cls, cfg, shape, **common):
             common.update(theta_on=2 * common["theta_on"], theta_off=2 * common["theta_off"])
-            return cls(shape, log_eps=cfg["log_eps"], **common)
+            return cls(shape, log_eps=cfg.log_eps, **common)
 
         @classmethod
         def log_contrast(cls, cfg, on, off):
-            return 2 * on, 2 * off, float(cfg["log_eps"])
+            return 2 * on, 2 * off, float(cfg.log_eps)
 
         @classmethod
         def sampling_step(cls, cfg, theta):
@@ -251,7 +252,8 @@ def test_an_event_model_registered_alone_is_built_and_read_back():
         assert log_contrast(cfg)[0] == pytest.approx(0.2)
         assert bound_log(cfg) == pytest.approx(2 * bound_log({**cfg, "model": "ideal"}))
         sig = LogSignal({"model": "doubled_ideal", "theta/on": np.full((2, 3), 0.2),
-                         "theta/off": np.full((2, 3), 0.2)}, (2, 3), "toy")
+                         "theta/off": np.full((2, 3), 0.2),
+                         "metadata": json.dumps({"config": cfg})}, (2, 3), "toy")
         assert sig.offset == cfg["log_eps"] and np.all(sig.step_on == 0.2)
     finally:
         MODELS.pop("doubled_ideal")

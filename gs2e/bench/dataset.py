@@ -5,7 +5,6 @@ the shared scoring (:func:`score`: PSNR, SSIM, MSE)."""
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import dataclass, field
@@ -59,6 +58,7 @@ def load_dataset(task: str, frames_dir: str | Path, events_dir: str | Path,
     needs; one-line errors naming what is missing."""
     from gs2e.events.io import read_h5
     from gs2e.events.models import log_contrast
+    from gs2e.events.settings import read_settings
     from gs2e.export.windows import read_windows
     from gs2e.render.dataset import read_frames_table
 
@@ -77,12 +77,8 @@ def load_dataset(task: str, frames_dir: str | Path, events_dir: str | Path,
                                                          frames["t_us"].to_numpy()):
         raise InputError(f"{windows_path}: its frames differ from {frames_dir / 'frames.parquet'} "
                          "(a windows table of another run)")
-    stats_path = events_dir / "stats.json"
-    try:
-        ev_cfg = json.loads(stats_path.read_text())["metadata"]["config"]
-    except (OSError, KeyError, TypeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{stats_path}: cannot read the event model's config ({exc})") from exc
     ev, attrs = read_h5(events_dir / "events.h5")
+    ev_cfg = read_settings(attrs, str(events_dir / "events.h5"))
     if "theta/on" not in attrs:
         raise InputError(f"{events_dir / 'events.h5'}: no per-pixel thresholds (theta/on, theta/off)")
     shape = (int(frames["height"].iloc[0]), int(frames["width"].iloc[0]))
@@ -100,7 +96,7 @@ def load_dataset(task: str, frames_dir: str | Path, events_dir: str | Path,
         raise InputError(f"bench --task {task} needs --trajectory (poses between frames)")
     return Dataset(frames_dir, frames, windows, (int(meta["sim_start_us"]), int(meta["sim_end_us"])),
                    ev, np.broadcast_to(th_on, shape), np.broadcast_to(th_off, shape), eps,
-                   str(ev_cfg["model"]), shape, preset, traj)
+                   ev_cfg.model, shape, preset, traj)
 
 
 def grey(srgb: np.ndarray) -> np.ndarray:

@@ -8,22 +8,107 @@ Random numbers: a counter-based stream per (seed, frame index, pixel, purpose)
 number of threads or on the order in which rows are processed: same seed, same
 bytes.
 
-Rows are processed in parallel (``prange``) over a BATCH of frames (one
-parallel region per batch, not per frame: pixels are independent, so a thread
-runs its rows through all frames of the batch). Every row writes its events
-into its own slice of a buffer (``cap`` events per row and batch) and counts
-them per frame in ``fn[b, row]``. A row that overflows its slice reports how
-many it needed; the caller re-runs the batch with a larger slice (state is read
-from ``*_in`` and written to ``*_out`` arrays, so a re-run sees the same input
-state and produces the same events).
+Work comes as a batch of TILE INTERVALS (:class:`TileIntervals`): per slot,
+one tile (``tile`` x ``tile`` pixels) and its consecutive intervals; a whole
+frame is one interval of every tile. Slots run in parallel (``prange``, one
+parallel region per batch; pixels are independent, so a thread runs its tile's
+pixels through all of the slot's intervals). Each slot writes its events into
+its own slice of the buffers (:class:`EventSlots`: ``cap`` events per slot)
+and counts them per interval. A slot that overflows its slice reports how many
+it needed; the caller re-runs the batch with larger slices (state is read from
+``state_in`` and written to ``state_out`` (:class:`PixelState`), so a re-run
+sees the same input state and produces the same events), then commits the
+new state with :func:`commit_tiles` and collects the events with
+:func:`gather_tiles`.
+
+The arguments are grouped in named tuples (numba passes them as structs):
+what the batch is, the image grid, the model's parameters, its state and the
+output slots.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
+
+
+class TileIntervals(NamedTuple):
+    """A batch of tile intervals, slot by slot."""
+
+    tiles: np.ndarray    # (m,) int64 tile of each slot (row-major tile number)
+    offsets: np.ndarray  # (m + 1,) int64: slot s holds intervals offsets[s] .. offsets[s + 1] - 1
+    t0_us: np.ndarray    # (n,) int64 start of each interval (absolute us)
+    t1_us: np.ndarray    # (n,) int64 end of each interval
+    key_idx: np.ndarray  # (n,) int64 index of the interval's end sample in its tile's sequence
+    lum: np.ndarray      # (n, tile, tile) linear luminance in [0, 1] at t1 of each interval
+
+
+class Grid(NamedTuple):
+    """The image: ``height`` x ``width`` pixels in tiles of ``tile`` x ``tile``."""
+
+    height: int
+    width: int
+    tile: int
+
+
+class PixelState(NamedTuple):
+    """(H, W) float64 state of a model per pixel: the luminance of its last
+    sample, then the model's own two arrays (voltmeter: residual voltage and
+    ready time; ideal: reference level and last event time)."""
+
+    prev: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
+
+
+class EventSlots(NamedTuple):
+    """Output buffers: slot s owns entries [s cap, (s + 1) cap); ``counts[i]``
+    receives the number of events of interval i (a slot total above ``cap``
+    means overflow: nothing beyond it is written)."""
+
+    cap: int
+    t: np.ndarray       # float64 us relative to the start of the event's interval
+    x: np.ndarray       # int32 column
+    y: np.ndarray       # int32 row
+    p: np.ndarray       # int8 polarity, +1 / -1
+    counts: np.ndarray  # (n,) int64
+
+
+class VoltmeterParams(NamedTuple):
+    """DVS-Voltmeter's parameters (see :func:`voltmeter_tiles`)."""
+
+    intensity_scale: float  # linear luminance -> the preset's intensity unit
+    seed: int
+    k: np.ndarray           # (6,) float64 k1..k6 in the preset's units
+    time_unit_us: float     # the preset's time unit
+    theta_on: np.ndarray    # (H, W) float64 barrier heights (normalised voltage, > 0)
+    theta_off: np.ndarray
+    refractory_us: float
+    max_events_px: int      # per pixel and interval
+    two_barrier: bool       # the exact exit law instead of DVS-Voltmeter's
+
+
+class IdealParams(NamedTuple):
+    """The ideal model's parameters (see :func:`ideal_tiles`)."""
+
+    log_eps: float
+    theta_on: np.ndarray    # (H, W) float64 log-intensity steps (> 0)
+    theta_off: np.ndarray
+    refractory_us: float
+    max_events_px: int
+
+
+class NoiseParams(NamedTuple):
+    """Noise parameters (see :func:`noise_tiles`)."""
+
+    seed: int
+    leak_rate_hz: float
+    shot_rate_hz: float
+    shot_on_fraction: float
+    block_us: int           # :func:`noise_block_us`
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
@@ -341,11 +426,15 @@ def tile_box(t, tiles_x, tile, H, W):
 
 
 @njit(cache=True)
-def _voltmeter_slot(sl, btiles, boff, t0_us, t1_us, key_idx, lum, H, W, tile, scale, seed, k, tu_us,
-                    th_on, th_off, prev_in, res_in, ready_in, prev_out, res_out, ready_out,
-                    refractory_us, max_events_px, cap, ev_t, ev_x, ev_y, ev_p, fn, two_barrier):
+def _voltmeter_slot(sl, batch, grid, params, state_in, state_out, slots):
     """Slot ``sl`` of :func:`voltmeter_tiles`; returns its number of capped
     pixel-intervals."""
+    btiles, boff, t0_us, t1_us, key_idx, lum = batch
+    H, W, tile = grid
+    scale, seed, k, tu_us, th_on, th_off, refractory_us, max_events_px, two_barrier = params
+    prev_in, res_in, ready_in = state_in
+    prev_out, res_out, ready_out = state_out
+    cap, ev_t, ev_x, ev_y, ev_p, fn = slots
     tiles_x = (W + tile - 1) // tile
     k1, k2, k3, k4, k5, k6 = k[0], k[1], k[2], k[3], k[4], k[5]
     capped = 0
@@ -522,39 +611,25 @@ def _voltmeter_slot(sl, btiles, boff, t0_us, t1_us, key_idx, lum, H, W, tile, sc
 
 
 @njit(cache=True, parallel=True, nogil=True)
-def voltmeter_tiles(btiles, boff, t0_us, t1_us, key_idx, lum, H, W, tile, scale, seed, k, tu_us,
-                    th_on, th_off, prev_in, res_in, ready_in, prev_out, res_out, ready_out,
-                    refractory_us, max_events_px, cap, ev_t, ev_x, ev_y, ev_p, fn,
-                    two_barrier=False):
+def voltmeter_tiles(batch, grid, params, state_in, state_out, slots):
     """DVS-Voltmeter pixel model over a batch of tile intervals.
 
     Parameters
     ----------
-    btiles : (m,) tile numbers (row-major, ``tile`` x ``tile`` px) of the batch's
-        slots; slot s holds the intervals boff[s] .. boff[s + 1] - 1 of tile
-        btiles[s], consecutive in time.
-    t0_us, t1_us : (n,) int64 start and end of each interval (absolute us).
-    key_idx : (n,) int64 index of the interval's end sample in its tile's
-        sequence (the first sample is 0): keys the random streams together
-        with the pixel, so events do not depend on batching or threads.
-    lum : (n, tile, tile) linear luminance in [0, 1] at t1 of each interval
-        (rows/columns beyond the image unused); ``scale`` converts to the
-        preset's intensity unit.
-    k : (6,) float64, k1..k6 in the preset's units (time unit ``tu_us`` us).
-    th_on, th_off : (H, W) float64 barrier heights (normalised voltage, > 0).
-    prev_in, res_in, ready_in : (H, W) float64 state per pixel: luminance of
-        its last sample, residual voltage, and the time (us, relative to the
-        start of its next interval) until which it is held after its last
-        event (refractory; -inf if not held). Read only; the state after the
-        batch goes to ``*_out`` for the batch's tiles (a re-run after a
-        buffer overflow sees the same input).
-    cap : events per slot reserved in ``ev_t`` (float64 us relative to the
-        start of the event's interval), ``ev_x``, ``ev_y`` (int32), ``ev_p``
-        (int8, +1/-1); ``fn[i]`` receives the number of events of interval i
-        (a slot total above ``cap`` means overflow).
-    two_barrier : False = DVS-Voltmeter's law (below); True = the exact exit of
-        the drift-diffusion from the band (-theta_off, theta_on) (see the
-        in-line comments and gs2e/events/models.py).
+    batch : :class:`TileIntervals`. ``key_idx`` keys the random streams
+        together with the pixel, so events do not depend on batching or
+        threads; ``lum`` rows/columns beyond the image are unused.
+    grid : :class:`Grid`.
+    params : :class:`VoltmeterParams`. ``two_barrier`` False = DVS-Voltmeter's
+        law (below); True = the exact exit of the drift-diffusion from the
+        band (-theta_off, theta_on) (see the in-line comments and
+        gs2e/events/models.py).
+    state_in : :class:`PixelState` (prev, residual voltage, ready time: the
+        time (us, relative to the start of the pixel's next interval) until
+        which it is held after its last event (refractory; -inf if not held)).
+        Read only; the state after the batch goes to ``state_out`` for the
+        batch's tiles (a re-run after a buffer overflow sees the same input).
+    slots : :class:`EventSlots`, the signal events.
     Returns the number of pixel-intervals whose event count hit ``max_events_px``.
 
     Given the polarity (two-barrier probability), the voltage moves towards
@@ -571,36 +646,37 @@ def voltmeter_tiles(btiles, boff, t0_us, t1_us, key_idx, lum, H, W, tile, scale,
     """
     # the slot body is a function of its own: numba's parfor passes copy a
     # loop body's IR many times, and the inlined body took minutes to compile
-    m = btiles.shape[0]
+    m = batch.tiles.shape[0]
     capped = np.zeros(m, np.int64)
     order = slot_order(m)
     for si in prange(m):
         sl = order[si]
-        capped[sl] = _voltmeter_slot(sl, btiles, boff, t0_us, t1_us, key_idx, lum, H, W, tile, scale, seed, k,
-                                      tu_us, th_on, th_off, prev_in, res_in, ready_in, prev_out,
-                                      res_out, ready_out, refractory_us, max_events_px, cap, ev_t,
-                                      ev_x, ev_y, ev_p, fn, two_barrier)
+        capped[sl] = _voltmeter_slot(sl, batch, grid, params, state_in, state_out, slots)
     return capped.sum()
 
 
 @njit(cache=True, parallel=True, nogil=True)
-def ideal_tiles(btiles, boff, t0_us, t1_us, lum, H, W, tile, log_eps, th_on, th_off,
-                prev_in, ref_in, last_in, prev_out, ref_out, last_out, refractory_us,
-                max_events_px, cap, ev_t, ev_x, ev_y, ev_p, fn):
-    """Ideal (ESIM-style) model over a batch of tile intervals (layout as
-    :func:`voltmeter_tiles`).
+def ideal_tiles(batch, grid, params, state_in, state_out, slots):
+    """Ideal (ESIM-style) model over a batch of tile intervals (arguments as
+    :func:`voltmeter_tiles`; ``params`` an :class:`IdealParams`).
 
     The log intensity G = log(L + log_eps) is taken as linear in time within
-    an interval. ``ref_in``: reference per pixel as LINEAR value exp(G_ref)
-    (level of the last crossing), so that the common no-crossing case needs no
-    logarithm: a crossing exists iff L + log_eps >= ref e^theta_on (or <= ref
-    e^-theta_off); only then are the logs taken. ``last_in``: time (us,
-    relative to the start of the pixel's next interval) of its last emitted
-    event (-inf if none). Crossings of G_ref + theta_on (upward) / G_ref -
+    an interval. State (prev, ref, last): ``ref`` is the reference per pixel as
+    LINEAR value exp(G_ref) (level of the last crossing), so that the common
+    no-crossing case needs no logarithm: a crossing exists iff L + log_eps >=
+    ref e^theta_on (or <= ref e^-theta_off); only then are the logs taken.
+    ``last``: time (us, relative to the start of the pixel's next interval) of
+    its last emitted event (-inf if none). Crossings of G_ref + theta_on (upward) / G_ref -
     theta_off (downward) are timed by linear interpolation of G; an event
     within ``refractory_us`` of the previous emitted one is dropped but the
     reference still advances (as ESIM).
     """
+    btiles, boff, t0_us, t1_us, _, lum = batch
+    H, W, tile = grid
+    log_eps, th_on, th_off, refractory_us, max_events_px = params
+    prev_in, ref_in, last_in = state_in
+    prev_out, ref_out, last_out = state_out
+    cap, ev_t, ev_x, ev_y, ev_p, fn = slots
     m = btiles.shape[0]
     tiles_x = (W + tile - 1) // tile
     capped = np.zeros(m, np.int64)
@@ -702,10 +778,14 @@ def _poisson(state, lam):
 
 
 @njit(cache=True)
-def _noise_slot(sl, btiles, boff, t0_us, t1_us, lum, H, W, tile, prev, seed, leak_rate_hz,
-                shot_rate_hz, shot_on_fraction, block_us, cap, base, ev_t, ev_x, ev_y, ev_p, fn):
+def _noise_slot(sl, batch, grid, prev, params, slots):
     """Noise events of one slot of :func:`noise_tiles` (counted in a first
     pass, written interval by interval in a second over the same draws)."""
+    btiles, boff, t0_us, t1_us, _, lum = batch
+    H, W, tile = grid
+    seed, leak_rate_hz, shot_rate_hz, shot_on_fraction, block_us = params
+    cap, ev_t, ev_x, ev_y, ev_p, fn = slots
+    base = sl * cap
     tiles_x = (W + tile - 1) // tile
     y0, y1, x0, x1 = tile_box(btiles[sl], tiles_x, tile, H, W)
     w = x1 - x0
@@ -764,10 +844,11 @@ def _noise_slot(sl, btiles, boff, t0_us, t1_us, lum, H, W, tile, prev, seed, lea
 
 
 @njit(cache=True, parallel=True, nogil=True)
-def noise_tiles(btiles, boff, t0_us, t1_us, lum, H, W, tile, prev, seed, leak_rate_hz,
-                shot_rate_hz, shot_on_fraction, block_us, cap, ev_t, ev_x, ev_y, ev_p, fn):
+def noise_tiles(batch, grid, prev, params, slots):
     """Noise events over a batch of tile intervals (v2e-like, Poisson per pixel).
 
+    ``batch``, ``grid`` as :func:`voltmeter_tiles`; ``params`` a
+    :class:`NoiseParams`; ``slots`` the noise's own :class:`EventSlots`.
     ``prev`` (H, W): luminance of each pixel's sample before the batch (the
     models' state before the batch). Leak events: ON, rate ``leak_rate_hz``
     per pixel. Shot noise: rate ``shot_rate_hz`` per pixel scaled by 2 (1 - L)
@@ -789,15 +870,17 @@ def noise_tiles(btiles, boff, t0_us, t1_us, lum, H, W, tile, prev, seed, leak_ra
     intervals' (``fn`` counts per interval; a count over ``cap`` is reported,
     not written, as in :func:`voltmeter_tiles`).
     """
-    for sl in prange(btiles.shape[0]):
-        _noise_slot(sl, btiles, boff, t0_us, t1_us, lum, H, W, tile, prev, seed, leak_rate_hz,
-                    shot_rate_hz, shot_on_fraction, block_us, cap, sl * cap, ev_t, ev_x, ev_y, ev_p, fn)
+    for sl in prange(batch.tiles.shape[0]):
+        _noise_slot(sl, batch, grid, prev, params, slots)
     return 0
 
 
 @njit(cache=True, parallel=True, nogil=True)
-def commit_tiles(tiles, H, W, tile, src_a, dst_a, src_b, dst_b, src_c, dst_c):
-    """dst[...] = src[...] on the pixels of ``tiles`` (three state arrays)."""
+def commit_tiles(tiles, grid, src, dst):
+    """``dst`` = ``src`` (:class:`PixelState`) on the pixels of ``tiles``."""
+    H, W, tile = grid
+    src_a, src_b, src_c = src
+    dst_a, dst_b, dst_c = dst
     tiles_x = (W + tile - 1) // tile
     for s in prange(tiles.shape[0]):
         y0, y1, x0, x1 = tile_box(tiles[s], tiles_x, tile, H, W)
@@ -809,14 +892,16 @@ def commit_tiles(tiles, H, W, tile, src_a, dst_a, src_b, dst_b, src_c, dst_c):
 
 
 @njit(cache=True, nogil=True)
-def gather_tiles(boff, t0_us, t1_us, cap, fn, ev_t, ev_x, ev_y, ev_p,
-                 noise_cap, fn_noise, nz_t, nz_x, nz_y, nz_p, out_t, out_x, out_y, out_p):
-    """Collect a batch's events from their slots, interval by interval (its
-    signal events, then its noise events, each in emission order), as int64
-    absolute times: the float offset from the interval start rounded to the
-    nearest microsecond and clamped to the interval. Slot s's signal events
-    start at s cap in ``ev_*``, its noise events at s noise_cap in ``nz_*``.
-    p becomes 1 (ON) / 0 (OFF). Returns the count."""
+def gather_tiles(batch, signal, noise, out_t, out_x, out_y, out_p):
+    """Collect a batch's events from their slots (``signal``, ``noise``:
+    :class:`EventSlots`), interval by interval (its signal events, then its
+    noise events, each in emission order), as int64 absolute times ``out_t``:
+    the float offset from the interval start rounded to the nearest
+    microsecond and clamped to the interval. p becomes 1 (ON) / 0 (OFF).
+    Returns the count."""
+    _, boff, t0_us, t1_us, _, _ = batch
+    cap, ev_t, ev_x, ev_y, ev_p, fn = signal
+    noise_cap, nz_t, nz_x, nz_y, nz_p, fn_noise = noise
     m = boff.shape[0] - 1
     j = 0
     for sl in range(m):

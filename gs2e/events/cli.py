@@ -128,15 +128,17 @@ def run(args) -> int:
     from gs2e.common.errors import ConfigError
     from gs2e.common.threads import pick_threads, set_threads
 
-    cfg = _section(args)
-    set_threads(pick_threads(args.threads, cfg["num_threads"]))
+    from gs2e.events.settings import event_settings
+
+    cfg = event_settings(_section(args))  # resolved once; the stage passes it on
+    set_threads(pick_threads(args.threads, cfg.num_threads))
     if args.model or args.trajectory:
         if not (args.model and args.trajectory) or args.input:
             raise ConfigError("workflow mode needs both --model and --trajectory and no INPUT")
         from gs2e.events.rendered import RenderedSource
 
         src = RenderedSource(args.model, args.trajectory, cfg, background=args.background,
-                             scale=args.scale, backend=args.backend, batch_frames=cfg["batch_frames"])
+                             scale=args.scale, backend=args.backend, batch_frames=cfg.batch_frames)
         extra = {"model_dir": str(args.model), "trajectory": str(args.trajectory),
                  "render": {"background": list(args.background), "scale": args.scale,
                             "backend": args.backend}, "camera": src.camera}
@@ -145,17 +147,17 @@ def run(args) -> int:
             raise ConfigError("give INPUT (frames) or --model and --trajectory")
         src = open_frame_source(args.input, args.timestamps, args.fps, args.encoding, args.time_unit)
         extra = None
-        if cfg["sensor"] is not None:
+        if cfg.sensor is not None:
             from gs2e.events.frames import SensorFrames
 
             src = SensorFrames(src, cfg)
             extra = {"camera": src.camera}
-    with timed(f"events {cfg['model']} on {src.name}", log):
+    with timed(f"events {cfg.model} on {src.name}", log):
         simulate_to_folder(src, cfg, args.out, args.seed, extra_meta=extra)
     if getattr(src, "stats", None) is not None:
         st = src.stats
         log.info("sampling (%s): %d renders, %d tile renders, %.1f M pixel values rendered, "
-                 "%d samples used, %d rejected, %d forced", src.sc["mode"], st.renders,
+                 "%d samples used, %d rejected, %d forced", src.sc.mode, st.renders,
                  st.tiles_rendered, st.pixel_samples * 1e-6, st.accepted, st.rejected, st.forced)
     return 0
 

@@ -106,7 +106,7 @@ class ContainerWriter:
             tmp = self._stack.enter_context(atomic_path(self.path))
             dims = (self.width, self.height)
             if self.kind == "aedat4":
-                self._enc = faery.aedat.Encoder(tmp, _aedat4_description(*dims), faery.aedat.LZ4_DEFAULT)
+                self._enc = faery.aedat.Encoder(tmp, aedat4_description(*dims), faery.aedat.LZ4_DEFAULT)
             elif self.kind == "evt2":
                 # zero_t0: the first event's time goes to the header, so any
                 # absolute time fits the format's 34-bit clock
@@ -163,7 +163,7 @@ def write_container(path: str | os.PathLike, kind: str, ev: Events, width: int, 
         w.append(ev)
 
 
-def _aedat4_description(width: int, height: int):
+def aedat4_description(width: int, height: int):
     """The AEDAT4 header (DV's IOHeader info tree) of one event stream."""
     import faery
 

@@ -68,10 +68,8 @@ restarts from that residual with the next frame's drift (Markov property).
 
 from __future__ import annotations
 
-import json
 import logging
-import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Iterable, Iterator
 
 import numpy as np
@@ -80,6 +78,7 @@ from gs2e.common.errors import InputError, ConfigError
 from gs2e.events import _kernels as K
 from gs2e.events.presets import Preset, effective_threshold, get_preset
 from gs2e.events.sensors import resolve_noise
+from gs2e.events.settings import EventSettings, event_settings
 
 log = logging.getLogger("gs2e.events")
 
@@ -403,38 +402,43 @@ class _StreamingModel:
                 and np.all(t0[1:][inner[1:]] == t1[:-1][inner[1:]])):
             raise InputError(f"{self.source}: the intervals of a tile must follow its last "
                              "sample and each other in time")
-        H, W = self.shape
+        batch = K.TileIntervals(tiles, off, t0, t1, key, lum)
+        grid = K.Grid(*self.shape, TILE)
         fn = np.zeros(n, np.int64)
         fn_noise = np.zeros(n, np.int64)
         per_slot = int(np.diff(off).max())
         # signal and noise each rerun (on the same input) only when their own
         # buffer was too small
         self._ensure(max(64, per_slot * TILE * TILE // 4), m)
+        state_in, state_out = self._states()
         while True:
-            n_cap = self._run_signal(tiles, off, t0, t1, key, lum, fn)
+            signal = K.EventSlots(self.cap, self._ev_t, self._ev_x, self._ev_y, self._ev_p, fn)
+            n_cap = self._run_signal(batch, grid, state_in, state_out, signal)
             need = np.add.reduceat(fn, first).max()
             if need <= self.cap:
                 break
             self._ensure(int(need * 1.25) + 16, m)
         if self.noise_on:
             self._ensure_noise(16, m)
-        while self.noise_on:
-            K.noise_tiles(tiles, off, t0, t1, lum, H, W, TILE, self.prev, self.seed,
-                          self.leak_rate_hz, self.shot_noise_rate_hz, self.shot_noise_on_fraction,
-                          K.noise_block_us(self.leak_rate_hz, self.shot_noise_rate_hz, TILE),
-                          self.noise_cap, self._nz_t, self._nz_x, self._nz_y, self._nz_p, fn_noise)
+            params = K.NoiseParams(self.seed, self.leak_rate_hz, self.shot_noise_rate_hz,
+                                   self.shot_noise_on_fraction,
+                                   K.noise_block_us(self.leak_rate_hz, self.shot_noise_rate_hz, TILE))
+        while True:
+            noise = K.EventSlots(self.noise_cap, self._nz_t, self._nz_x, self._nz_y, self._nz_p,
+                                 fn_noise)
+            if not self.noise_on:
+                break
+            K.noise_tiles(batch, grid, self.prev, params, noise)
             need = np.add.reduceat(fn_noise, first).max()
             if need <= self.noise_cap:
                 break
             self._ensure_noise(int(need * 1.25) + 16, m)
         self.n_capped += int(n_cap)
-        K.commit_tiles(tiles, H, W, TILE, *self._state_pairs())
+        K.commit_tiles(tiles, grid, state_out, state_in)
         total = int(fn.sum() + fn_noise.sum())
         ev = Events(np.empty(total, np.int64), np.empty(total, np.uint16),
                     np.empty(total, np.uint16), np.empty(total, np.uint8))
-        K.gather_tiles(off, t0, t1, self.cap, fn, self._ev_t, self._ev_x, self._ev_y, self._ev_p,
-                       self.noise_cap, fn_noise, self._nz_t, self._nz_x, self._nz_y, self._nz_p,
-                       ev.t, ev.x, ev.y, ev.p)
+        K.gather_tiles(batch, signal, noise, ev.t, ev.x, ev.y, ev.p)
         last = off[1:] - 1
         self.t_tile[tiles] = t1[last]
         self.n_tile[tiles] += np.diff(off)
@@ -488,28 +492,28 @@ class _StreamingModel:
     name = ""
 
     @classmethod
-    def from_config(cls, cfg: dict, shape, **common) -> "_StreamingModel":
+    def from_config(cls, cfg: EventSettings, shape, **common) -> "_StreamingModel":
         """The model for a validated ``events`` section; ``common``: the keyword
         arguments every model takes (thresholds, noise, seed, caps)."""
         raise NotImplementedError
 
     @classmethod
-    def log_contrast(cls, cfg: dict, on: np.ndarray, off: np.ndarray):
+    def log_contrast(cls, cfg: EventSettings, on: np.ndarray, off: np.ndarray):
         """(step_on, step_off, eps): the log(L + eps) steps that fire an ON /
         OFF event given the model's thresholds ``on`` / ``off`` (:func:`log_contrast`)."""
         raise NotImplementedError
 
     @classmethod
-    def sampling_step(cls, cfg: dict, theta: float) -> float:
+    def sampling_step(cls, cfg: EventSettings, theta: float) -> float:
         """The smallest log(L + eps) step threshold ``theta`` can fire at (the
         sampling bound's unit)."""
         raise NotImplementedError
 
-    @staticmethod
-    def log_signal_of(attrs: dict, config: dict, where: str) -> tuple[float, float, float]:
-        """(scale, offset, divisor) of an events file written by this model
-        (its attributes and config): the log signal log(L * scale + offset),
-        whose steps are theta / divisor."""
+    @classmethod
+    def log_signal_of(cls, cfg: EventSettings) -> tuple[float, float, float]:
+        """(scale, offset, divisor) of this model's log signal log(L * scale +
+        offset), whose steps are theta / divisor (an events file's settings
+        come back through :func:`gs2e.events.settings.read_settings`)."""
         raise NotImplementedError
 
     def describe(self, theta_on_nominal: float) -> dict:
@@ -517,18 +521,26 @@ class _StreamingModel:
         return {}
 
     def file_attrs(self) -> dict:
-        """Extra attributes of events.h5 (what :meth:`log_signal_of` reads back)."""
+        """Extra attributes of events.h5 (the resolved parameters, for readers
+        outside gs2e)."""
         return {}
 
     @classmethod
-    def config_preset(cls, cfg: dict) -> str | None:
+    def config_preset(cls, cfg: EventSettings) -> str | None:
         """The preset the config names, where the model has one (the stats' ``preset``)."""
         return None
 
     # subclass hooks
     def _init_state(self, f: np.ndarray) -> None: ...
-    def _run_signal(self, tiles, off, t0, t1, key, lum, fn) -> int: ...
-    def _state_pairs(self) -> tuple: ...
+    def _run_signal(self, batch: K.TileIntervals, grid: K.Grid, state_in: K.PixelState,
+                    state_out: K.PixelState, slots: K.EventSlots) -> int:
+        """Run the model's kernel on ``batch``; returns the capped pixel-intervals."""
+        ...
+
+    def _states(self) -> tuple[K.PixelState, K.PixelState]:
+        """(state the kernel reads, state it writes) (:func:`K.commit_tiles`
+        copies the second into the first for the batch's tiles)."""
+        ...
 
 
 class VoltmeterModel(_StreamingModel):
@@ -541,32 +553,30 @@ class VoltmeterModel(_StreamingModel):
     name = "voltmeter"
 
     @staticmethod
-    def preset_of(cfg: dict) -> Preset:
+    def preset_of(cfg: EventSettings) -> Preset:
         """The config's preset with its ``k1``..``k6`` overrides."""
-        return get_preset(cfg["preset"], {i: cfg.get(f"k{i}") for i in range(1, 7)})
+        return get_preset(cfg.preset, {i: getattr(cfg, f"k{i}") for i in range(1, 7)})
 
     @classmethod
-    def from_config(cls, cfg: dict, shape, **common) -> "VoltmeterModel":
-        return cls(shape, preset=cls.preset_of(cfg), exit_law=cfg["exit_law"], **common)
+    def from_config(cls, cfg: EventSettings, shape, **common) -> "VoltmeterModel":
+        return cls(shape, preset=cls.preset_of(cfg), exit_law=cfg.exit_law, **common)
 
     @classmethod
-    def log_contrast(cls, cfg: dict, on: np.ndarray, off: np.ndarray):
+    def log_contrast(cls, cfg: EventSettings, on: np.ndarray, off: np.ndarray):
         # the drift k1 (dL/dt) / (L + k2) integrates to a voltage k1 log(L * scale + k2):
         # a voltage threshold theta is the step theta / k1 of log(L + k2 / scale)
         p = cls.preset_of(cfg)
         return on / p.k[0], off / p.k[0], float(p.k[1] / p.intensity_scale)
 
     @classmethod
-    def sampling_step(cls, cfg: dict, theta: float) -> float:
+    def sampling_step(cls, cfg: EventSettings, theta: float) -> float:
         # the bright-pixel limit of the voltage threshold, as a log-intensity step
         return float(np.log1p(theta / cls.preset_of(cfg).k[0]))
 
-    @staticmethod
-    def log_signal_of(attrs: dict, config: dict, where: str) -> tuple[float, float, float]:
-        preset = json.loads(attrs["preset"]) if isinstance(attrs.get("preset"), str) else attrs.get("preset")
-        if not preset:
-            raise InputError(f"{where}: voltmeter events without their preset (k1..k6)")
-        return float(preset["intensity_scale"]), float(preset["k"][1]), float(preset["k"][0])
+    @classmethod
+    def log_signal_of(cls, cfg: EventSettings) -> tuple[float, float, float]:
+        p = cls.preset_of(cfg)
+        return float(p.intensity_scale), float(p.k[1]), float(p.k[0])
 
     def describe(self, theta_on_nominal: float) -> dict:
         p = self.preset
@@ -579,8 +589,8 @@ class VoltmeterModel(_StreamingModel):
         return {"preset": self.preset.to_dict()}
 
     @classmethod
-    def config_preset(cls, cfg: dict) -> str | None:
-        return cfg["preset"]
+    def config_preset(cls, cfg: EventSettings) -> str | None:
+        return cfg.preset
 
     def __init__(self, shape, preset: Preset | str = "dvs346",
                  exit_law: str = "single_barrier", **kw):
@@ -600,18 +610,16 @@ class VoltmeterModel(_StreamingModel):
         self._res2 = np.zeros(self.shape)
         self._ready2 = np.full(self.shape, -np.inf)
 
-    def _run_signal(self, tiles, off, t0, t1, key, lum, fn):
-        H, W = self.shape
-        return K.voltmeter_tiles(tiles, off, t0, t1, key, lum, H, W, TILE,
-                                 self.preset.intensity_scale, self.seed, self.k,
-                                 self.preset.time_unit_us, self.th_on, self.th_off,
-                                 self.prev, self.res, self.ready, self._prev2, self._res2,
-                                 self._ready2, self.refractory_us, self.max_events_per_pixel,
-                                 self.cap, self._ev_t, self._ev_x, self._ev_y, self._ev_p, fn,
-                                 self.exit_law == "two_barrier")
+    def _run_signal(self, batch, grid, state_in, state_out, slots):
+        params = K.VoltmeterParams(self.preset.intensity_scale, self.seed, self.k,
+                                   self.preset.time_unit_us, self.th_on, self.th_off,
+                                   self.refractory_us, self.max_events_per_pixel,
+                                   self.exit_law == "two_barrier")
+        return K.voltmeter_tiles(batch, grid, params, state_in, state_out, slots)
 
-    def _state_pairs(self):
-        return self._prev2, self.prev, self._res2, self.res, self._ready2, self.ready
+    def _states(self):
+        return (K.PixelState(self.prev, self.res, self.ready),
+                K.PixelState(self._prev2, self._res2, self._ready2))
 
     def metadata(self) -> dict:
         d = super().metadata()
@@ -635,20 +643,20 @@ class IdealModel(_StreamingModel):
     _frame_dtype = np.float64
 
     @classmethod
-    def from_config(cls, cfg: dict, shape, **common) -> "IdealModel":
-        return cls(shape, log_eps=cfg["log_eps"], **common)
+    def from_config(cls, cfg: EventSettings, shape, **common) -> "IdealModel":
+        return cls(shape, log_eps=cfg.log_eps, **common)
 
     @classmethod
-    def log_contrast(cls, cfg: dict, on: np.ndarray, off: np.ndarray):
-        return on, off, float(cfg["log_eps"])
+    def log_contrast(cls, cfg: EventSettings, on: np.ndarray, off: np.ndarray):
+        return on, off, float(cfg.log_eps)
 
     @classmethod
-    def sampling_step(cls, cfg: dict, theta: float) -> float:
+    def sampling_step(cls, cfg: EventSettings, theta: float) -> float:
         return float(theta)
 
-    @staticmethod
-    def log_signal_of(attrs: dict, config: dict, where: str) -> tuple[float, float, float]:
-        return 1.0, float(config.get("log_eps", 1e-3)), 1.0
+    @classmethod
+    def log_signal_of(cls, cfg: EventSettings) -> tuple[float, float, float]:
+        return 1.0, float(cfg.log_eps), 1.0
 
     def __init__(self, shape, log_eps: float = 1e-3, **kw):
         super().__init__(shape, **kw)
@@ -667,15 +675,14 @@ class IdealModel(_StreamingModel):
     def _init_state(self, f):
         self.ref = f.astype(np.float64) + self.log_eps
 
-    def _run_signal(self, tiles, off, t0, t1, key, lum, fn):
-        H, W = self.shape
-        return K.ideal_tiles(tiles, off, t0, t1, lum, H, W, TILE, self.log_eps, self.th_on,
-                             self.th_off, self.prev, self.ref, self.last, self._prev2, self._ref2,
-                             self._last2, self.refractory_us, self.max_events_per_pixel, self.cap,
-                             self._ev_t, self._ev_x, self._ev_y, self._ev_p, fn)
+    def _run_signal(self, batch, grid, state_in, state_out, slots):
+        params = K.IdealParams(self.log_eps, self.th_on, self.th_off, self.refractory_us,
+                               self.max_events_per_pixel)
+        return K.ideal_tiles(batch, grid, params, state_in, state_out, slots)
 
-    def _state_pairs(self):
-        return self._prev2, self.prev, self._ref2, self.ref, self._last2, self.last
+    def _states(self):
+        return (K.PixelState(self.prev, self.ref, self.last),
+                K.PixelState(self._prev2, self._ref2, self._last2))
 
     def metadata(self) -> dict:
         d = super().metadata()
@@ -683,17 +690,19 @@ class IdealModel(_StreamingModel):
         return d
 
 
-def make_model(cfg: dict, shape: tuple[int, int], seed: int, source: str = "frames"):
-    """Build a model from a validated ``events`` config section.
+def make_model(settings: EventSettings | dict, shape: tuple[int, int], seed: int,
+               source: str = "frames"):
+    """Build a model from the ``events`` settings (or the validated section).
 
     Returns (model, info) with info = the sequence-level draws (nominal theta
     values) for the metadata. The per-sequence theta, the mismatch maps and
     the model's random streams all derive from ``seed``.
     """
+    cfg = event_settings(settings)
     rng = np.random.default_rng([int(seed), 0x7E7A])
     th_on, th_off = sample_sequence_theta(
-        rng, cfg["theta_on"], cfg["theta_off"], cfg["theta_sampling"], cfg["theta_range"],
-        cfg["theta_on_off_independent"])
+        rng, cfg.theta_on, cfg.theta_off, cfg.theta_sampling, cfg.theta_range,
+        cfg.theta_on_off_independent)
     # a sensor's mismatch is relative: sigma scales with each polarity's threshold
     noise_on, sources = resolve_noise(cfg, th_on)
     noise_off, _ = resolve_noise(cfg, th_off)
@@ -703,10 +712,10 @@ def make_model(cfg: dict, shape: tuple[int, int], seed: int, source: str = "fram
                   leak_rate_hz=noise_on["leak_rate_hz"],
                   shot_noise_rate_hz=noise_on["shot_noise_rate_hz"],
                   shot_noise_on_fraction=noise_on["shot_noise_on_fraction"], seed=int(seed),
-                  max_events_per_pixel=cfg["max_events_per_pixel"], source=source)
-    model = model_class(cfg["model"]).from_config(cfg, shape, **common)
+                  max_events_per_pixel=cfg.max_events_per_pixel, source=source)
+    model = model_class(cfg.model).from_config(cfg, shape, **common)
     info = {"theta_on_nominal": th_on, "theta_off_nominal": th_off,
-            "theta_sampling": cfg["theta_sampling"], "theta_range": list(cfg["theta_range"]),
+            "theta_sampling": cfg.theta_sampling, "theta_range": list(cfg.theta_range),
             "theta_mismatch_sigma": noise_on["theta_mismatch_sigma"],
             "theta_mismatch_sigma_off": noise_off["theta_mismatch_sigma"],
             "noise": noise_on, "noise_sources": sources}
@@ -733,7 +742,7 @@ def model_class(name: str) -> type[_StreamingModel]:
     return MODELS[name]
 
 
-def log_contrast(events_cfg: dict, theta_on=None, theta_off=None):
+def log_contrast(settings: EventSettings | dict, theta_on=None, theta_off=None):
     """The event model's contrast in log units: (theta_on, theta_off, eps), the
     log(L + eps) steps that fire an ON / OFF event, L linear luminance in [0, 1].
 
@@ -744,9 +753,10 @@ def log_contrast(events_cfg: dict, theta_on=None, theta_off=None):
     voltage threshold theta is the step theta / k1 of log(L + k2 / scale);
     noise and leak are not part of it.
     """
-    on = np.asarray(events_cfg["theta_on"] if theta_on is None else theta_on, np.float64)
-    off = np.asarray(events_cfg["theta_off"] if theta_off is None else theta_off, np.float64)
-    return model_class(events_cfg["model"]).log_contrast(events_cfg, on, off)
+    cfg = event_settings(settings)
+    on = np.asarray(cfg.theta_on if theta_on is None else theta_on, np.float64)
+    off = np.asarray(cfg.theta_off if theta_off is None else theta_off, np.float64)
+    return model_class(cfg.model).log_contrast(cfg, on, off)
 
 
 register_model(IdealModel)

@@ -25,6 +25,7 @@ from gs2e.common.camera import render_camera
 from gs2e.common.errors import ConfigError, InputError
 from gs2e.events.models import TileBatch, log_contrast, model_class
 from gs2e.events.sensors import get_sensor
+from gs2e.events.settings import EventSettings, event_settings
 from gs2e.events.sampling import (MODES, SamplerStats, TileSampler, adaptive_samples,
                                   image_luminance, motion_times)
 from gs2e.splat.backend import resolve_backend
@@ -34,28 +35,29 @@ from gs2e.splat.rasterize import SplatCamera
 from gs2e.trajectory import fixed_times_us, load_trajectory
 
 
-def bound_log(events_cfg: dict) -> float:
+def bound_log(settings: EventSettings | dict) -> float:
     """The sampling bound on the per-pixel change of log(L + eps), eps the
     model's dark floor (:func:`sampling_log_eps`):
     ``sampling.bound_fraction`` x the smallest contrast threshold the config
     can draw (theta_on / theta_off, or the low end of theta_range), as a
     log-intensity step (voltmeter: log(1 + theta / k1), the bright-pixel
     limit of the voltage threshold)."""
-    theta = min(events_cfg["theta_on"], events_cfg["theta_off"])
-    if events_cfg.get("theta_sampling", "fixed") != "fixed":
-        theta = min(theta, min(events_cfg["theta_range"]))
-    theta = model_class(events_cfg["model"]).sampling_step(events_cfg, theta)
-    return float(events_cfg["sampling"]["bound_fraction"]) * theta
+    cfg = event_settings(settings)
+    theta = min(cfg.theta_on, cfg.theta_off)
+    if cfg.theta_sampling != "fixed":
+        theta = min(theta, min(cfg.theta_range))
+    theta = model_class(cfg.model).sampling_step(cfg, theta)
+    return float(cfg.sampling.bound_fraction) * theta
 
 
-def sampling_log_eps(events_cfg: dict) -> float:
+def sampling_log_eps(settings: EventSettings | dict) -> float:
     """The dark floor of the signal the sampling bound applies to: the event
     model's own log signal (:func:`gs2e.events.models.log_contrast`). Ideal:
     log(L + log_eps). DVS-Voltmeter: its voltage drifts at k1 d/dt log(L *
     scale + k2) (mu = k1 dL/dt / (L + k2)), so its signal is log(L + k2 /
     scale), luminance L in [0, 1]: dark pixels, where the ideal model's log
     swings widely, barely move its voltage."""
-    return log_contrast(events_cfg)[2]
+    return log_contrast(settings)[2]
 
 
 class _GsplatRenderer:
@@ -98,24 +100,26 @@ class RenderedSource:
     previews; ``stats`` counts renders and rendered pixel values.
     """
 
-    def __init__(self, model_dir: str | Path, trajectory_path: str | Path, events_cfg: dict,
+    def __init__(self, model_dir: str | Path, trajectory_path: str | Path,
+                 settings: EventSettings | dict,
                  background=(0.0, 0.0, 0.0), scale: float = 1.0, backend: str = "cpu",
                  batch_frames: int = 32, span_us: tuple[int, int] | None = None):
-        sc = events_cfg["sampling"]
-        if sc["mode"] not in MODES:
-            raise ConfigError(f"events.sampling.mode must be one of {MODES}, got {sc['mode']!r}")
-        self.cfg, self.sc = events_cfg, sc
+        settings = event_settings(settings)
+        sc = settings.sampling
+        if sc.mode not in MODES:
+            raise ConfigError(f"events.sampling.mode must be one of {MODES}, got {sc.mode!r}")
+        self.settings, self.sc = settings, sc
         self.params, self.info = load_model(model_dir)
         self.traj = load_trajectory(trajectory_path)
         self.name = Path(trajectory_path).stem
         K = np.asarray(self.traj.K, np.float64)
-        sensor = get_sensor(events_cfg)  # its pixel array; render.scale does not apply then
+        sensor = get_sensor(settings)  # its pixel array; render.scale does not apply then
         self.K, W, H = render_camera(K, self.traj.width, self.traj.height, scale,
-                                     (sensor.size, events_cfg["sensor_fit"]) if sensor else None)
+                                     (sensor.size, settings.sensor_fit) if sensor else None)
         self.shape = (H, W)
         self.camera = {"K": self.K.tolist(), "width": W, "height": H,
                        "sensor": sensor.name if sensor else None,
-                       "sensor_fit": events_cfg["sensor_fit"] if sensor else None,
+                       "sensor_fit": settings.sensor_fit if sensor else None,
                        "trajectory_camera": {"K": K.tolist(), "width": int(self.traj.width),
                                              "height": int(self.traj.height)}}
         self.backend = resolve_backend(backend, "render.backend")
@@ -129,18 +133,18 @@ class RenderedSource:
                 raise InputError(f"trajectory {self.name}: span {span_us} us outside "
                                  f"[{self.t0_us}, {self.t1_us}]")
             self.t0_us, self.t1_us = int(span_us[0]), int(span_us[1])
-        clip = events_cfg.get("max_duration_s")
+        clip = settings.max_duration_s
         if clip:
             self.t1_us = min(self.t1_us, self.t0_us + int(round(clip * 1e6)))
         if self.t1_us <= self.t0_us:
             raise InputError(f"trajectory {self.name}: zero duration, nothing to simulate")
-        self.bound = bound_log(events_cfg)
-        self.log_eps = sampling_log_eps(events_cfg)
+        self.bound = bound_log(settings)
+        self.log_eps = sampling_log_eps(settings)
         self.batch_frames = int(batch_frames)
         self.stats = SamplerStats()
         self.luminance = np.zeros(self.shape, np.float32)
-        self.n_frames = (len(fixed_times_us(self.t0_us, self.t1_us, sc["fixed_fps"]))
-                         if sc["mode"] == "fixed" else None)
+        self.n_frames = (len(fixed_times_us(self.t0_us, self.t1_us, sc.fixed_fps))
+                         if sc.mode == "fixed" else None)
         self._sampler: TileSampler | None = None
 
     @property
@@ -165,13 +169,13 @@ class RenderedSource:
         return out
 
     def start(self) -> tuple[int, np.ndarray]:
-        if self.sc["mode"] == "tile":
+        if self.sc.mode == "tile":
             self._sampler = TileSampler(
                 self.renderer, self.pose_at, self.t0_us, self.t1_us, self.bound, self.log_eps,
-                dt_min_us=int(self.sc["dt_min_us"]), dt_max_us=int(self.sc["dt_max_us"]),
-                dt_init_us=int(1e6 / self.sc["fixed_fps"]),
-                max_motion_px=self.sc["max_motion_px"],
-                window_motion_px=float(self.sc["window_motion_px"]), stats=self.stats)
+                dt_min_us=int(self.sc.dt_min_us), dt_max_us=int(self.sc.dt_max_us),
+                dt_init_us=int(1e6 / self.sc.fixed_fps),
+                max_motion_px=self.sc.max_motion_px,
+                window_motion_px=float(self.sc.window_motion_px), stats=self.stats)
             self._tiles = iter(self._sampler)
             first = next(self._tiles)  # renders the first frame, yields the first batch
             self._first_batch = first
@@ -183,7 +187,7 @@ class RenderedSource:
         return self.t0_us, f0
 
     def batches(self) -> Iterator:
-        mode = self.sc["mode"]
+        mode = self.sc.mode
         if mode == "tile":
             yield from self._tile_batches()
             return
@@ -192,7 +196,7 @@ class RenderedSource:
         buf = np.empty((self.batch_frames, *self.shape), np.float32)
         if mode == "fixed":
             frames = ((int(t), None)
-                      for t in fixed_times_us(self.t0_us, self.t1_us, self.sc["fixed_fps"])[1:])
+                      for t in fixed_times_us(self.t0_us, self.t1_us, self.sc.fixed_fps)[1:])
         elif mode == "motion":
             frames = ((t, None) for t in self.motion_clock())
         else:
@@ -217,14 +221,14 @@ class RenderedSource:
         """First step of the adaptive and motion clocks: the fixed_fps period,
         within [dt_min_us, dt_max_us]."""
         sc = self.sc
-        return int(min(sc["dt_max_us"], max(sc["dt_min_us"], 1e6 / sc["fixed_fps"])))
+        return int(min(sc.dt_max_us, max(sc.dt_min_us, 1e6 / sc.fixed_fps)))
 
     def motion_clock(self) -> Iterator[int]:
         """Sample times after t0 of mode ``motion`` (:func:`motion_times`)."""
         sc = self.sc
         times = motion_times(lambda t: self.renderer.centres(self.pose_at(t)), image_motion_px,
-                             self.t0_us, self.t1_us, float(sc["max_motion_px"]),
-                             int(sc["dt_min_us"]), int(sc["dt_max_us"]), self._first_step_us(),
+                             self.t0_us, self.t1_us, float(sc.max_motion_px),
+                             int(sc.dt_min_us), int(sc.dt_max_us), self._first_step_us(),
                              self.stats)
         next(times)
         return times
@@ -240,8 +244,8 @@ class RenderedSource:
         sc = self.sc
         dt0 = self._first_step_us()
         first = np.log(self.luminance.astype(np.float64) + self.log_eps)  # start() rendered t0
-        gen = adaptive_samples(render_log, self.t0_us, self.t1_us, self.bound, int(sc["dt_min_us"]),
-                               int(sc["dt_max_us"]), dt0, self.stats, float(sc["outlier_fraction"]),
+        gen = adaptive_samples(render_log, self.t0_us, self.t1_us, self.bound, int(sc.dt_min_us),
+                               int(sc.dt_max_us), dt0, self.stats, float(sc.outlier_fraction),
                                first_log=first)
         next(gen)
         self.stats.accepted -= 1  # start() counted t0

@@ -36,6 +36,7 @@ import numpy as np
 
 from gs2e.common.camera import fit_scale, size_problem
 from gs2e.common.errors import ConfigError, InputError
+from gs2e.events.settings import EventSettings, event_settings
 
 # The pixel non-idealities a sensor sets, and their value without a sensor.
 NOISE_KEYS = {"theta_mismatch_sigma": 0.0, "refractory_us": 0.0, "leak_rate_hz": 0.0,
@@ -171,15 +172,16 @@ def load_sensor_file(path: str | Path) -> Sensor:
                   val("leak_rate_hz", 0.0), val("shot_noise_rate_hz", 0.0), on)
 
 
-def get_sensor(events_cfg: dict) -> Sensor | None:
-    """The sensor an ``events`` config section asks for (None: no sensor)."""
-    name = events_cfg.get("sensor")
+def get_sensor(settings: "EventSettings | dict") -> Sensor | None:
+    """The sensor the ``events`` settings (or section) ask for (None: no sensor)."""
+    cfg = event_settings(settings)
+    name = cfg.sensor
     if name is None:
         return None
     if name == "custom":
-        if not events_cfg.get("sensor_file"):
+        if not cfg.sensor_file:
             raise ConfigError("events.sensor=custom needs events.sensor_file (a sensor YAML)")
-        return load_sensor_file(events_cfg["sensor_file"])
+        return load_sensor_file(cfg.sensor_file)
     try:
         return SENSORS[name]
     except KeyError:
@@ -187,7 +189,7 @@ def get_sensor(events_cfg: dict) -> Sensor | None:
                           f"(choose from {', '.join([*SENSORS, 'custom'])})") from None
 
 
-def resolve_noise(events_cfg: dict, theta_nominal: float) -> tuple[dict, dict]:
+def resolve_noise(settings: "EventSettings | dict", theta_nominal: float) -> tuple[dict, dict]:
     """The pixel non-idealities the models get: an explicit config value wins,
     then the sensor's, then none (0; ON fraction 0.5).
 
@@ -196,11 +198,12 @@ def resolve_noise(events_cfg: dict, theta_nominal: float) -> tuple[dict, dict]:
     sensor's relative mismatch x ``theta_nominal``); ``sources`` says where
     each came from.
     """
-    sensor = get_sensor(events_cfg)
+    cfg = event_settings(settings)
+    sensor = get_sensor(cfg)
     values, sources = {}, {}
     for key, default in NOISE_KEYS.items():
-        if events_cfg.get(key) is not None:
-            values[key], sources[key] = float(events_cfg[key]), "config"
+        if getattr(cfg, key) is not None:
+            values[key], sources[key] = float(getattr(cfg, key)), "config"
         elif sensor is not None:
             if key == "theta_mismatch_sigma":
                 s = sensor.theta_mismatch_rel

@@ -40,6 +40,7 @@ from gs2e.events.containers import CONTAINERS, ContainerWriter, container_limits
 from gs2e.events.io import H5EventWriter, TextEventWriter, read_h5, write_npz
 from gs2e.events.models import Events, TileBatch, make_model
 from gs2e.events.represent import PreviewWriter
+from gs2e.events.settings import EventSettings, event_settings
 from gs2e.events.stats import StatsAccumulator
 
 log = logging.getLogger("gs2e.events")
@@ -110,14 +111,16 @@ class _PreviewWindows:
         self.pw.add(luminance, Events.concat(self.parts))
 
 
-def simulate_to_folder(source, cfg: dict, out_dir: str | Path, seed: int,
+def simulate_to_folder(source, settings: EventSettings | dict, out_dir: str | Path, seed: int,
                        extra_meta: dict | None = None) -> dict:
     """Simulate events for ``source`` (a frame source, or an object with
     ``start()``/``batches()`` like :class:`gs2e.events.rendered.RenderedSource`)
-    with the validated ``events`` config ``cfg``; write the output folder.
-    Returns the stats dict (also written to stats.json)."""
+    with the ``events`` settings (:class:`EventSettings`, or the validated
+    section as a dict); write the output folder. Returns the stats dict (also
+    written to stats.json)."""
+    settings = event_settings(settings)
     if not hasattr(source, "batches"):
-        source = FrameBatches(source, cfg["batch_frames"])
+        source = FrameBatches(source, settings.batch_frames)
     timings: dict[str, float] = {}
     name = source.name
     t_start = time.perf_counter()
@@ -125,17 +128,17 @@ def simulate_to_folder(source, cfg: dict, out_dir: str | Path, seed: int,
     f_first = np.asarray(f_first)
     shape = tuple(f_first.shape)
     H, W = shape
-    for kind in cfg["containers"]:  # before any simulation: a size no container holds
+    for kind in settings.containers:  # before any simulation: a size no container holds
         why = container_limits(kind, W, H)
         if why:
             raise ConfigError(f"events.containers: {why}")
-    if cfg["containers"] and int(t_first) < 0:
-        raise InputError(f"{name}: events.containers {cfg['containers']} cannot store negative "
+    if settings.containers and int(t_first) < 0:
+        raise InputError(f"{name}: events.containers {list(settings.containers)} cannot store negative "
                          f"times (first frame at {int(t_first)} us)")
     threads = numba.get_num_threads()  # set by the caller (gs2e.common.threads); recorded only
-    model_seed = int(seed) + int(cfg["seed_offset"])
-    model, info = make_model(cfg, shape, model_seed, source=name)
-    meta = {"gs2e_version": __version__, "config": cfg, "seed": model_seed,
+    model_seed = int(seed) + int(settings.seed_offset)
+    model, info = make_model(settings, shape, model_seed, source=name)
+    meta = {"gs2e_version": __version__, "config": settings.as_dict(), "seed": model_seed,
             "source": name, **info, **(extra_meta or {})}
     meta.update(model.describe(info["theta_on_nominal"]))
     acc = StatsAccumulator(shape, name=name)
@@ -144,16 +147,16 @@ def simulate_to_folder(source, cfg: dict, out_dir: str | Path, seed: int,
     with atomic_dir(out_dir) as tmp:
         with ExitStack() as stack:
             hw = stack.enter_context(H5EventWriter(tmp / "events.h5", W, H, int(t_first),
-                                                   cfg["compression"]))
-            tw = (stack.enter_context(TextEventWriter(tmp / "events.txt", cfg["text_polarity"]))
-                  if cfg["write_text"] else None)
+                                                   settings.compression))
+            tw = (stack.enter_context(TextEventWriter(tmp / "events.txt", settings.text_polarity))
+                  if settings.write_text else None)
             cws = [stack.enter_context(ContainerWriter(tmp / f"events{CONTAINERS[kind]}", kind, W, H))
-                   for kind in cfg["containers"]]
+                   for kind in settings.containers]
             pv = None
-            if cfg["preview"]:
+            if settings.preview:
                 pw = stack.enter_context(PreviewWriter(tmp / "preview.mp4", shape,
-                                                       cfg["preview_fps"]))
-                pv = _PreviewWindows(pw, int(t_first), int(round(cfg["preview_window_ms"] * 1000)))
+                                                       settings.preview_fps))
+                pv = _PreviewWindows(pw, int(t_first), int(round(settings.preview_window_ms * 1000)))
             bar = stack.enter_context(progress(None, desc=f"events {name}", unit="ms",
                                                total=round(span_us / 1000) if span_us else None))
             model.start(int(t_first), f_first)
@@ -201,14 +204,14 @@ def simulate_to_folder(source, cfg: dict, out_dir: str | Path, seed: int,
             timings.update(clock)
             md = model.metadata()
             meta["model_metadata"] = md
-            hw.attrs.update({"model": cfg["model"], "seed": model_seed,
+            hw.attrs.update({"model": settings.model, "seed": model_seed,
                              "metadata": meta, "theta/on": model.th_on.astype(np.float32),
                              "theta/off": model.th_off.astype(np.float32)})
             hw.attrs["theta_on_summary"] = md["theta_on_map"]
             hw.attrs["theta_off_summary"] = md["theta_off_map"]
             hw.attrs.update(model.file_attrs())
         timings["close_s"] = time.perf_counter() - t_start - timings["simulate_s"]
-        if cfg["write_npz"]:
+        if settings.write_npz:
             ev_all, _ = read_h5(tmp / "events.h5")
             write_npz(tmp / "events.npz", ev_all, W, H)
         dur_us = float(t_last - t_first)
@@ -218,9 +221,9 @@ def simulate_to_folder(source, cfg: dict, out_dir: str | Path, seed: int,
         pixel_samples = sampling.pop("pixel_samples", md["n_frames"] * H * W)
         dur_s = dur_us * 1e-6
         stats.update(n_frames=md["n_frames"], tile_intervals=model.intervals, threads=threads,
-                     model=cfg["model"], preset=model.config_preset(cfg),
+                     model=settings.model, preset=model.config_preset(settings),
                      theta_on=info["theta_on_nominal"], theta_off=info["theta_off_nominal"],
-                     sampling_mode=getattr(source, "sc", {}).get("mode", "frames"),
+                     sampling_mode=source.sc.mode if hasattr(source, "sc") else "frames",
                      pixel_samples=int(pixel_samples),
                      pixel_samples_per_s=pixel_samples / dur_s if dur_s > 0 else None,
                      simulate_s_per_s=timings["simulate_s"] / dur_s if dur_s > 0 else None,

@@ -33,7 +33,6 @@ scored against renders/, which holds every view's sharp frame
 
 from __future__ import annotations
 
-import json
 
 import numpy as np
 
@@ -41,6 +40,7 @@ from gs2e.common.color import linear_to_srgb, luminance, srgb_to_linear
 from gs2e.common.errors import InputError
 from gs2e.events.models import MODELS
 from gs2e.events.represent import event_frame
+from gs2e.events.settings import read_settings
 from gs2e.export.common import ExportOut
 
 MIN_VIEWS = 7  # train.py L118: index = randint(2, len(views) - 4), and index + 1 (L152)
@@ -56,10 +56,9 @@ class LogSignal:
         th_on, th_off = attrs.get("theta/on"), attrs.get("theta/off")
         if th_on is None or th_off is None:
             raise InputError(f"{where}: no per-pixel thresholds theta/on, theta/off to integrate events")
-        meta = json.loads(attrs["metadata"]) if isinstance(attrs.get("metadata"), str) else {}
         if model not in MODELS:
             raise InputError(f"{where}: unknown event model {model!r}")
-        self.scale, self.offset, div = MODELS[model].log_signal_of(attrs, meta.get("config", {}), where)
+        self.scale, self.offset, div = MODELS[model].log_signal_of(read_settings(attrs, where))
         self.step_on = np.asarray(th_on, np.float64) / div
         self.step_off = np.asarray(th_off, np.float64) / div
         if self.step_on.shape != shape:

@@ -1,0 +1,134 @@
+"""The ``events`` config section as one typed object, resolved once.
+
+:func:`event_settings` turns the validated section (a dict, as
+``gs2e.config.load_section("events")`` gives it) into :class:`EventSettings`;
+the stage passes that object on (models, sampling, writers) and records
+:meth:`EventSettings.as_dict` in ``events.h5`` (``metadata`` -> ``config``) and
+``stats.json``. Readers of an event folder (the benchmark, the exports) get it
+back through :func:`read_settings`, never by parsing the attributes themselves.
+"""
+
+from __future__ import annotations
+
+import copy
+import functools
+import json
+from dataclasses import dataclass, fields
+from typing import Any, Mapping
+
+from gs2e.common.errors import InputError
+
+
+@dataclass(frozen=True)
+class SamplingSettings:
+    """``events.sampling``: when the renderer is sampled (times in us)."""
+
+    mode: str                 # fixed | adaptive | tile | motion
+    fixed_fps: float          # fixed mode's rate; the others' first step
+    bound_fraction: float     # adaptive / tile: fraction of the smallest log step per sample
+    outlier_fraction: float   # adaptive: pixels allowed over the bound
+    dt_min_us: int
+    dt_max_us: int
+    max_motion_px: float | None   # tile / motion: image motion per step (px / Gaussian sigma)
+    window_motion_px: float   # tile: motion over which a tile's candidate list is kept
+
+
+@dataclass(frozen=True)
+class EventSettings:
+    """The ``events`` section, typed (see config/README.md for each key).
+
+    Thresholds are in the model's units (ideal: log-intensity steps;
+    voltmeter: normalised voltage); rates in Hz per pixel; times in us unless
+    the name says otherwise. ``None`` in a noise key means "from the sensor
+    preset, else 0" (:func:`gs2e.events.sensors.resolve_noise`).
+    """
+
+    sensor: str | None
+    sensor_file: str | None
+    sensor_fit: str
+    model: str
+    preset: str
+    k1: float | None
+    k2: float | None
+    k3: float | None
+    k4: float | None
+    k5: float | None
+    k6: float | None
+    exit_law: str
+    theta_on: float
+    theta_off: float
+    theta_sampling: str
+    theta_range: tuple[float, float]
+    theta_on_off_independent: bool
+    theta_mismatch_sigma: float | None
+    refractory_us: float | None
+    leak_rate_hz: float | None
+    shot_noise_rate_hz: float | None
+    shot_noise_on_fraction: float | None
+    log_eps: float
+    max_duration_s: float | None
+    sampling: SamplingSettings
+    max_events_per_pixel: int
+    seed_offset: int
+    batch_frames: int
+    num_threads: int
+    compression: str
+    write_text: bool
+    text_polarity: str
+    write_npz: bool
+    containers: tuple[str, ...]
+    preview: bool
+    preview_window_ms: float
+    preview_fps: float
+    _section: Mapping[str, Any] = None  # the section as given (recorded as is)
+
+    def as_dict(self) -> dict:
+        """The section as it was given (a copy): what the outputs record."""
+        return copy.deepcopy(dict(self._section))
+
+    def replace(self, **changes) -> "EventSettings":
+        """A copy with some top-level keys (or ``sampling`` as a dict of its keys) changed."""
+        sec = self.as_dict()
+        for k, v in changes.items():
+            if k == "sampling":
+                sec["sampling"] = {**sec["sampling"], **v}
+            else:
+                sec[k] = v
+        return event_settings(sec)
+
+
+@functools.lru_cache(maxsize=1)
+def _defaults() -> dict:
+    from gs2e.config import load_section
+
+    return load_section("events")
+
+
+def event_settings(section: "Mapping[str, Any] | EventSettings") -> EventSettings:
+    """The typed settings of an ``events`` section (returned as is when it
+    already is one). Keys the section lacks take the schema's defaults;
+    values are not validated again (``gs2e.config`` did that)."""
+    if isinstance(section, EventSettings):
+        return section
+    base = copy.deepcopy(_defaults())
+    given = copy.deepcopy(dict(section))
+    sec = {**base, **given, "sampling": {**base["sampling"], **dict(given.get("sampling") or {})}}
+    names = {f.name for f in fields(EventSettings)} - {"sampling", "_section"}
+    kw = {k: sec[k] for k in names}
+    kw["theta_range"] = tuple(float(v) for v in sec["theta_range"])
+    kw["containers"] = tuple(sec["containers"] or ())
+    kw["sampling"] = SamplingSettings(**{f.name: sec["sampling"][f.name]
+                                         for f in fields(SamplingSettings)})
+    return EventSettings(**kw, _section=given)
+
+
+def read_settings(attrs: Mapping[str, Any], where: str) -> EventSettings:
+    """The settings an event folder was simulated with, from its ``events.h5``
+    attributes (:func:`gs2e.events.io.read_h5`); ``where`` names the file in errors."""
+    meta = attrs.get("metadata")
+    try:
+        meta = json.loads(meta) if isinstance(meta, (str, bytes)) else meta
+        section = meta["config"]
+    except (TypeError, KeyError, json.JSONDecodeError) as exc:
+        raise InputError(f"{where}: no events config in its metadata ({exc!r})") from None
+    return event_settings(section)
