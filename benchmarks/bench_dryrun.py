@@ -22,12 +22,11 @@ import hashlib
 import os
 import re
 import shutil
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
-from harness import REPO, clock, gs2e_env, parser, pyplot, report, save_plot, write_csv
+from harness import REPO, gs2e_env, parser, pyplot, report, run_child, save_plot, write_csv
 
 BIN = Path(sys.executable).parent
 
@@ -52,15 +51,8 @@ def make_selection(root: Path, n: int) -> tuple[Path, int, int]:
 
 def run_measured(cmd: list[str], env: dict, cwd: Path) -> tuple[float, int, int, str]:
     """(wall s, peak RSS of the process in kB, return code, stdout)."""
-    with tempfile.TemporaryFile("w+") as out:
-        with clock() as t:
-            proc = subprocess.Popen(cmd, env=env, cwd=cwd, stdout=out, stderr=subprocess.STDOUT, text=True)
-            # os.wait4: the peak RSS of this one child (RUSAGE_CHILDREN would be the largest of all)
-            _, status, ru = os.wait4(proc.pid, 0)
-        proc.returncode = os.waitstatus_to_exitcode(status)
-        out.seek(0)
-        text = out.read()
-    return t.wall_s, ru.ru_maxrss, proc.returncode, text
+    r = run_child(cmd, env, cwd)
+    return r.wall_s, int(round(r.peak_rss_mb * 1024)), r.returncode, r.output
 
 
 def bench_one(n: int, configfile: str | None, tmp: Path) -> dict:

@@ -24,8 +24,6 @@ printed is the headline.
 from __future__ import annotations
 
 import json
-import os
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -76,19 +74,13 @@ def run_events(model: Path, traj: Path, span_us: tuple[int, int], sensor: str | 
         cut = Path(d) / "span.npz"
         t0 = cut_trajectory(traj, span_us, cut)
         cfg["max_duration_s"] = (span_us[1] - t0) * 1e-6
-        with harness.clock() as t:
-            proc = subprocess.Popen([sys.executable, "-m", "gs2e", "events", "--model", str(model),
-                                     "--trajectory", str(cut), "-o", str(out), "--threads", "2",
-                                     "--config-json", json.dumps(cfg)],
-                                    env=harness.gs2e_env(REPO), stdout=subprocess.DEVNULL,
-                                    stderr=subprocess.PIPE)
-            _, status, ru = os.wait4(proc.pid, 0)  # this child's own peak RSS
-        err = proc.stderr.read().decode()
-        proc.stderr.close()
-        if os.waitstatus_to_exitcode(status) != 0:
-            raise SystemExit(f"gs2e events failed for sensor {sensor}: {err.strip()[-500:]}")
+        r = harness.run_child([sys.executable, "-m", "gs2e", "events", "--model", str(model),
+                               "--trajectory", str(cut), "-o", str(out), "--threads", "2",
+                               "--config-json", json.dumps(cfg)], env=harness.gs2e_env(REPO))
+        if r.returncode != 0:
+            raise SystemExit(f"gs2e events failed for sensor {sensor}: {r.output.strip()[-500:]}")
     st = json.loads((out / "stats.json").read_text())["stats"]
-    return {"wall_s": t.wall_s, "peak_rss_mb": ru.ru_maxrss / 1024.0, **st}
+    return {"wall_s": r.wall_s, "peak_rss_mb": r.peak_rss_mb, **st}
 
 
 def main() -> None:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from harness import REPO, RESULTS, SHARED_SCENES, clock, gs2e_env
+from harness import REPO, RESULTS, SHARED_SCENES, clock, gs2e_env, run_child
 
 CACHE = RESULTS / "bench_event_sampling_cache"
 THETA_IDEAL = 0.2
@@ -223,8 +223,9 @@ def run_events(scene_dir: Path, traj: str, events_cfg: dict, mode: str, fps: flo
     cmd = [sys.executable, "-m", "gs2e", "events", "--model", str(scene_dir / "splat"),
            "--trajectory", str(scene_dir / "trajectories" / f"{traj}.npz"), "-o", str(out),
            "--seed", str(seed), "--threads", "2", "--config-json", json.dumps(cfg)]
-    with clock() as t:
-        subprocess.run(cmd, check=True, env=gs2e_env(repo), capture_output=True, cwd=repo)
+    r = run_child(cmd, env=gs2e_env(repo), cwd=repo)
+    if r.returncode != 0:
+        raise SystemExit(f"gs2e events ({repo}) failed: {r.output.strip()[-500:]}")
     st = json.loads((out / "stats.json").read_text())["stats"]
     ev, _ = read_h5(out / "events.h5")
-    return {"cpu_s": t.child_cpu_s, "wall_s": t.wall_s, "stats": st, "events": ev}
+    return {"cpu_s": r.cpu_s, "wall_s": r.wall_s, "stats": st, "events": ev}

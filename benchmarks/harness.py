@@ -92,6 +92,33 @@ def clock() -> Iterator[Timing]:
         t.child_cpu_s = child_cpu_s() - k0
 
 
+@dataclass
+class ChildRun:
+    """One child process measured alone: wall seconds, its CPU seconds (user +
+    system, all its threads and its own children), its peak RSS, its exit code
+    and its output (stdout and stderr together)."""
+
+    wall_s: float
+    cpu_s: float
+    peak_rss_mb: float
+    returncode: int
+    output: str
+
+
+def run_child(cmd: list[str], env: dict | None = None, cwd: Path | str | None = None) -> ChildRun:
+    """Run ``cmd`` and measure it by ``os.wait4`` (this child's own rusage:
+    RUSAGE_CHILDREN would give the largest peak RSS of all children so far)."""
+    with tempfile.TemporaryFile("w+") as out:
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(cmd, env=env, cwd=cwd, stdout=out, stderr=subprocess.STDOUT, text=True)
+        _, status, ru = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - t0
+        out.seek(0)
+        text = out.read()
+    return ChildRun(wall, ru.ru_utime + ru.ru_stime, ru.ru_maxrss / 1024.0,
+                    os.waitstatus_to_exitcode(status), text)
+
+
 def median_ms(fn: Callable[[], object], reps: int) -> float:
     """Median wall time of ``fn()`` in ms over ``reps`` calls, after one
     untimed call (compiles, warms caches)."""

@@ -369,8 +369,12 @@ def _check_render_trajectories(cfg: dict) -> None:
 
 
 def _check_bench_inputs(cfg: dict) -> None:
-    if "deblur" in cfg["bench"]["tasks"] and not cfg["render"]["write_blur"]:
-        raise ConfigError("bench.tasks: 'deblur' needs blurred frames, but render.write_blur is false")
+    from gs2e.bench.tasks import TASKS  # light: the registry only
+
+    for name in cfg["bench"]["tasks"]:
+        if name in TASKS and TASKS[name].needs_blur and not cfg["render"]["write_blur"]:
+            raise ConfigError(f"bench.tasks: '{name}' needs blurred frames, but render.write_blur "
+                              "is false")
     if ("recon3d" in cfg["bench"]["tasks"] and "event_blur" in cfg["bench"]["recon3d_variants"]
             and not cfg["render"]["write_blur"]):
         raise ConfigError("bench.recon3d_variants: 'event_blur' needs blurred frames, but "
