@@ -25,10 +25,16 @@ $(BIN)/python:
 
 export PATH := $(abspath $(BIN)):$(PATH)
 
-$(STAMP): pyproject.toml | $(BIN)/python
+# PIE-Net (bench.video_learned) without its declared opencv-python and torchvision: the
+# model needs torch only, and a second package providing cv2 would break
+# opencv-contrib-python-headless. Its weights ship in the wheel (no download at run time).
+PIENET ?= event-pienet==1.1.3
+
+$(STAMP): pyproject.toml Makefile | $(BIN)/python
 	$(BIN)/pip install -q --upgrade pip setuptools wheel
 	$(BIN)/pip install -q "$(TORCH)"
 	$(BIN)/pip install -q -e ".[test]"
+	$(BIN)/pip install -q --no-deps "$(PIENET)"
 	touch $(STAMP)
 
 setup: $(STAMP)

@@ -11,8 +11,9 @@ which EDI does not model: reported, not tuned to):
 * deblurring: PSNR against the sharp frame of the blurred frame, EDI with the
   simulator's threshold (oracle) and EDI with a threshold chosen per frame;
 * video reconstruction from events alone after the first frame: direct
-  integration and the complementary filter, PSNR (grey) at 0.5 s and at the
-  last frame;
+  integration and the complementary filter, and the learned PIE-Net and
+  PIE-Net-Lite (scored after EVREAL's robust normalisation), PSNR (grey) at
+  0.5 s and at the last frame;
 * wall time per task.
 
 Events are simulated over the first ``--span-s`` (0.3 s) of each trajectory,
@@ -66,7 +67,9 @@ RENDER = {"fps": 30.0, "exposure_us": 20000.0, "write_depth": False}
 # Columns a task that cannot run leaves missing (nan), never filled in.
 MISSING = ("blurred_psnr", "edi_oracle_psnr", "edi_chosen_psnr", "edi_chosen_theta", "blurred_ssim",
            "edi_oracle_ssim", "integrate_psnr_0_5s", "integrate_psnr_end", "complementary_psnr_0_5s",
-           "complementary_psnr_end")
+           "complementary_psnr_end", "pienet_psnr_0_5s", "pienet_psnr_end", "pienet_lite_psnr_0_5s",
+           "pienet_lite_psnr_end")
+VIDEO_METHODS = ("integrate", "complementary", "pienet", "pienet_lite")
 
 
 def gs2e(*argv: str) -> float:
@@ -139,9 +142,9 @@ def run_trajectory(out: Path, model_dir: Path, traj: Path, render_extra: list[st
                            edi_chosen_theta=s["edi_chosen"]["theta_median"],
                            blurred_ssim=s["blurred"]["ssim"], edi_oracle_ssim=s["edi_oracle"]["ssim"])
             else:
-                for m in ("integrate", "complementary"):
-                    row[f"{m}_psnr_0_5s"] = s[m].get("psnr_at_0_5s", math.nan)
-                    row[f"{m}_psnr_end"] = s[m]["psnr_end"]
+                for m in VIDEO_METHODS:
+                    row[f"{m}_psnr_0_5s"] = s[m].get("psnr_at_0_5s", math.nan) if m in s else math.nan
+                    row[f"{m}_psnr_end"] = s[m]["psnr_end"] if m in s else math.nan
         rows.append(row)
     return rows
 
@@ -438,7 +441,8 @@ def main_cli() -> None:
         files = [write_csv(name, rows), plot(rows, name)]
     cols = ("scene", "speed", "events", "n_frames", "motion_px_p50", "motion_px_p90", "blurred_psnr",
             "edi_oracle_psnr", "edi_chosen_psnr", "edi_chosen_theta", "integrate_psnr_0_5s",
-            "integrate_psnr_end", "complementary_psnr_end", "deblur_s", "video_s")
+            "integrate_psnr_end", "complementary_psnr_end", "pienet_psnr_end", "pienet_lite_psnr_end",
+            "deblur_s", "video_s")
     print(" ".join(f"{c:>12s}" for c in cols))
     for r in rows:
         print(" ".join(f"{r[c]:>12.2f}" if isinstance(r[c], float) else f"{str(r[c]):>12s}" for c in cols))

@@ -213,13 +213,16 @@ def test_cli_with_a_user_method_and_the_summary(plane_dataset, tmp_path):
     assert len(deblur_calls) == df["frame"].nunique() and all(c[2] > 0 for c in deblur_calls)
     assert all(c[4] - c[3] == pytest.approx(EXPOSURE_US) for c in deblur_calls)
     v = read_table(tmp_path / "video.parquet")
-    assert set(v["method"]) == {"integrate", "complementary", "bench_user_methods:mean_of_neighbours"}
+    assert set(v["method"]) == {"integrate", "complementary", "pienet", "pienet_lite",
+                                "bench_user_methods:mean_of_neighbours"}
+    # the learned methods step through every frame, scored where the others are
+    assert (v.groupby("method")["frame"].apply(tuple).nunique()) == 1
     strip = iio.imread(tmp_path / "deblur.png")
     assert strip.ndim == 3 and strip.shape[1] > 4 * 60
     assert main(["bench-summary", str(tmp_path / "deblur.parquet"), str(tmp_path / "video.parquet"),
                  "--out", str(tmp_path / "bench.parquet")]) == 0
     s = read_table(tmp_path / "bench.parquet")
-    assert len(s) == 7 and set(s["task"]) == {"deblur", "video"}
+    assert len(s) == 9 and set(s["task"]) == {"deblur", "video"}
     edi = s[(s["method"] == "edi_oracle")].iloc[0]
     blurred = s[(s["method"] == "blurred")].iloc[0]
     assert edi["psnr"] > blurred["psnr"]

@@ -120,8 +120,10 @@ def test_figures_empty_inputs_missing_cells_and_deterministic_png():
                           "max_rss": [100.0, 50.0]})
     fig = P.benchmark_figure(bench)
     texts = [t.get_text() for t in fig.axes[1].texts]
-    assert texts == [" missing"]  # the NaN CPU time is marked, not drawn as 0
-    assert [ax.get_xlabel() for ax in fig.axes] == [lab for _, lab in P.BENCH_PANELS]
+    assert texts == [" 2", " missing"]  # each value written; the NaN CPU time marked, not drawn as 0
+    # a log axis: the 1 s job's bar is not a sliver beside the 3 s one
+    assert all(ax.get_xscale() == "log" for ax in fig.axes)
+    assert [ax.get_xlabel() for ax in fig.axes] == [f"{lab}, log scale" for _, lab in P.BENCH_PANELS]
 
 
 def test_image_png_shrinks_to_max_side():

@@ -14,7 +14,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "bench", help="benchmark deblurring or video reconstruction on a trajectory's own ground truth",
         description="Evaluate event-based deblurring (--task deblur: the blurred frame, EDI with the "
                     "simulator's threshold and with one chosen per frame) or video reconstruction "
-                    "(--task video: direct integration and a complementary filter after one keyframe) "
+                    "(--task video: direct integration and a complementary filter after one keyframe, "
+                    "and the learned PIE-Net / PIE-Net-Lite, bench.video_learned) "
                     "or event-based 3D reconstruction (--task recon3d: 3DGS trained from the "
                     "trajectory's events, events + blurred frames, or sharp frames, scored at held-out "
                     "poses; see gs2e.bench.recon3d) "

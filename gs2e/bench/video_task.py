@@ -1,18 +1,21 @@
 """The video task: direct integration and a complementary filter of the
-events after one keyframe (:mod:`gs2e.bench.video`), and a user's methods,
+events after one keyframe (:mod:`gs2e.bench.video`), the learned PIE-Net and
+PIE-Net-Lite from a reset state at the keyframe (:mod:`gs2e.bench.learned`,
+``bench.video_learned``), and a user's methods,
 scored on grey (luminance, sRGB-encoded) against the sharp frames: events
 carry no colour."""
 
 from __future__ import annotations
 
 import math
-from typing import Callable
+from typing import Callable, Iterator
 
 import numpy as np
 
 from gs2e.bench import methods as M
 from gs2e.bench.dataset import (Dataset, grey, intrinsics, motion_px, score, slice_events,
                                 timed)
+from gs2e.bench.learned import reconstruct_learned, robust_normalize
 from gs2e.bench.video import reconstruct
 from gs2e.common.color import linear_to_srgb, luminance, srgb_to_linear
 from gs2e.common.errors import InputError
@@ -51,6 +54,9 @@ def run(ds: Dataset, cfg, user: dict[str, Callable]):
     gens = {"integrate": reconstruct(key_lum, ds.log_eps, ev.t, ev.x, ev.y, steps, t_key, q, 0.0),
             "complementary": reconstruct(key_lum, ds.log_eps, ev.t, ev.x, ev.y, steps, t_key, q,
                                          cfg.video_cf_alpha_rad_s)}
+    for name in cfg.video_learned:  # grey, sRGB-encoded already (scored after robust_normalize)
+        gens[name] = _at_frames(reconstruct_learned(name, ev, ds.shape, f["t_us"].to_numpy()[key:idx[-1] + 1]),
+                                key, idx)
     i_key = int(np.searchsorted(ev.t, t_key, side="right"))
     K = intrinsics(f, 0)
     rows, shown = [], {}
@@ -61,8 +67,9 @@ def run(ds: Dataset, cfg, user: dict[str, Callable]):
         target = grey(ds.image("rgb", i))
         outs = {}
         for name, g in gens.items():
-            lum, dt = timed(next, g)
-            outs[name] = (linear_to_srgb(lum)[..., None], dt)
+            img, dt = timed(next, g)
+            img = robust_normalize(img) if name in cfg.video_learned else linear_to_srgb(img)
+            outs[name] = (img[..., None], dt)
         if user:
             inp = M.BenchInput("video", i, t, slice_events(ev, i_key, i1), t_key, t, np.asarray(r["c2w"]),
                                K, ds.theta_on, ds.theta_off, ds.log_eps,
@@ -79,6 +86,15 @@ def run(ds: Dataset, cfg, user: dict[str, Callable]):
         if i == idx[-1]:
             shown["sharp"] = target[..., 0]
     return rows, shown, idx[-1]
+
+
+def _at_frames(gen: Iterator[np.ndarray], key: int, idx: list[int]) -> Iterator[np.ndarray]:
+    """The outputs of ``gen`` (one per frame after the keyframe ``key``) at the
+    frames ``idx`` only: a recurrent method steps through every frame."""
+    want = set(idx)
+    for i, img in enumerate(gen, start=key + 1):
+        if i in want:
+            yield img
 
 
 VIDEO_AT_S = 0.5  # the dataset table's psnr_at_0_5s

@@ -28,8 +28,11 @@ th{background:#f3f3f3}td.s,th.s{text-align:left}
 figure{display:inline-block;margin:.4em .6em .4em 0;vertical-align:top}
 figcaption{font-size:.8em;color:#555;max-width:100%}
 img{max-width:100%;border:1px solid #eee}
-.missing{color:#a33;background:#fdf0f0;border:1px dashed #d99;padding:.2em .5em;display:inline-block;
+div.missing{color:#a33;background:#fdf0f0;border:1px dashed #d99;padding:.2em .5em;display:inline-block;
 font-size:.85em;margin:.3em 0}
+td.missing{color:#a33;background:#fdf0f0}
+.scroll{overflow-x:auto;max-width:100%}
+.scroll table{margin:0}
 .meta{color:#666;font-size:.85em}
 nav a{margin-right:1em}
 """
@@ -84,12 +87,15 @@ def _cell(v) -> str:
 
 
 def table(df: pd.DataFrame) -> str:
-    """An HTML table of ``df`` (floats to 4 significant digits, missing cells marked)."""
+    """An HTML table of ``df`` (floats to 4 significant digits, missing cells
+    marked as plain cells of the grid)."""
     head = "".join(f"<th>{html.escape(str(c))}</th>" for c in df.columns)
     rows = []
     for rec in df.itertuples(index=False, name=None):
         rows.append("<tr>" + "".join(_cell(v) for v in rec) + "</tr>")
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>"
+    # in a box of its own that scrolls sideways: a wide table never widens the page
+    return (f'<div class="scroll"><table><thead><tr>{head}</tr></thead>'
+            f"<tbody>{''.join(rows)}</tbody></table></div>")
 
 
 def assemble(title: str, sections: list[Section], meta: str = "") -> str:

@@ -99,11 +99,19 @@ def benchmark_figure(bench: pd.DataFrame, title: str = "") -> Figure | None:
     axes = fig.subplots(1, len(BENCH_PANELS), sharey=True)
     for ax, (col, label) in zip(axes, BENCH_PANELS):
         v = pd.to_numeric(b[col], errors="coerce") if col in b else pd.Series(np.nan, index=b.index)
-        ax.barh(y, v.fillna(0.0), color=["C0" if np.isfinite(x) else "0.8" for x in v])
+        # a log axis and the value at each bar: training takes 100x the short jobs,
+        # whose bars would otherwise be slivers
+        pos = v[np.isfinite(v) & (v > 0)]
+        floor = float(pos.min()) / 3 if len(pos) else 0.1
+        ax.barh(y, v.fillna(floor).clip(lower=floor) - floor, left=floor,
+                color=["C0" if np.isfinite(x) else "0.8" for x in v])
+        ax.set_xscale("log")
         for yi, x in zip(y, v):
-            if not np.isfinite(x):
-                ax.text(0, yi, " missing", va="center", fontsize=7, color="0.4")
-        ax.set_xlabel(label)
+            ax.text(x if np.isfinite(x) and x > 0 else floor, yi,
+                    f" {x:.3g}" if np.isfinite(x) else " missing", va="center", fontsize=7,
+                    color="0.2" if np.isfinite(x) else "0.4")
+        ax.set_xlim(floor, (float(pos.max()) if len(pos) else 1.0) * 4)
+        ax.set_xlabel(label + ", log scale")
         ax.grid(axis="x", alpha=0.3)
     axes[0].set_yticks(y, b["rule"].astype(str), fontsize=8)
     axes[0].invert_yaxis()

@@ -73,11 +73,15 @@ def plot_scene(result, path: str | Path) -> None:
                                 linewidths=2.5 if name == base_name else 1.2)
             lc.set_array(speed)
             ax0.add_collection(lc)
-            ax0.annotate(name, seg[0, 0], fontsize=7)
+            ax0.annotate(name, seg[0, 0], fontsize=7, annotation_clip=True)
         fig.colorbar(lc, ax=ax0, label="metric speed per second (alpha*rad + beta*scale)")
     ax0.autoscale()
+    ax0.margins(0.12)  # room for the path labels at the edges
     ax0.set_aspect("equal", adjustable="datalim")
-    ax0.set_title("camera paths (principal plane of the camera centres)")
+    ax0.set_title("camera paths written (principal plane of the camera centres);\n"
+                  "render.trajectories picks the ones rendered", fontsize=9)
+    ax0.set_xlabel("first principal axis (scene units)")
+    ax0.set_ylabel("second principal axis (scene units)")
     ax0.legend(loc="best", fontsize=8)
     if base_name:
         from gs2e.trajectory.trajectory import achieved_steps_fine
@@ -98,8 +102,9 @@ def plot_scene(result, path: str | Path) -> None:
         err = tr.meta.get("max_rel_step_error", float("nan"))
         ax1.set_title(f"base path speed profile (max rel. step error {err:.1e})")
         ax1.legend(fontsize=8)
-        ax1.text(0.02, 0.02, "\n".join(preset_lines(trajs)), transform=ax1.transAxes, fontsize=7,
-                 va="bottom", family="monospace", bbox={"fc": "white", "ec": "0.8"})
+        # below the axes, not over the curves
+        ax1.text(0.0, -0.16, "\n".join(preset_lines(trajs)), transform=ax1.transAxes, fontsize=7,
+                 va="top", family="monospace", bbox={"fc": "white", "ec": "0.8"})
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=90, bbox_inches="tight")  # the preset box sits below the axes
     plt.close(fig)
