@@ -28,6 +28,7 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
+from gs2e.common.errors import ConfigError
 from gs2e.events.models import Events
 from gs2e.events.represent import voxel_grid
 
@@ -41,8 +42,13 @@ def load(name: str):
     """The network of ``name`` (a key of :data:`VARIANTS`) with its shipped
     weights, on the CPU, in eval mode (loaded once per process)."""
     import torch
-    from pie_net import load_model
 
+    try:
+        from pie_net import load_model
+    except ImportError:  # a job environment without it (e.g. snakemake --sdm conda)
+        raise ConfigError(f"bench.video_learned: {name} needs the PIE-Net package, not installed "
+                          "in this environment (pip install --no-deps event-pienet==1.1.3; or "
+                          "set bench.video_learned=[])") from None
     with torch.no_grad():
         return load_model(pretrained=True, device="cpu", variant=VARIANTS[name]).eval()
 
