@@ -60,6 +60,8 @@ def reconstruct_learned(name: str, ev: Events, shape: tuple[int, int],
 
     Yields, per interval, the (H, W) float32 output in [0, 1] at its end (an
     interval without events still advances the recurrence, on a zero grid).
+    The network (and its recurrent state) is shared per process: run one
+    sequence per network at a time, not two generators of one name interleaved.
     """
     import torch
 
