@@ -38,7 +38,9 @@ BENCHMARKS = Path(__file__).resolve().parent
 REPO = BENCHMARKS.parent
 # GS2E_BENCH_RESULTS: elsewhere (the harness's own test writes to a temporary folder)
 RESULTS = Path(os.environ.get("GS2E_BENCH_RESULTS") or BENCHMARKS / "results")
-# ../shared/data beside the repo; one level further up for git worktrees (wt/<branch>)
+# ../shared/data beside the repo; one level further up for git worktrees (wt/<branch>). The
+# same lookup as gs2e.testing.SHARED_DATA, kept here because the harness imports no gs2e:
+# children that import it must load a baseline checkout's gs2e, which may predate gs2e.testing.
 SHARED = next((p for p in (REPO.parent / "shared" / "data", REPO.parent.parent / "shared" / "data")
                if p.is_dir()), REPO.parent / "shared" / "data")
 # Real scenes of ../shared/data as scenes-table rows: name -> (layout, input path).

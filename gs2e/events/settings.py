@@ -86,16 +86,6 @@ class EventSettings:
         """The section as it was given (a copy): what the outputs record."""
         return copy.deepcopy(dict(self._section))
 
-    def replace(self, **changes) -> "EventSettings":
-        """A copy with some top-level keys (or ``sampling`` as a dict of its keys) changed."""
-        sec = self.as_dict()
-        for k, v in changes.items():
-            if k == "sampling":
-                sec["sampling"] = {**sec["sampling"], **v}
-            else:
-                sec[k] = v
-        return event_settings(sec)
-
 
 @functools.lru_cache(maxsize=1)
 def _defaults() -> dict:
