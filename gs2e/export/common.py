@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -44,6 +46,15 @@ class ExportOut:
 
     def png(self, rel: str, rgb: np.ndarray) -> None:
         write_png(self.path(rel), rgb)
+
+    def same_as(self, rel: str, written: str) -> None:
+        """``rel`` with the content of the already written ``written``: a hard
+        link (no extra space), a copy where the file system has none."""
+        dst, src = self.path(rel), self.root / written
+        try:
+            os.link(src, dst)
+        except OSError:
+            shutil.copyfile(src, dst)
 
     def warn(self, msg: str) -> None:
         """Something the target reads differently from gs2e: logged and kept."""

@@ -19,7 +19,13 @@ readBlurNerfSyntheticInfo) synthetic layout::
     <scene>/events.pt             torch float32 (views, 4, H, W): bin b = ON minus OFF
                                   count between exposure poses b and b + 1
     <scene>/sparse/0/             COLMAP model with the SfM points (E2GS reads
-                                  points3D.bin; same world frame as the poses)
+                                  points3D.bin; same world frame as the poses); its
+                                  images are named r_{2k}.png
+    <scene>/images/r_{2k}.png     the blurred frame of view k again (hard link), E2GS's
+                                  README layout: the COLMAP model's images. E2GS's
+                                  render_novel.py takes the size of every novel view from
+                                  images/r_0.png (dataset_readers.py L505-507, L515) and
+                                  its poses from transform_test.json frames[1::2] (L491)
 
 Both derive intrinsics from ``camera_angle_x`` with fx = fy and the principal
 point at the image centre (checked). E2GS reads any image size and view
@@ -99,6 +105,7 @@ def export_e2nerf(src, out: ExportOut, cfg: dict) -> None:
                  "gs2e_frame": int(i), "exposure_us": [ea, eb]}
         train += [entry, dict(entry)]
         out.png(f"train/r_{2 * k}.png", src.image("blur", int(i)))
+        out.same_as(f"images/r_{2 * k}.png", f"train/r_{2 * k}.png")  # E2GS README; render_novel.py
         ev = src.events(ea, eb)
         n_events += len(ev)
         edges = bin_edges_us(ea, eb)
@@ -123,6 +130,8 @@ def export_e2nerf(src, out: ExportOut, cfg: dict) -> None:
                   "readBlurNerfSyntheticInfo",
         "loader": cfg["e2nerf_loader"], "gs2e_frames": frames.tolist(), "n_events": n_events,
         "test_views": "transform_test.json frames[2k] and frames[2k + 1] are gs2e_frames[k]",
+        "images": "images/r_{2k}.png = train/r_{2k}.png (the COLMAP model's image names; E2GS's "
+                  "render_novel.py reads the frame size from images/r_0.png)",
         "time": "exposure bins: [exp_t0_us, exp_t1_us) of the windows table, split in 4 equal parts",
         "polarity": "events.pt: ON count minus OFF count per bin",
         "poses": "transform_*.json: camera-to-world, NeRF/OpenGL axes (y up, z backward)",

@@ -5,8 +5,9 @@
                                        image k is a sharp test view when k % llffhold == 0
                                        (the loader's llffhold split), blurred otherwise
     <scene>/images_1/timestamps.npz    timestamps, timestamps_start, timestamps_end per
-                                       image (us; start = end marks a sharp image),
-                                       start, end (the events' span)
+                                       image (us; start = end marks a sharp image; a
+                                       blurred image's end is its exposure end - 0.5 us,
+                                       float64), start, end (the events' span)
     <scene>/poses_bounds.npy           (N, 17) LLFF: 3x5 [down, right, back, centre,
                                        (H, W, focal)] + near, far per image
     <scene>/all_poses_bounds.npy       the same for dense poses (interpolation), with
@@ -22,12 +23,13 @@ equal gs2e's. Train with ``factor = 1``, ``llffhold`` as exported,
 Its training batches are ``events_N_rand`` events that have a later event at
 the same pixel, dropping an incomplete batch (run_nerf.py L86-90,
 data/loader_events.py L255, L306-307): with fewer such events than its default
-2048 the file sets ``events_N_rand`` to their count. One documented
-difference from gs2e's windows: the optional EDI prior
-(``use_pts0_prior = edi``) sums a blurred image's events over
-[timestamps_start, timestamps_end] including the end (searchsorted left /
-right, data/loader_events.py L111-121), gs2e's exposure window is
-[exp_t0_us, exp_t1_us): events stamped exactly exp_t1_us are added. The loader builds
+2048 the file sets ``events_N_rand`` to their count. The optional EDI prior
+(``use_pts0_prior = edi``) sums a blurred image's events over the closed
+[timestamps_start, timestamps_end] (searchsorted left at the start, right at
+the end, data/loader_events.py L106-121); gs2e's exposure window is the
+half-open [exp_t0_us, exp_t1_us), so ``timestamps_end`` is written as
+exp_t1_us - 0.5 us (see ``image_timestamps``): the prior then sums exactly the
+exposure's events. The loader builds
 K from one focal with the principal point at the image centre (checked) and
 asserts that the events hold both polarities (a warning names a one-sided
 stream). Near/far bounds are the 0.1 / 99.9 % depth percentiles of each frame,
@@ -44,6 +46,26 @@ from gs2e.export.conventions import check_polarity01
 
 LEAD_US = 1_000_000  # time origin: this long before the first exposure start
 EVENTS_N_RAND = 2048  # options.py: events_N_rand default 32 * 32 * 4 // 2
+EDI_END_BEFORE_US = 0.5  # timestamps_end = exp_t1_us - this (see image_timestamps)
+
+
+def image_timestamps(t_us: np.ndarray, ea: np.ndarray, eb: np.ndarray,
+                     sharp: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``timestamps``, ``timestamps_start``, ``timestamps_end`` of
+    images_1/timestamps.npz (us, on the events' axis) from the frame times and
+    their integer exposures [ea, eb): a sharp image has start = end = its time.
+
+    The EDI prior sums the events of the closed [start, end] (loader_events.py
+    L106-121). A blurred image's end is eb - 0.5 us: on integer event times the
+    closed window then holds exactly gs2e's [ea, eb). Its sub-interval
+    boundaries start + j (end - start) / (steps - 1) = ea + j (2 (eb - ea) - 1)
+    / (2 (steps - 1)) are never integers when steps - 1 is a power of 2
+    (``pts0_edi_steps`` default 9), so no event lands on one and is summed into
+    two sub-intervals."""
+    t = np.asarray(t_us, np.int64)
+    start = np.where(sharp, t, np.asarray(ea, np.int64))
+    end = np.where(sharp, t.astype(np.float64), np.asarray(eb, np.int64) - EDI_END_BEFORE_US)
+    return t, start, end
 
 
 def n_with_successor(x: np.ndarray, y: np.ndarray, width: int) -> int:
@@ -81,10 +103,12 @@ def export_evdeblurnerf(src, out: ExportOut, cfg: dict) -> None:
     ea = w["exp_t0_us"].to_numpy(np.int64)[frames]
     eb = w["exp_t1_us"].to_numpy(np.int64)[frames]
     sharp = np.arange(len(frames)) % hold == 0
+    empty = np.flatnonzero(~sharp & (eb <= ea))
+    if len(empty):
+        raise InputError(f"{src.events_file}: the exposure of blurred frame {int(frames[empty[0]])} holds no "
+                         "whole microsecond (render.exposure_us too short); EvDeblurNeRF needs start < end")
     origin = int(ea.min()) - LEAD_US
-    ts = t[frames] - origin
-    ts_start = np.where(sharp, ts, ea - origin)
-    ts_end = np.where(sharp, ts, eb - origin)
+    ts, ts_start, ts_end = image_timestamps(t[frames] - origin, ea - origin, eb - origin, sharp)
     for k, i in enumerate(frames):
         out.png(f"images_1/{k:06d}.png", src.image("rgb" if sharp[k] else "blur", int(i)))
     span0, span1 = int(ea.min()), int(eb.max())
@@ -127,7 +151,8 @@ def export_evdeblurnerf(src, out: ExportOut, cfg: dict) -> None:
         "time_origin_us": origin, "gs2e_frames": frames.tolist(), "sharp_images": np.nonzero(sharp)[0].tolist(),
         "time": "timestamps*.npz, all_timestamps.npy, events.h5 t: int64 us from time_origin_us "
                 "(absolute gs2e time)",
-        "edi_prior_window": "[timestamps_start, timestamps_end] (end included; gs2e: [exp_t0_us, exp_t1_us))",
+        "edi_prior_window": "[timestamps_start, timestamps_end] (end included) with timestamps_end = "
+                            "exp_t1_us - 0.5 us: exactly gs2e's events of [exp_t0_us, exp_t1_us)",
         "n_event_samples": n_samples,
         "polarity": "events.h5 p: 1 ON, 0 OFF (the loader maps 0 to -1)",
         "poses": "LLFF [down, right, back] columns of camera-to-world, gs2e world frame",

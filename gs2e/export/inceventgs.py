@@ -19,9 +19,17 @@ frame; poses_ts.txt with enough digits to read back exactly), each event
 clipped into its window's bounds, so both comparisons select exactly gs2e's
 windows. Past 8 s a float32 second is coarser than 0.5 us, so event times
 move by up to one float32 step (a warning gives the resolution).
-Intrinsics come from the YAML config; note that its BaseDataset floors
-cam.fx/fy/cx/cy with ``//`` for some code paths (a warning names
-non-integer intrinsics).
+Intrinsics come from the YAML config, written exactly: its renderer uses them
+as they are (ReplicaEventDataset.K, L363-369). Its BaseDataset also floors
+them (``cam.fx // downsample``, L112-115) for the rays of its depth-based
+initialisation, densification and warping (datasets/utils.py get_camera_rays
+L31-52; main.py L685-688, L817-820, L2798-2801). The export cannot make them
+integers: the focal length is the renderer's, and resampling the images would
+move them off the event sensor's pixel grid (cropping moves cx, cy by whole
+pixels only). For non-integer intrinsics a warning and the manifest's
+``intrinsics_floor_error_px`` give how far those rays miss their pixel
+(``floored_ray_error_px``); IncEventGS's own Replica configs floor too
+(fx = 548.409).
 """
 
 from __future__ import annotations
@@ -39,6 +47,18 @@ def pose_times_s(t_frames_us: np.ndarray) -> np.ndarray:
     """float32 seconds of the frames from the first one (the loader's time axis)."""
     t = np.asarray(t_frames_us, np.int64)
     return ((t - t[0]) * 1e-6).astype(np.float32)
+
+
+def floored_ray_error_px(K: np.ndarray, width: int, height: int) -> float:
+    """Largest distance (pixels) between a pixel and where IncEventGS's ray for
+    it meets the image under the exact intrinsics: the ray of pixel (i, j) is
+    ((i - cx) / fx, (j - cy) / fy, 1) with floored fx, fy, cx, cy (see module
+    docstring), the renderer projects with the exact ones. 0 for integers."""
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    i, j = np.array([0.0, width - 1.0]), np.array([0.0, height - 1.0])  # the error is affine in i, j
+    ex = fx * (i - np.floor(cx)) / np.floor(fx) + cx - i
+    ey = fy * (j - np.floor(cy)) / np.floor(fy) + cy - j
+    return float(np.hypot(np.abs(ex).max(), np.abs(ey).max()))
 
 
 def export_inceventgs(src, out: ExportOut, cfg: dict) -> None:
@@ -69,9 +89,12 @@ def export_inceventgs(src, out: ExportOut, cfg: dict) -> None:
         step_us = float(np.spacing(np.float32((t1 - t0) * 1e-6))) * 1e6
         out.warn(f"sequence is {(t1 - t0) / 1e6:.1f} s long: the loader's float32 seconds resolve "
                  f"{step_us:.2f} us at its end (event times rounded to that; windows stay exact)")
-    if any(v != np.floor(v) for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2])):
-        out.warn("non-integer intrinsics: IncEventGS's BaseDataset floors cam.fx/fy/cx/cy (//) "
-                 "for some of its ray computations")
+    floor_err = floored_ray_error_px(K, src.width, src.height)
+    if floor_err > 0:
+        vals = ", ".join(f"{float(v):.6g} -> {np.floor(v):.0f}" for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
+        out.warn(f"non-integer intrinsics: IncEventGS floors fx, fy, cx, cy ({vals}; datasets/dataset.py "
+                 f"L112-115) for the rays of its depth initialisation, densification and warping, which then "
+                 f"miss their pixel by up to {floor_err:.3f} px (its renderer uses the exact values)")
     yaml_text = (
         "# IncEventGS config for this export: inherit a Replica config for the method's settings\n"
         "inherit_from: configs/SimuEvent/replica_room0.yaml\n"
@@ -96,5 +119,6 @@ def export_inceventgs(src, out: ExportOut, cfg: dict) -> None:
         "polarity": "gray_events_data.npy p: +1 ON, -1 OFF",
         "poses": "traj.txt: camera-to-world (row-major 16 floats), OpenCV axes, gs2e world frame",
         "gs2e_frames": frames.tolist(), "t0_us": t0, "t1_us": t1, "n_events": len(ev),
+        "intrinsics_floor_error_px": floor_err,
         "images": names,
     })
