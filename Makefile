@@ -10,15 +10,24 @@ CORES ?= all
 TORCH ?= torch==2.13.0
 # The demo's report compares its event statistics with this real recording when it exists.
 REAL_EVENTS ?= ../shared/data/events/dvxplorer_sample.aedat4
-DEMO_CONFIG := $(if $(wildcard $(REAL_EVENTS)),--config 'metrics={real_events: $(abspath $(REAL_EVENTS))}',)
+# ... and runs the video task's methods on these real recordings with APS frames (bench.real_video).
+REAL_VIDEO ?= ../shared/data/slider_depth ../shared/data/events/davis346_street_aps.aedat4
+comma := ,
+empty :=
+space := $(empty) $(empty)
+REAL_VIDEO_FOUND := $(abspath $(wildcard $(REAL_VIDEO)))
+DEMO_CONFIG := $(if $(wildcard $(REAL_EVENTS))$(REAL_VIDEO_FOUND),--config) \
+	$(if $(wildcard $(REAL_EVENTS)),'metrics={real_events: $(abspath $(REAL_EVENTS))}',) \
+	$(if $(REAL_VIDEO_FOUND),'bench={real_video: [$(subst $(space),$(comma)$(space),$(REAL_VIDEO_FOUND))]}',)
 
-.PHONY: setup demo test test-slow test-all bench dryrun clean-results help
+.PHONY: setup demo test test-slow test-all bench finetune dryrun clean-results help
 
 help:
 	@echo "make demo      - set up .venv and run the workflow on the built-in demo scene"
 	@echo "make test      - set up .venv and run the default test suite"
 	@echo "make test-slow - the slow cases (real scenes, long runs)"
 	@echo "make bench     - quick benchmarks (benchmarks/*.py --quick)"
+	@echo "make finetune  - PIE-Net-Lite fine-tuned on gs2e data of four scenes, scored before and after"
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -60,6 +69,13 @@ test-all: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/pip install -q -e ".[test,bench]"
 	set -e; for b in benchmarks/bench_*.py; do echo "== $$b"; $(BIN)/python $$b --quick; done
+
+# The data of four scenes (config/finetune.tsv, about 25 min on 2 cores), then
+# gs2e bench-finetune through benchmarks/bench_finetune.py (about 20 CPU-min).
+FINETUNE_DATA ?= results/finetune_data
+finetune: $(STAMP)
+	$(BIN)/snakemake --cores $(CORES) --configfile config/config.yaml --config scenes=config/finetune.tsv results_dir=$(FINETUNE_DATA)
+	$(BIN)/python benchmarks/bench_finetune.py --root $(FINETUNE_DATA)
 
 dryrun: $(STAMP)
 	$(BIN)/snakemake -n --cores $(CORES)

@@ -6,11 +6,11 @@ sensor's own APS frames as ground truth:
 * ``slider_depth``: ECD, DAVIS240C (240 x 180) on a linear slider past a static
   table-top scene; the first 50,000 events (0.17 s): the APS frames 1-4 after
   the keyframe 0;
-* ``street``: a static DAVIS346 (346 x 260) over a street with moving cars,
+* ``davis346_street_aps``: a static DAVIS346 (346 x 260) over a street with moving cars,
   2.36 s, 59 APS frames (time: the middle of each frame's exposure).
 
 Every method reconstructs each APS frame after the first from the events
-between: direct integration and the complementary filter
+between (``gs2e bench-real``, gs2e.bench.real_video): direct integration and the complementary filter
 (``gs2e.bench.video.reconstruct``, crossover ``bench.video_cf_alpha_rad_s``)
 from the first APS frame, with a nominal contrast of ``--theta`` (0.2) for ON
 and OFF (the sensors' own thresholds are not known here: not fitted) and the
@@ -34,83 +34,19 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import numpy as np
 
 from harness import REPO, SHARED, clock, parser, pyplot, report, save_plot, write_csv
 
 METHODS = ("integrate", "complementary", "pienet", "pienet_lite", "keyframe_held")
 
 
-def slider_depth(root: Path):
-    """(events, (H, W), APS frame times in us, APS frames (N, H, W) in [0, 1])."""
-    from gs2e.events.models import Events
-    from gs2e.io.images import read_image
+def run_recording(rec, theta: float, alpha_rad_s: float) -> list[dict]:
+    """Per-frame rows of every method on one recording (gs2e bench-real's, with
+    the keyframe held as the reference)."""
+    from gs2e.bench.learned import VARIANTS
+    from gs2e.bench.real_video import run_recording as run
 
-    raw = np.loadtxt(root / "events.txt")
-    ev = Events(np.round(raw[:, 0] * 1e6).astype(np.int64), raw[:, 1].astype(np.uint16),
-                raw[:, 2].astype(np.uint16), raw[:, 3].astype(np.uint8))
-    rows = [ln.split() for ln in (root / "images.txt").read_text().splitlines() if ln.strip()]
-    t_us = np.array([round(float(r[0]) * 1e6) for r in rows], np.int64)
-    keep = t_us <= ev.t[-1]  # the frames the 50,000 events cover
-    frames = np.stack([_grey(read_image(root / r[1])) for r, k in zip(rows, keep) if k])
-    return ev, frames.shape[1:], t_us[keep], frames
-
-
-def street(path: Path):
-    """As :func:`slider_depth`, from the AEDAT4 recording's events and frames."""
-    import faery
-
-    from gs2e.events.io import read_events
-
-    ev, _ = read_events(path)
-    t_us, frames = [], []
-    for track, packet in faery.aedat.Decoder(path):
-        if track.data_type == "frame":
-            t_us.append((int(packet.exposure_start_t) + int(packet.exposure_end_t)) // 2)
-            frames.append(_grey(np.asarray(packet.pixels)))
-    return ev, frames[0].shape, np.asarray(t_us, np.int64), np.stack(frames)
-
-
-def _grey(img: np.ndarray) -> np.ndarray:
-    """(H, W) float64 in [0, 1] of an 8- or 16-bit grey (or grey-as-RGB) frame."""
-    img = np.asarray(img)
-    full = 65535.0 if img.dtype == np.uint16 else 255.0
-    if img.ndim == 3:
-        img = img[..., 0]  # the APS is grey: its channels are equal
-    return img.astype(np.float64) / full
-
-
-def run_recording(name: str, ev, shape, t_us, frames, theta: float, alpha_rad_s: float) -> list[dict]:
-    """Per-frame rows of every method on one recording (frames 1.. after keyframe 0)."""
-    from gs2e.bench.dataset import score
-    from gs2e.bench.deblur import log_steps
-    from gs2e.bench.learned import reconstruct_learned, robust_normalize
-    from gs2e.bench.video import reconstruct
-
-    log_eps = 1e-3
-    inside = (ev.t > t_us[0]) & (ev.t <= t_us[-1])
-    assert inside.any(), f"{name}: no events between its frames"
-    steps = log_steps(ev.p, ev.x, ev.y, theta, theta)
-    q = t_us[1:]
-    gens = {"integrate": reconstruct(frames[0], log_eps, ev.t, ev.x, ev.y, steps, int(t_us[0]), q, 0.0),
-            "complementary": reconstruct(frames[0], log_eps, ev.t, ev.x, ev.y, steps, int(t_us[0]), q,
-                                         alpha_rad_s),
-            "pienet": reconstruct_learned("pienet", ev, shape, t_us),
-            "pienet_lite": reconstruct_learned("pienet_lite", ev, shape, t_us),
-            # reference: the keyframe itself, held (what the events must improve on)
-            "keyframe_held": iter([frames[0]] * (len(t_us) - 1))}
-    rows = []
-    for i in range(1, len(t_us)):
-        target = frames[i][..., None]
-        n_ev = int(np.searchsorted(ev.t, t_us[i], side="right") - np.searchsorted(ev.t, t_us[i - 1], side="right"))
-        for m, g in gens.items():
-            with clock() as t:
-                img = next(g)
-            img = robust_normalize(img) if m.startswith("pienet") else img
-            rows.append({"data": "real", "recording": name, "method": m, "frame": i,
-                         "t_rel_s": (t_us[i] - t_us[0]) * 1e-6, "n_events": n_ev,
-                         **score(img[..., None], target), "time_s": t.wall_s})
-    return rows
+    return [{"data": "real", **r} for r in run(rec, theta, alpha_rad_s, tuple(VARIANTS))]
 
 
 def synthetic_rows(results: Path) -> list[dict]:
@@ -153,6 +89,7 @@ def plot(df, name: str) -> Path:
 
 
 def main() -> None:
+    from gs2e.bench.recordings import read_recording
     from gs2e.config import load_section
 
     ap = parser(__doc__, quick="slider_depth only (4 frames, about 20 s)")
@@ -165,9 +102,9 @@ def main() -> None:
 
     alpha = float(load_section("bench")["video_cf_alpha_rad_s"])
     with clock() as run:
-        rows = run_recording("slider_depth", *slider_depth(SHARED / "slider_depth"), args.theta, alpha)
+        rows = run_recording(read_recording(SHARED / "slider_depth"), args.theta, alpha)
         if not args.quick:
-            rows += run_recording("street", *street(SHARED / "events" / "davis346_street_aps.aedat4"),
+            rows += run_recording(read_recording(SHARED / "events" / "davis346_street_aps.aedat4"),
                                   args.theta, alpha)
         rows += synthetic_rows(Path(args.results))
     df = pd.DataFrame(rows)
@@ -180,7 +117,7 @@ def main() -> None:
         v = s[(s["recording"] == rec) & (s["method"] == m)]["psnr"]
         return float(v.iloc[0]) if len(v) else math.nan
 
-    recs = [r for r in ("slider_depth", "street") if r in set(s["recording"])]
+    recs = list(dict.fromkeys(s[s["data"] == "real"]["recording"]))
     report(s, "headline: real APS frames, mean PSNR (dB) " + "; ".join(
         f"{r}: PIE-Net {mean(r, 'pienet'):.2f}, -Lite {mean(r, 'pienet_lite'):.2f}, "
         f"integration {mean(r, 'integrate'):.2f}, complementary {mean(r, 'complementary'):.2f}, "

@@ -52,6 +52,7 @@ STAGE_ENTRY: dict[str, str] = {
     # one CLI module, two rules: the dataset table does not run the tasks
     "bench": "gs2e.bench.cli:run_bench",
     "bench_summary": "gs2e.bench.cli:run_summary",
+    "bench_real": "gs2e.bench.cli:run_real",
 }
 # What every stage's command goes through before its own module.
 COMMAND_ROOTS = ("gs2e.__main__", "gs2e.cli")

@@ -343,6 +343,9 @@ def _check_bench(cfg: dict) -> None:
         raise ConfigError(f"bench.video_learned={b['video_learned']}: the PIE-Net package is not "
                           "installed (pip install --no-deps event-pienet==1.1.3, as make setup "
                           "does; or set bench.video_learned=[])")
+    for i, path in enumerate(b["real_video"]):
+        if not Path(path).exists():
+            raise _missing(f"bench.real_video[{i}]", path)
     if b["edi_theta_min"] >= b["edi_theta_max"]:
         raise ConfigError(f"bench.edi_theta_min={b['edi_theta_min']:g} is not below "
                           f"bench.edi_theta_max={b['edi_theta_max']:g}")

@@ -16,7 +16,8 @@ import pytest
 
 from gs2e.codeversion import STAGE_ENTRY, code_version, stage_modules
 from gs2e.config import load_config, scene_config, scene_params_json, section_json
-from tests.conftest import REPO, TINY_OVERRIDES, run_cli
+from gs2e.testing import SHARED_DATA
+from tests.conftest import REPO, TINY_OVERRIDES, run_cli, shared_data
 
 # What `python -m gs2e <command>` does for one stage, then the gs2e modules loaded.
 # (gs2e.cli also imports the other stages' CLI modules to declare their
@@ -72,6 +73,8 @@ def stage_commands(wd: Path, out: Path) -> dict[str, list[str]]:
                   "--trajectory", traj, "--out", str(out / "bench.parquet"), "--png", str(out / "bench.png"),
                   "--config-json", sec("bench")],
         "bench_summary": ["bench-summary", str(out / "bench.parquet"), "--out", str(out / "bench_all.parquet")],
+        "bench_real": ["bench-real", str(SHARED_DATA / "slider_depth"), "--out", str(out / "bench_real.parquet"),
+                       "--config-json", sec("bench")],
     }
 
 
@@ -96,6 +99,8 @@ def _scene_with_longer_events(wd: Path, out: Path) -> None:
 
 @pytest.mark.parametrize("stage", list(STAGE_ENTRY))
 def test_every_module_a_stage_loads_is_in_its_code_version(stage, tiny_pipeline, tmp_path):
+    if stage == "bench_real":
+        shared_data("slider_depth")  # skips without ../shared/data
     commands = stage_commands(tiny_pipeline[0], tmp_path)
     if stage in ("export", "bench", "bench_summary"):
         _scene_with_longer_events(tiny_pipeline[0], tmp_path)
@@ -174,18 +179,19 @@ def test_an_edit_reruns_the_stages_that_load_it(tmp_path):
     # the report reads event files with gs2e.events; the windows table reads them
     # with events/io.py, which loads the package
     # (the dataset table's per-task columns are the tasks' own, gs2e.bench.tasks: it
-    # follows the task modules and reruns with them; a job of seconds)
+    # follows the task modules and reruns with them; a job of seconds; so does the
+    # real recordings' job, whose command shares the bench CLI module's register())
     assert edit_and_diff("events/__init__.py") == {"events", "report", "windows", "export", "bench",
-                                                   "bench_summary"}
+                                                   "bench_summary", "bench_real"}
     # the event stage renders with gs2e.splat, not the render stage's code;
     # the windows table loads render/dataset.py (frames table), hence the
     # render package and, through it, the renderer
     assert edit_and_diff("splat/__init__.py") == {"train", "render", "events", "windows", "export", "bench",
-                                                  "bench_summary"}
-    assert edit_and_diff("render/__init__.py") == {"render", "windows", "export", "bench", "bench_summary"}
+                                                  "bench_summary", "bench_real"}
+    assert edit_and_diff("render/__init__.py") == {"render", "windows", "export", "bench", "bench_summary", "bench_real"}
     # one CLI module, two rules: each follows only its own command's imports
     assert edit_and_diff("export/run.py") == {"export"}
-    assert edit_and_diff("export/windows.py") == {"windows", "export", "bench", "bench_summary"}
+    assert edit_and_diff("export/windows.py") == {"windows", "export", "bench", "bench_summary", "bench_real"}
     # the benchmark's two rules: the tasks and the dataset table
     assert edit_and_diff("bench/run.py") == {"bench"}
     assert edit_and_diff("bench/summary.py") == {"bench_summary"}
@@ -198,7 +204,7 @@ def test_an_edit_reruns_the_stages_that_load_it(tmp_path):
     # those before: gs2e.config loads trajectory/velocity.py only, and the
     # package's lazy table of names runs only when a name is imported from it
     assert edit_and_diff("trajectory/trajectory.py") == {"trajectory", "render", "events", "windows",
-                                                         "export", "bench", "bench_summary"}
+                                                         "export", "bench", "bench_summary", "bench_real"}
     # every command loads gs2e.config, which checks trajectory.velocity by parsing it
     for rel in ("common/__init__.py", "config.py", "trajectory/velocity.py"):
         assert edit_and_diff(rel) == set(stages)

@@ -35,12 +35,16 @@ DEFAULTS = {"formats": [], "eventnerf_fit": "pad", "eventnerf_holdout_every": 4,
 
 @pytest.fixture(scope="session")
 def export_scene(tiny_pipeline, tmp_path_factory):
-    """results/tiny with events over the whole trajectory and their windows."""
+    return export_tree(tiny_pipeline, tmp_path_factory.mktemp("export_tree"))
+
+
+def export_tree(tiny_pipeline, base):
+    """``base``/tiny: results/tiny with events over the whole trajectory and their windows."""
     from gs2e.config import load_section
 
     wd, _ = tiny_pipeline
     src = wd / "results" / "tiny"
-    dst = tmp_path_factory.mktemp("export_tree") / "tiny"
+    dst = base / "tiny"
     dst.mkdir()
     for d in ("sfm", "splat", "trajectories", "frames"):
         (dst / d).symlink_to(src / d, target_is_directory=True)
@@ -130,8 +134,13 @@ def test_eventnerf_reads_back(export_scene, source, tmp_path_factory):
                 assert (a, b) == (lo, hi)
                 np.testing.assert_array_equal(xs[a:b], src_x[lo:hi])
                 np.testing.assert_array_equal(ps[a:b], src_p[lo:hi])
-                if split == "train" and w == 1:
-                    assert b - a == source.window_counts("inter", [frames[i]])[0]
+                if w == 1:  # the inter-frame windows from frames[i - 1] (excluded) to frames[i]
+                    span = np.arange(frames[i - 1] + 1, frames[i] + 1)
+                    assert b - a == source.window_counts("inter", span).sum()
+    # validation / test views are held out of training (every one a sampler)
+    held = man["heldout_frames"]
+    assert held and set(held).isdisjoint(man["splits"]["train"]["gs2e_frames"])
+    assert man["splits"]["validation"]["loader_views"] == man["splits"]["test"]["loader_views"] == held
 
 
 def test_eventnerf_sensor_size_is_an_error_by_default(export_scene, tmp_path):
@@ -194,6 +203,8 @@ def test_e2nerf_e2gs_reads_back(export_scene, source, tmp_path_factory):
         np.testing.assert_allclose(c2w, source.c2w([frames[num // 2]])[0], atol=1e-12)
         np.testing.assert_array_equal(imageio.imread(out / "test" / f"r_{num}.png"),
                                       source.image("rgb", frames[num // 2]))
+    # render_novel.py sizes its novel views by images/r_0.png (dataset_readers.py L505)
+    assert imageio.imread(out / "images" / "r_0.png").shape[:2] == (H, W)
     import pycolmap
     rec = pycolmap.Reconstruction(str(out / "sparse" / "0"))
     assert rec.num_points3D() == len(source.points()[0]) > 0
@@ -254,10 +265,9 @@ def test_evdeblurnerf_reads_back(export_scene, source, tmp_path_factory):
             continue
         n = _counts_in(t_us, tms["timestamps_start"][k], tms["timestamps_end"][k])
         assert n == int(w["exp_i1"].iloc[i] - w["exp_i0"].iloc[i])
-        # the EDI prior's window includes its end: gs2e's window plus events at exp_t1_us
+        # the EDI prior's closed window [start, exp_t1_us - 0.5] is gs2e's exposure window
         a, b = evdeblurnerf_edi_events(t_us, tms["timestamps_start"][k], tms["timestamps_end"][k])
-        at_end = int((t_us == tms["timestamps_end"][k]).sum())
-        assert b - a == n + at_end
+        assert b - a == n
     # the loader interpolates all_poses_bounds (Slerp + cubic) at event times
     allp = np.load(out / "all_poses_bounds.npy")[:, :-2].reshape(-1, 3, 5)[:, :3, :4]
     rot = Slerp(all_t, Rotation.from_matrix(allp[:, :3, :3]))

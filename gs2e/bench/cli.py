@@ -48,6 +48,48 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--out", required=True, help="output .parquet")
     s.set_defaults(func=run_summary)
 
+    r = sub.add_parser(
+        "bench-real", help="the video task's methods on real recordings with APS frames",
+        description="Reconstruct every APS frame after the first of each recording (an ECD sequence "
+                    "folder or an .aedat4 file with frames) by direct integration and the "
+                    "complementary filter from the first frame, by the learned networks of "
+                    "bench.video_learned from events alone, and the first frame held; score against "
+                    "the APS frames (see gs2e.bench.real_video); one row per recording x method x frame.")
+    r.add_argument("recordings", nargs="+", help="ECD sequence folders or .aedat4 files with frames")
+    r.add_argument("--out", required=True, help="output .parquet (written atomically)")
+    add_config_args(r)
+    r.set_defaults(func=run_real)
+
+    # (defaults from FinetuneSettings when run, not imported here: every bench
+    # rule's code version follows what register() imports)
+    f = sub.add_parser(
+        "bench-finetune", help="fine-tune PIE-Net-Lite on some scenes' events, score it on others and on "
+                               "real recordings, before and after",
+        description="Train the shipped PIE-Net-Lite (or PIE-Net) further on the frame windows of the "
+                    "--train scenes of a results folder (gs2e.data), then score the shipped and the "
+                    "fine-tuned weights on the --eval scenes and on real recordings with APS frames "
+                    "(--real), as the video task scores learned methods (see gs2e.bench.finetune). "
+                    "Writes DIR/weights.pt, DIR/scores.parquet (per frame), DIR/history.parquet "
+                    "(loss and CPU seconds per step) and DIR/run.json.")
+    f.add_argument("--root", required=True, help="results folder (holding <scene>/windows, events, frames)")
+    f.add_argument("--train", required=True, help="comma-separated scene ids to train on")
+    f.add_argument("--eval", default="", help="comma-separated scene ids to score on (held out)")
+    f.add_argument("--real", action="append", default=[], metavar="PATH",
+                   help="a real recording with APS frames to score on: an ECD sequence folder or an "
+                        ".aedat4 file (repeatable)")
+    f.add_argument("--out", required=True, help="output folder (written atomically)")
+    for key, kind, help_ in (("variant", str, "network: pienet_lite or pienet (default pienet_lite)"),
+                             ("steps", int, "optimiser steps (default 200)"),
+                             ("batch", int, "sequences per step (default 4)"),
+                             ("seq_frames", int, "frame intervals per sequence (default 8)"),
+                             ("crop_px", int, "crop side, px (default 128)"),
+                             ("lr", float, "Adam's learning rate (default 3e-4)"),
+                             ("seed", int, "seed of crops, flips and picks (default 0)"),
+                             ("loss", str, "robust = L1 after EVREAL's normalisation, as scored; l1; "
+                                           "or both (default robust)")):
+        f.add_argument("--" + key.replace("_", "-"), dest=key, type=kind, default=None, help=help_)
+    f.set_defaults(func=run_finetune)
+
 
 def run_bench(args: argparse.Namespace) -> int:
     from gs2e.bench.run import resolve, run_task
@@ -62,8 +104,28 @@ def run_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def run_real(args: argparse.Namespace) -> int:
+    from gs2e.bench.real_video import run_recordings
+    from gs2e.config import load_section
+
+    cfg = load_section("bench", args.config_json, args.config)
+    run_recordings(args.recordings, float(cfg["real_video_theta"]), float(cfg["video_cf_alpha_rad_s"]),
+                   tuple(cfg["video_learned"]), args.out)
+    return 0
+
+
 def run_summary(args: argparse.Namespace) -> int:
     from gs2e.bench.summary import write_summary
 
     write_summary(args.tables, args.out)
+    return 0
+
+
+def run_finetune(args: argparse.Namespace) -> int:
+    from gs2e.bench.finetune import FinetuneSettings, run_finetune_cli
+
+    keys = ("variant", "steps", "batch", "seq_frames", "crop_px", "lr", "seed", "loss")
+    settings = FinetuneSettings(**{k: getattr(args, k) for k in keys if getattr(args, k) is not None})
+    names = lambda text: [n for n in text.split(",") if n.strip()]  # noqa: E731
+    run_finetune_cli(args.root, names(args.train), names(args.eval), args.real, args.out, settings)
     return 0

@@ -24,7 +24,7 @@ missing and ``bench.video_learned`` is not empty.
 from __future__ import annotations
 
 import functools
-from typing import Iterator, Sequence
+from typing import Iterable, Iterator, Sequence
 
 import numpy as np
 
@@ -53,9 +53,19 @@ def load(name: str):
         return load_model(pretrained=True, device="cpu", variant=VARIANTS[name]).eval()
 
 
-def reconstruct_learned(name: str, ev: Events, shape: tuple[int, int],
+def interval_inputs(ev: Events, shape: tuple[int, int], t_us: Sequence[int]) -> Iterator[np.ndarray]:
+    """The network's input per interval (t_us[i - 1], t_us[i]] of the
+    time-sorted events ``ev``: a (N_BINS, H, W) float32 voxel grid, time from
+    the interval's first to its last event (the package's own demo)."""
+    edges = np.searchsorted(ev.t, np.asarray(t_us, np.int64), side="right")
+    for a, b in zip(edges[:-1], edges[1:]):
+        yield voxel_grid(Events(ev.t[a:b], ev.x[a:b], ev.y[a:b], ev.p[a:b]), shape, N_BINS)
+
+
+def reconstruct_learned(name, ev: Events, shape: tuple[int, int],
                         t_us: Sequence[int]) -> Iterator[np.ndarray]:
-    """Run network ``name`` over the intervals (t_us[i - 1], t_us[i]] of the
+    """Run network ``name`` (a key of :data:`VARIANTS`, or a loaded network,
+    e.g. a fine-tuned one) over the intervals (t_us[i - 1], t_us[i]] of the
     time-sorted events ``ev``, from a reset state at ``t_us[0]``.
 
     Yields, per interval, the (H, W) float32 output in [0, 1] at its end (an
@@ -63,14 +73,18 @@ def reconstruct_learned(name: str, ev: Events, shape: tuple[int, int],
     The network (and its recurrent state) is shared per process: run one
     sequence per network at a time, not two generators of one name interleaved.
     """
+    model = load(name) if isinstance(name, str) else name
+    return run_network(model, interval_inputs(ev, shape, t_us))
+
+
+def run_network(model, inputs: Iterable[np.ndarray]) -> Iterator[np.ndarray]:
+    """``model`` from a reset state over the (N_BINS, H, W) ``inputs``, one per
+    interval: per interval, the (H, W) float32 output in [0, 1]."""
     import torch
 
-    model = load(name)
     model.reset_states()
-    edges = np.searchsorted(ev.t, np.asarray(t_us, np.int64), side="right")
-    for a, b in zip(edges[:-1], edges[1:]):
-        e = Events(ev.t[a:b], ev.x[a:b], ev.y[a:b], ev.p[a:b])
-        vox = torch.from_numpy(voxel_grid(e, shape, N_BINS))[None]
+    for grid in inputs:
+        vox = torch.from_numpy(grid)[None]
         threads = torch.get_num_threads()
         # one thread: torch's CPU convolutions sum in an order that depends on
         # the thread count, and the same config must give the same bytes

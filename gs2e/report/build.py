@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from gs2e import __version__
@@ -150,18 +151,62 @@ def bench_tables(bench: pd.DataFrame) -> dict[str, pd.DataFrame]:
     return out
 
 
+def real_vs_synthetic(bench: pd.DataFrame | None, real: pd.DataFrame) -> pd.DataFrame:
+    """Video reconstruction, one row per method: "PSNR / SSIM" on gs2e's base
+    trajectories per speed (the video task, mean over scenes and event models)
+    beside each real recording's (its APS frames; PSNR pooled over the frames,
+    as the bench table pools it)."""
+    video = (bench[(bench["task"] == "video") & bench["trajectory"].astype(str).str.startswith("base_")
+                   & bench["preset"].notna()] if bench is not None and len(bench) else None)
+    speeds = ([p for p in SPEEDS if p in set(video["preset"])] if video is not None else [])
+    recs = list(dict.fromkeys(real["recording"].astype(str)))
+    methods = list(dict.fromkeys(list(video["method"]) if video is not None else [])) + \
+        [m for m in dict.fromkeys(real["method"]) if video is None or m not in set(video["method"])]
+    rows = []
+    for m in methods:
+        row = {"method": m}
+        for sp in speeds:
+            v = video[(video["method"] == m) & (video["preset"] == sp)]
+            row[f"gs2e {sp}"] = f"{v['psnr'].mean():.2f} / {v['ssim'].mean():.3f}" if len(v) else None
+        for rec in recs:
+            v = real[(real["recording"] == rec) & (real["method"] == m)]
+            if len(v):
+                mse = float(v["mse"].mean())
+                psnr = -10.0 * np.log10(mse) if mse > 0 else float("inf")
+                row[f"real {rec}"] = f"{psnr:.2f} / {v['ssim'].mean():.3f}"
+            else:
+                row[f"real {rec}"] = None
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def _real_video_part(sec: H.Section, bench: pd.DataFrame | None, real: pd.DataFrame) -> None:
+    sec.add(H.paragraph("Video reconstruction on real events with real frames (bench.real_video, "
+                        "gs2e bench-real) beside gs2e's trajectories: PSNR (dB) / SSIM against the "
+                        "recordings' APS frames, every frame after the first reconstructed from the "
+                        "events; integration and the complementary filter start from the first APS "
+                        "frame with a nominal contrast (bench.real_video_theta), the learned networks "
+                        "from events alone; keyframe_held is the first frame itself, the reference the "
+                        "events must beat. Columns gs2e <speed>: the video task above."))
+    sec.add(H.table(real_vs_synthetic(bench, real)))
+
+
 def _by_speed(path: Path) -> tuple:
-    """Sort key of a per-trajectory file: its task folder, then the speed
-    presets in order (mild, medium, strong), then the name."""
+    """Sort key of a per-trajectory example strip (bench/<task>/<trajectory>.png):
+    the speed presets in order (mild, medium, strong), then the name, then the
+    task, so each speed's deblurring (EDI) and video (PIE-Net) crops sit side by side."""
     rank = next((i for i, sp in enumerate(SPEEDS) if sp in path.stem), len(SPEEDS))
-    return path.parent.name, rank, path.stem
+    return rank, path.stem, path.parent.name
 
 
 def _bench_section(results_dir: Path, scenes: list[str]) -> H.Section:
     sec = H.Section("Benchmark: deblurring, video and 3D reconstruction", anchor="bench")
     bench = R.read_bench(results_dir)
+    real = R.read_bench_real(results_dir)
     if bench is None or len(bench) == 0:
         sec.add(H.missing(f"benchmark table {results_dir / 'bench.parquet'} (bench.tasks is empty)"))
+        if real is not None and len(real):
+            _real_video_part(sec, None, real)
         return sec
     bench = bench[bench["scene_id"].astype(str).isin(scenes)]
     sec.add(H.paragraph("PSNR (dB) / SSIM against the sharp frames, mean over scenes, base "
@@ -188,6 +233,11 @@ def _bench_section(results_dir: Path, scenes: list[str]) -> H.Section:
     if not_run:
         sec.add(H.paragraph(f"Not run here: {', '.join(not_run)} (not in bench.tasks; see "
                             "docs/bench.md for each task and its cost).", "meta"))
+    if real is not None and len(real):
+        _real_video_part(sec, bench, real)
+    else:
+        sec.add(H.paragraph("Not run here: video reconstruction on real recordings with APS frames "
+                            "(bench.real_video is empty).", "meta"))
     items = []
     for scene in scenes:
         for png in sorted((results_dir / scene / "bench").glob("*/*.png"), key=_by_speed):

@@ -26,6 +26,11 @@ def read_bench(results_dir: Path) -> pd.DataFrame | None:
     return _read_parquet(results_dir / "bench.parquet")
 
 
+def read_bench_real(results_dir: Path) -> pd.DataFrame | None:
+    """The video task on real recordings (gs2e bench-real), None if absent."""
+    return _read_parquet(Path(results_dir) / "bench_real.parquet")
+
+
 def read_summary(results_dir: Path) -> pd.DataFrame | None:
     return _read_parquet(Path(results_dir) / "summary.parquet")
 

@@ -54,3 +54,26 @@ rule bench_summary:
     threads: 1
     shell:
         "{GS2E} bench-summary {input:q} --out {output:q} 2> {log:q}"
+
+
+rule bench_real:
+    input:
+        REAL_VIDEO,
+    output:
+        res("bench_real.parquet"),
+    params:
+        cfg=section_json({"bench": {k: config["bench"][k] for k in
+                                    ("real_video_theta", "video_cf_alpha_rad_s", "video_learned")}}, "bench"),
+        code=code_version("bench_real"),
+    conda:
+        ENV
+    log:
+        res("logs", "bench_real.log"),
+    benchmark:
+        res("benchmarks", "bench_real.tsv")
+    threads: 1
+    resources:
+        mem_mb=lambda wc, attempt: 3000 * attempt,
+        runtime=lambda wc, attempt: 30 * attempt,
+    shell:
+        "{GS2E} bench-real {input:q} --out {output:q} --config-json {params.cfg:q} 2> {log:q}"

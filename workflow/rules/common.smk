@@ -95,7 +95,9 @@ def sweep_stale_temporaries():
 
 # Keys that say which jobs exist, not what a job computes: left out of params
 # so that listing one more trajectory does not rerun the others.
-NOT_PARAMS = {"render": ("trajectories",), "export": ("formats",), "bench": ("tasks",)}
+# (bench.real_video*: the dataset-level bench_real job's, not a scene's)
+NOT_PARAMS = {"render": ("trajectories",), "export": ("formats",),
+              "bench": ("tasks", "real_video", "real_video_theta")}
 
 
 def stage_cfg(section):
@@ -196,8 +198,14 @@ def scene_bench(sid):
 BENCH = any(scene_bench(sid) for sid in SCENES)
 
 
+# Real recordings the video task's methods run on once (bench.real_video; load_config
+# has checked that they exist).
+REAL_VIDEO = list(config["bench"]["real_video"])
+
+
 def all_targets():
     """The dataset summary (which needs every scene's metrics and products),
-    the HTML report, the configured exports and, with bench.tasks, the bench table."""
+    the HTML report, the configured exports and, with bench.tasks, the bench
+    table; with bench.real_video, the real recordings' table."""
     return ([res("summary.parquet"), res("report.html")] + [p for sid in SCENES for p in scene_exports(sid)]
-            + ([res("bench.parquet")] if BENCH else []))
+            + ([res("bench.parquet")] if BENCH else []) + ([res("bench_real.parquet")] if REAL_VIDEO else []))

@@ -11,6 +11,8 @@ def report_inputs(wildcards):
         out["real"] = REAL_EVENTS
     if BENCH:
         out["bench"] = res("bench.parquet")
+    if REAL_VIDEO:
+        out["bench_real"] = res("bench_real.parquet")
     return out
 
 
