@@ -213,8 +213,11 @@ def test_cli_with_a_user_method_and_the_summary(plane_dataset, tmp_path):
     assert len(deblur_calls) == df["frame"].nunique() and all(c[2] > 0 for c in deblur_calls)
     assert all(c[4] - c[3] == pytest.approx(EXPOSURE_US) for c in deblur_calls)
     v = read_table(tmp_path / "video.parquet")
-    assert set(v["method"]) == {"integrate", "complementary", "pienet", "pienet_lite",
+    assert set(v["method"]) == {"integrate", "complementary", "pienet", "pienet_lite", "keyframe_held",
                                 "bench_user_methods:mean_of_neighbours"}
+    # the reference: the keyframe held, which reconstruction from events must beat on a moving plane
+    held, integ = (v[v["method"] == m].set_index("frame")["psnr"] for m in ("keyframe_held", "integrate"))
+    assert (integ > held).all(), (integ, held)
     # the learned methods step through every frame, scored where the others are
     assert (v.groupby("method")["frame"].apply(tuple).nunique()) == 1
     strip = iio.imread(tmp_path / "deblur.png")
@@ -222,7 +225,7 @@ def test_cli_with_a_user_method_and_the_summary(plane_dataset, tmp_path):
     assert main(["bench-summary", str(tmp_path / "deblur.parquet"), str(tmp_path / "video.parquet"),
                  "--out", str(tmp_path / "bench.parquet")]) == 0
     s = read_table(tmp_path / "bench.parquet")
-    assert len(s) == 9 and set(s["task"]) == {"deblur", "video"}
+    assert len(s) == 10 and set(s["task"]) == {"deblur", "video"}
     edi = s[(s["method"] == "edi_oracle")].iloc[0]
     blurred = s[(s["method"] == "blurred")].iloc[0]
     assert edi["psnr"] > blurred["psnr"]

@@ -25,8 +25,7 @@ import time
 import numpy as np
 
 from gs2e.bench.recordings import Recording
-
-REFERENCE = "keyframe_held"
+from gs2e.bench.video import KEYFRAME_HELD
 
 
 def run_recording(rec: Recording, theta: float, cf_alpha_rad_s: float, learned: tuple[str, ...],
@@ -44,7 +43,7 @@ def run_recording(rec: Recording, theta: float, cf_alpha_rad_s: float, learned: 
             "complementary": reconstruct(frames[0], log_eps, ev.t, ev.x, ev.y, steps, t0, q, cf_alpha_rad_s)}
     for name in learned:
         gens[name] = reconstruct_learned(name, ev, rec.shape, t_us)
-    gens[REFERENCE] = iter([frames[0]] * len(q))
+    gens[KEYFRAME_HELD] = iter([frames[0]] * len(q))
     edges = np.searchsorted(ev.t, t_us, side="right")
     rows = []
     for i in range(1, len(t_us)):

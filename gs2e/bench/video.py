@@ -18,6 +18,10 @@ from __future__ import annotations
 
 from typing import Iterator
 
+# The reference row of the video task (synthetic and real): the keyframe itself,
+# held; what reconstruction from the events has to beat.
+KEYFRAME_HELD = "keyframe_held"
+
 import numpy as np
 
 from gs2e.bench import _kernels as K

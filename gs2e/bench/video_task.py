@@ -1,12 +1,14 @@
 """The video task: direct integration and a complementary filter of the
 events after one keyframe (:mod:`gs2e.bench.video`), the learned PIE-Net and
 PIE-Net-Lite from a reset state at the keyframe (:mod:`gs2e.bench.learned`,
-``bench.video_learned``), and a user's methods,
+``bench.video_learned``), a user's methods, and ``keyframe_held`` (the
+keyframe itself: the reference the events have to beat),
 scored on grey (luminance, sRGB-encoded) against the sharp frames: events
 carry no colour."""
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Callable, Iterator
 
@@ -16,7 +18,7 @@ from gs2e.bench import methods as M
 from gs2e.bench.dataset import (Dataset, grey, intrinsics, motion_px, score, slice_events,
                                 timed)
 from gs2e.bench.learned import reconstruct_learned, robust_normalize
-from gs2e.bench.video import reconstruct
+from gs2e.bench.video import KEYFRAME_HELD, reconstruct
 from gs2e.common.color import linear_to_srgb, luminance, srgb_to_linear
 from gs2e.common.errors import InputError
 from gs2e.common.progress import progress
@@ -57,6 +59,7 @@ def run(ds: Dataset, cfg, user: dict[str, Callable]):
     for name in cfg.video_learned:  # grey, sRGB-encoded already (scored after robust_normalize)
         gens[name] = _at_frames(reconstruct_learned(name, ev, ds.shape, f["t_us"].to_numpy()[key:idx[-1] + 1]),
                                 key, idx)
+    gens[KEYFRAME_HELD] = itertools.repeat(key_lum)  # linear, as the model-free outputs
     i_key = int(np.searchsorted(ev.t, t_key, side="right"))
     K = intrinsics(f, 0)
     rows, shown = [], {}
