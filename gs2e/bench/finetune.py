@@ -120,9 +120,8 @@ def dataset_sequences(root, scenes: Iterable[str], trajectories: Iterable[str] |
     ``root`` (through :class:`gs2e.data.EventWindowDataset`), one
     :class:`Sequence` per run of consecutive frames of a trajectory."""
     from gs2e.bench.dataset import grey
-    from gs2e.bench.learned import N_BINS
+    from gs2e.bench.learned import network_input
     from gs2e.data import EventWindowDataset
-    from gs2e.events.represent import voxel_grid
 
     scenes = list(scenes)
     ds = EventWindowDataset(root, scenes=scenes, trajectories=trajectories, window="inter",
@@ -149,7 +148,7 @@ def dataset_sequences(root, scenes: Iterable[str], trajectories: Iterable[str] |
             H, W = item["rgb"].shape[1:]
             ev = Events(raw["t"].astype(np.int64), raw["x"].astype(np.uint16), raw["y"].astype(np.uint16),
                         raw["p"].astype(np.uint8))
-            inputs.append(voxel_grid(ev, (H, W), N_BINS))
+            inputs.append(network_input(ev, (H, W)))
             targets.append(grey(item["rgb"].permute(1, 2, 0).numpy())[..., 0].astype(np.float32))
         out.append(Sequence(f"{tr.scene}/{tr.name}" + (f"@{i0}" if again else ""),
                             np.stack(inputs), np.stack(targets)))

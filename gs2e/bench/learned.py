@@ -53,13 +53,19 @@ def load(name: str):
         return load_model(pretrained=True, device="cpu", variant=VARIANTS[name]).eval()
 
 
+def network_input(ev: Events, shape: tuple[int, int]) -> np.ndarray:
+    """The network's input for one interval's events: a (N_BINS, H, W) float32
+    voxel grid, time from the interval's first to its last event (the
+    package's own demo)."""
+    return voxel_grid(ev, shape, N_BINS)
+
+
 def interval_inputs(ev: Events, shape: tuple[int, int], t_us: Sequence[int]) -> Iterator[np.ndarray]:
-    """The network's input per interval (t_us[i - 1], t_us[i]] of the
-    time-sorted events ``ev``: a (N_BINS, H, W) float32 voxel grid, time from
-    the interval's first to its last event (the package's own demo)."""
+    """:func:`network_input` per interval (t_us[i - 1], t_us[i]] of the
+    time-sorted events ``ev``."""
     edges = np.searchsorted(ev.t, np.asarray(t_us, np.int64), side="right")
     for a, b in zip(edges[:-1], edges[1:]):
-        yield voxel_grid(Events(ev.t[a:b], ev.x[a:b], ev.y[a:b], ev.p[a:b]), shape, N_BINS)
+        yield network_input(Events(ev.t[a:b], ev.x[a:b], ev.y[a:b], ev.p[a:b]), shape)
 
 
 def reconstruct_learned(name, ev: Events, shape: tuple[int, int],

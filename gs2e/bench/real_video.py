@@ -20,6 +20,7 @@ ssim, mse, time_s (the method's wall time on that frame).
 
 from __future__ import annotations
 
+import itertools
 import time
 
 import numpy as np
@@ -43,7 +44,7 @@ def run_recording(rec: Recording, theta: float, cf_alpha_rad_s: float, learned: 
             "complementary": reconstruct(frames[0], log_eps, ev.t, ev.x, ev.y, steps, t0, q, cf_alpha_rad_s)}
     for name in learned:
         gens[name] = reconstruct_learned(name, ev, rec.shape, t_us)
-    gens[KEYFRAME_HELD] = iter([frames[0]] * len(q))
+    gens[KEYFRAME_HELD] = itertools.repeat(frames[0])
     edges = np.searchsorted(ev.t, t_us, side="right")
     rows = []
     for i in range(1, len(t_us)):

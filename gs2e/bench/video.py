@@ -18,13 +18,13 @@ from __future__ import annotations
 
 from typing import Iterator
 
-# The reference row of the video task (synthetic and real): the keyframe itself,
-# held; what reconstruction from the events has to beat.
-KEYFRAME_HELD = "keyframe_held"
-
 import numpy as np
 
 from gs2e.bench import _kernels as K
+
+# The reference row of the video task (synthetic and real): the keyframe itself,
+# held; what reconstruction from the events has to beat.
+KEYFRAME_HELD = "keyframe_held"
 
 
 def reconstruct(key_luminance: np.ndarray, log_eps: float, t_us: np.ndarray, x: np.ndarray,

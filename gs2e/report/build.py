@@ -120,13 +120,17 @@ def _scene_section(results_dir: Path, scene: str, summary: pd.DataFrame | None,
 SPEEDS = ("mild", "medium", "strong")
 
 
+def _base_rows(bench: pd.DataFrame) -> pd.DataFrame:
+    """The bench table's rows of the base trajectories with a speed preset."""
+    return bench[bench["trajectory"].astype(str).str.startswith("base_") & bench["preset"].notna()]
+
+
 def bench_tables(bench: pd.DataFrame) -> dict[str, pd.DataFrame]:
     """Per task, the paper's layout: one row per event model x method, one
     column per speed preset ("PSNR / SSIM", mean over scenes of the base
     trajectories), plus the blur's median motion over the exposure (px)."""
     out = {}
-    b = bench[bench["trajectory"].astype(str).str.startswith("base_") & bench["preset"].notna()]
-    for task, g in b.groupby("task", sort=False):
+    for task, g in _base_rows(bench).groupby("task", sort=False):
         speeds = [p for p in SPEEDS if p in set(g["preset"])] + sorted(set(g["preset"]) - set(SPEEDS))
         rows = []
         for (model, method), m in g.groupby(["model", "method"], sort=False):
@@ -156,8 +160,10 @@ def real_vs_synthetic(bench: pd.DataFrame | None, real: pd.DataFrame) -> pd.Data
     trajectories per speed (the video task, mean over scenes and event models)
     beside each real recording's (its APS frames; PSNR pooled over the frames,
     as the bench table pools it)."""
-    video = (bench[(bench["task"] == "video") & bench["trajectory"].astype(str).str.startswith("base_")
-                   & bench["preset"].notna()] if bench is not None and len(bench) else None)
+    video = None
+    if bench is not None and len(bench):
+        base = _base_rows(bench)
+        video = base[base["task"] == "video"]
     speeds = ([p for p in SPEEDS if p in set(video["preset"])] if video is not None else [])
     recs = list(dict.fromkeys(real["recording"].astype(str)))
     methods = list(dict.fromkeys(list(video["method"]) if video is not None else [])) + \
