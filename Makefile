@@ -20,7 +20,7 @@ DEMO_CONFIG := $(if $(wildcard $(REAL_EVENTS))$(REAL_VIDEO_FOUND),--config) \
 	$(if $(wildcard $(REAL_EVENTS)),'metrics={real_events: $(abspath $(REAL_EVENTS))}',) \
 	$(if $(REAL_VIDEO_FOUND),'bench={real_video: [$(subst $(space),$(comma)$(space),$(REAL_VIDEO_FOUND))]}',)
 
-.PHONY: setup demo test test-slow test-all bench finetune dryrun clean-results help
+.PHONY: setup demo test test-slow test-all bench finetune sim2real dryrun clean-results help
 
 help:
 	@echo "make demo      - set up .venv and run the workflow on the built-in demo scene"
@@ -28,6 +28,7 @@ help:
 	@echo "make test-slow - the slow cases (real scenes, long runs)"
 	@echo "make bench     - quick benchmarks (benchmarks/*.py --quick)"
 	@echo "make finetune  - PIE-Net-Lite fine-tuned on gs2e data of four scenes, scored before and after"
+	@echo "make sim2real  - simulated against real events on ECD slider_depth; DAVIS346 background refit"
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -76,6 +77,13 @@ FINETUNE_DATA ?= results/finetune_data
 finetune: $(STAMP)
 	$(BIN)/snakemake --cores $(CORES) --configfile config/config.yaml --config scenes=config/finetune.tsv results_dir=$(FINETUNE_DATA)
 	$(BIN)/python benchmarks/bench_finetune.py --root $(FINETUNE_DATA)
+
+# slider_depth rebuilt and trained (config/sim2real.tsv, about 4 min on 2 cores), its
+# sim-to-real job, then benchmarks/bench_sim2real.py (the tables, the DAVIS346 refit).
+SIM2REAL_DATA ?= results/sim2real_data
+sim2real: $(STAMP)
+	$(BIN)/snakemake --cores $(CORES) --configfile config/config.yaml --config scenes=config/sim2real.tsv results_dir=$(SIM2REAL_DATA) -- $(SIM2REAL_DATA)/slider_depth/sim2real
+	$(BIN)/python benchmarks/bench_sim2real.py --root $(SIM2REAL_DATA)
 
 dryrun: $(STAMP)
 	$(BIN)/snakemake -n --cores $(CORES)

@@ -89,7 +89,7 @@ def plot(df, name: str) -> Path:
 
 
 def main() -> None:
-    from gs2e.bench.recordings import read_recording
+    from gs2e.events.recordings import read_recording
     from gs2e.config import load_section
 
     ap = parser(__doc__, quick="slider_depth only (4 frames, about 20 s)")

@@ -53,6 +53,7 @@ STAGE_ENTRY: dict[str, str] = {
     "bench": "gs2e.bench.cli:run_bench",
     "bench_summary": "gs2e.bench.cli:run_summary",
     "bench_real": "gs2e.bench.cli:run_real",
+    "sim2real": "gs2e.bench.cli:run_sim2real",
 }
 # What every stage's command goes through before its own module.
 COMMAND_ROOTS = ("gs2e.__main__", "gs2e.cli")

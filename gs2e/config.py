@@ -346,6 +346,18 @@ def _check_bench(cfg: dict) -> None:
     for i, path in enumerate(b["real_video"]):
         if not Path(path).exists():
             raise _missing(f"bench.real_video[{i}]", path)
+    if b["sim2real"] is not None:
+        for f in ("events.txt", "groundtruth.txt", "calib.txt"):
+            if not (Path(b["sim2real"]) / f).is_file():
+                raise _missing("bench.sim2real", str(Path(b["sim2real"]) / f))
+    # the sensors' names from the schema: importing the presets would put their values
+    # into every stage's code version (a refit would rerun every job)
+    sensors = [s for s in load_schema()["properties"]["events"]["properties"]["sensor"]["enum"]
+               if s not in (None, "custom")]
+    for v in b["sim2real_variants"]:
+        if v not in ("scene", "ideal", "voltmeter", *sensors):
+            raise ConfigError(f"bench.sim2real_variants: unknown variant '{v}' (choose from scene, "
+                              f"ideal, voltmeter, {', '.join(sensors)})")
     if b["edi_theta_min"] >= b["edi_theta_max"]:
         raise ConfigError(f"bench.edi_theta_min={b['edi_theta_min']:g} is not below "
                           f"bench.edi_theta_max={b['edi_theta_max']:g}")

@@ -1,5 +1,5 @@
 """Fine-tuning PIE-Net-Lite on gs2e data (gs2e.bench.finetune) and the real
-recordings it is scored on (gs2e.bench.recordings): training lowers the loss
+recordings it is scored on (gs2e.events.recordings): training lowers the loss
 on real simulated events, the same bytes at any thread count, hard inputs
 (one frame, no events, frames smaller than the crop), and bad inputs failing
 early with the file or key named."""
@@ -127,7 +127,7 @@ def test_bad_settings_and_sequences_name_the_key():
 
 # ------------------------------------------------------------------ real recordings
 def test_slider_depth_reads_as_its_sources_say():
-    from gs2e.bench.recordings import read_recording
+    from gs2e.events.recordings import read_recording
 
     rec = read_recording(shared_data("slider_depth"))
     assert rec.shape == (180, 240) and len(rec.events) == 50_000
@@ -144,7 +144,7 @@ def test_slider_depth_reads_as_its_sources_say():
 
 
 def test_a_recording_without_frames_or_files_fails_naming_it(tmp_path):
-    from gs2e.bench.recordings import read_recording
+    from gs2e.events.recordings import read_recording
 
     with pytest.raises(InputError, match=r"dvxplorer_sample.aedat4: 0 APS frames"):
         read_recording(shared_data("events", "dvxplorer_sample.aedat4"))

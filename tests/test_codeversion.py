@@ -75,6 +75,11 @@ def stage_commands(wd: Path, out: Path) -> dict[str, list[str]]:
         "bench_summary": ["bench-summary", str(out / "bench.parquet"), "--out", str(out / "bench_all.parquet")],
         "bench_real": ["bench-real", str(SHARED_DATA / "slider_depth"), "--out", str(out / "bench_real.parquet"),
                        "--config-json", sec("bench")],
+        # the real recording along its path through the tiny scene: only what runs matters here
+        "sim2real": ["bench-sim2real", "--model", str(tiny / "splat"), "--scene", str(tiny / "sfm"),
+                     "--recording", str(SHARED_DATA / "slider_depth"), "--out", str(out / "sim2real"),
+                     "--events-json", sec("events"), "--config-json",
+                     json.dumps({"sim2real_variants": ["ideal"], "sim2real_fit": [], "sim2real_fps": 500.0})],
     }
 
 
@@ -99,7 +104,7 @@ def _scene_with_longer_events(wd: Path, out: Path) -> None:
 
 @pytest.mark.parametrize("stage", list(STAGE_ENTRY))
 def test_every_module_a_stage_loads_is_in_its_code_version(stage, tiny_pipeline, tmp_path):
-    if stage == "bench_real":
+    if stage in ("bench_real", "sim2real"):
         shared_data("slider_depth")  # skips without ../shared/data
     commands = stage_commands(tiny_pipeline[0], tmp_path)
     if stage in ("export", "bench", "bench_summary"):
@@ -180,18 +185,21 @@ def test_an_edit_reruns_the_stages_that_load_it(tmp_path):
     # with events/io.py, which loads the package
     # (the dataset table's per-task columns are the tasks' own, gs2e.bench.tasks: it
     # follows the task modules and reruns with them; a job of seconds; so does the
-    # real recordings' job, whose command shares the bench CLI module's register())
+    # real recordings' job and the sim-to-real job, whose commands share the bench CLI
+    # module's register(); sim-to-real renders and simulates, so it follows those too)
     assert edit_and_diff("events/__init__.py") == {"events", "report", "windows", "export", "bench",
-                                                   "bench_summary", "bench_real"}
+                                                   "bench_summary", "bench_real", "sim2real"}
     # the event stage renders with gs2e.splat, not the render stage's code;
     # the windows table loads render/dataset.py (frames table), hence the
     # render package and, through it, the renderer
     assert edit_and_diff("splat/__init__.py") == {"train", "render", "events", "windows", "export", "bench",
-                                                  "bench_summary", "bench_real"}
-    assert edit_and_diff("render/__init__.py") == {"render", "windows", "export", "bench", "bench_summary", "bench_real"}
+                                                  "bench_summary", "bench_real", "sim2real"}
+    assert edit_and_diff("render/__init__.py") == {"render", "windows", "export", "bench", "bench_summary", "bench_real",
+                                                   "sim2real"}
     # one CLI module, two rules: each follows only its own command's imports
     assert edit_and_diff("export/run.py") == {"export"}
-    assert edit_and_diff("export/windows.py") == {"windows", "export", "bench", "bench_summary", "bench_real"}
+    assert edit_and_diff("export/windows.py") == {"windows", "export", "bench", "bench_summary", "bench_real",
+                                                  "sim2real"}
     # the benchmark's two rules: the tasks and the dataset table
     assert edit_and_diff("bench/run.py") == {"bench"}
     assert edit_and_diff("bench/summary.py") == {"bench_summary"}
@@ -204,7 +212,8 @@ def test_an_edit_reruns_the_stages_that_load_it(tmp_path):
     # those before: gs2e.config loads trajectory/velocity.py only, and the
     # package's lazy table of names runs only when a name is imported from it
     assert edit_and_diff("trajectory/trajectory.py") == {"trajectory", "render", "events", "windows",
-                                                         "export", "bench", "bench_summary", "bench_real"}
+                                                         "export", "bench", "bench_summary", "bench_real",
+                                                         "sim2real"}
     # every command loads gs2e.config, which checks trajectory.velocity by parsing it
     for rel in ("common/__init__.py", "config.py", "trajectory/velocity.py"):
         assert edit_and_diff(rel) == set(stages)

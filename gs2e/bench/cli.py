@@ -60,6 +60,24 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_args(r)
     r.set_defaults(func=run_real)
 
+    m = sub.add_parser(
+        "bench-sim2real", help="simulated against real events on the same scene under the same motion",
+        description="Render the scene's model along a real recording's ground-truth camera path (an "
+                    "ECD sequence folder), simulate events with each of bench.sim2real_variants (and "
+                    "the event models of bench.sim2real_fit, fitted to the recording) and compare them "
+                    "with the real events: count ratio, ON fraction, per-pixel count maps, rate over "
+                    "time, inter-event intervals, edge alignment (see gs2e.bench.sim2real). Writes "
+                    "OUT/distances.parquet, OUT/fit.json, OUT/trajectory.npz and OUT/sim2real.png.")
+    m.add_argument("--model", required=True, help="the scene's trained model (gs2e train output)")
+    m.add_argument("--scene", required=True, help="the scene the model was trained on (gs2e sfm output)")
+    m.add_argument("--recording", required=True, help="the ECD sequence folder of the same scene")
+    m.add_argument("--out", required=True, help="output folder (written atomically)")
+    m.add_argument("--seed", type=int, default=0, help="the event models' seed")
+    m.add_argument("--events-json", default=None, metavar="JSON",
+                   help="the scene's events section as JSON (variant 'scene'; default: the defaults)")
+    add_config_args(m)
+    m.set_defaults(func=run_sim2real)
+
     # (defaults from FinetuneSettings when run, not imported here: every bench
     # rule's code version follows what register() imports)
     f = sub.add_parser(
@@ -111,6 +129,17 @@ def run_real(args: argparse.Namespace) -> int:
     cfg = load_section("bench", args.config_json, args.config)
     run_recordings(args.recordings, float(cfg["real_video_theta"]), float(cfg["video_cf_alpha_rad_s"]),
                    tuple(cfg["video_learned"]), args.out)
+    return 0
+
+
+def run_sim2real(args: argparse.Namespace) -> int:
+    from gs2e.bench.sim2real import run_sim2real as run, settings_from_config
+    from gs2e.config import load_section
+
+    bench = load_section("bench", args.config_json, args.config)
+    events = load_section("events", args.events_json)
+    run(args.model, args.scene, args.recording, args.out, events,
+        settings_from_config(bench, args.seed))
     return 0
 
 

@@ -6,7 +6,7 @@ This module fine-tunes PIE-Net-Lite (or PIE-Net, :mod:`gs2e.bench.learned`)
 from its shipped weights on the trajectories of some scenes of a gs2e results
 tree, read through :class:`gs2e.data.EventWindowDataset`, and scores it before
 and after on the trajectories of other scenes and on real recordings with APS
-frames (:mod:`gs2e.bench.recordings`).
+frames (:mod:`gs2e.events.recordings`).
 
 Training (E2VID's recipe, shortened; Rebecq et al., TPAMI 2019): each step takes
 ``batch`` sequences of ``seq_frames`` consecutive frame intervals, one random
@@ -156,7 +156,7 @@ def dataset_sequences(root, scenes: Iterable[str], trajectories: Iterable[str] |
 
 
 def recording_sequence(rec) -> Sequence:
-    """A :class:`gs2e.bench.recordings.Recording` as one sequence: the events
+    """A :class:`gs2e.events.recordings.Recording` as one sequence: the events
     between consecutive APS frames, scored against the later frame."""
     from gs2e.bench.learned import interval_inputs
 
@@ -255,7 +255,7 @@ def run_finetune_cli(root, train_scenes: list[str], eval_scenes: list[str], real
     import pandas as pd
     import torch
 
-    from gs2e.bench.recordings import read_recording
+    from gs2e.events.recordings import read_recording
     from gs2e.common.atomic import atomic_dir, check_writable, write_json_atomic
     from gs2e.common.log import get_logger, process_usage
     from gs2e.common.progress import progress

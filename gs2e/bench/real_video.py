@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-from gs2e.bench.recordings import Recording
+from gs2e.events.recordings import Recording
 from gs2e.bench.video import KEYFRAME_HELD
 
 
@@ -64,7 +64,7 @@ def run_recordings(paths, theta: float, cf_alpha_rad_s: float, learned: tuple[st
     any work), run :func:`run_recording` on each, write ``out`` atomically."""
     import pandas as pd
 
-    from gs2e.bench.recordings import read_recording
+    from gs2e.events.recordings import read_recording
     from gs2e.common.atomic import atomic_path, check_writable
     from gs2e.common.log import get_logger
 

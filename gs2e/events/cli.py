@@ -65,6 +65,14 @@ def register(subparsers) -> None:
                         "with its interval, method and source) as a sensor file for "
                         "events.sensor=custom")
     q.add_argument("--preset-name", help="the preset's name (default: the recording's file stem)")
+    q.add_argument("--aps", action="store_true",
+                   help="the recording has APS frames (an .aedat4 file with a frame stream, or an ECD "
+                        "sequence folder): also measure background activity and hot pixels in its still "
+                        "region against the APS brightness (gs2e.events.stats.still_background); "
+                        "--write-preset then takes leak, shot noise and hot pixels from there")
+    q.add_argument("--still-std", type=float, default=0.01,
+                   help="with --aps: a pixel is still where its APS std over the frames is below this "
+                        "(APS in [0, 1]; default 0.01)")
     q.set_defaults(func=run_stats)
 
     c = subparsers.add_parser(
@@ -189,7 +197,14 @@ def run_stats(args) -> int:
 
     if args.write_preset:
         check_writable(args.write_preset)  # before the work (gs2e.cli checks --out)
-    ev, shape = read_events(args.events_file, _size_arg(args))
+    rec = None
+    if args.aps:
+        from gs2e.events.recordings import read_recording
+
+        rec = read_recording(args.events_file)
+        ev, shape = rec.events, rec.shape
+    else:
+        ev, shape = read_events(args.events_file, _size_arg(args))
     if not shape or not all(shape):
         if len(ev) == 0:
             raise InputError(f"{args.events_file}: no events and no sensor size")
@@ -198,12 +213,20 @@ def run_stats(args) -> int:
         raise InputError(f"{args.events_file}: timestamps are not sorted")
     cal = calibrate_noise(ev, shape, args.ba_window_us)
     out = {"stats": event_stats(ev, shape, name=str(args.events_file)), "noise_calibration": cal}
+    still = None
+    if rec is not None:
+        from gs2e.events.stats import still_background
+
+        still = still_background(ev, shape, rec.frames, still_std=args.still_std)
+        out["still_background"] = {k: v for k, v in still.items() if not k.startswith("_")}
     if args.write_preset:
         if not len(ev) > 1 or not np.isfinite(cal["ba_rate_hz"]):
             raise InputError(f"{args.events_file}: too few events to fit a sensor preset")
         name = args.preset_name or Path(args.events_file).stem
+        origin = (f"the APS frames of {args.events_file}" if rec is not None
+                  else size_origin(args.events_file, _size_arg(args)))
         write_sensor_preset(args.write_preset, sensor_preset(cal, name, shape, str(args.events_file),
-                                                             size_origin(args.events_file, _size_arg(args))))
+                                                             origin, still))
     if args.out:
         write_json_atomic(args.out, out)
     else:

@@ -10,9 +10,14 @@ source; a value nobody has published or measured for that sensor is labelled
 The contrast threshold itself stays the event model's (``events.preset``,
 ``events.theta_on`` / ``theta_off``): the only published calibration of the
 DVS-Voltmeter model is the DAVIS346 one (k1..k6 of its public code), and the
-Prophesee datasheet figures are not public, so a sensor does not pretend to
-know its threshold. No gs2e event model has a photoreceptor low-pass, so no
-preset sets a bandwidth.
+Prophesee datasheet figures are not public. A sensor whose thresholds were
+fitted to a real recording says so in ``extra["model"]`` (davis240: the
+model and thresholds to set; ``gs2e events-presets`` lists them), and
+``gs2e bench-sim2real`` applies them; the event stage does not, so a config
+keeps one meaning for ``theta_on``. Hot pixels, the photoreceptor's
+bandwidth and the readout (:mod:`gs2e.events.readout`) sit in
+``extra["readout"]`` where a preset has measured them; none has measured a
+bandwidth or a readout.
 
 Field of view (``events.sensor_fit``): the sensor camera is the trajectory's
 camera scaled uniformly about the image centre so that
@@ -41,6 +46,12 @@ from gs2e.events.settings import EventSettings, event_settings
 # The pixel non-idealities a sensor sets, and their value without a sensor.
 NOISE_KEYS = {"theta_mismatch_sigma": 0.0, "refractory_us": 0.0, "leak_rate_hz": 0.0,
               "shot_noise_rate_hz": 0.0, "shot_noise_on_fraction": 0.5}
+
+# the sensor around the pixel (gs2e.events.readout) and the value without config or sensor
+READOUT_KEYS = {"photoreceptor_cutoff_hz": None, "photoreceptor_dark_fraction": 0.1,
+                "hot_pixel_fraction": 0.0, "hot_pixel_rate_hz": 0.0, "hot_pixel_on_fraction": 0.5,
+                "readout_rate_meps": None, "readout_latency_us": 0.0, "readout_jitter_us": 0.0,
+                "readout_queue_events": 1024}
 
 _V2E = "assumed: v2e's default (REFERENCE.md section 9); not published for this sensor"
 _MISMATCH = ("assumed: 15 % of the threshold, as DVS128's 2.1 % contrast mismatch at a ~15 % "
@@ -87,7 +98,11 @@ class Sensor:
                   "shot_noise_rate_hz", "shot_noise_on_fraction"):
             v = getattr(self, k)
             out[k] = {"value": v.value, "source": v.source}
-        out.update(self.extra)
+        for k, v in self.extra.items():
+            if k == "readout":
+                out[k] = {key: {"value": sv.value, "source": sv.source} for key, sv in v.items()}
+            else:
+                out[k] = v
         return out
 
 
@@ -103,8 +118,32 @@ def _sensor(name, description, w, h, size_source, ba=None, ba_on=None, refractor
 
 _RES = "datasheet resolution (REFERENCE.md section 9)"
 _DVX = "the DVXplorer recording ../shared/data/events/dvxplorer_sample.aedat4 (320x240 readout)"
+_STREET = ("the still region of the DAVIS346 recording ../shared/data/events/davis346_street_aps.aedat4 "
+           "(APS std < 0.01 over 2.36 s, 2 px from any moving pixel: 83 % of the pixels, mean APS "
+           "0.303; gs2e events-stats --aps, gs2e.events.stats.still_background)")
+_SLIDER = ("fitted: to the real events of ECD slider_depth (DAVIS240C; ../shared/data/slider_depth) "
+           "along its recorded path by gs2e bench-sim2real (make sim2real; gs2e.bench.sim2real.fit_model)")
 SENSORS: dict[str, Sensor] = {
-    "davis346": _sensor("davis346", "iniVation DAVIS346 (DVS + APS)", 346, 260, _RES),
+    "davis346": Sensor(
+        "davis346", "iniVation DAVIS346 (DVS + APS)", Sourced(346, _RES), Sourced(260, _RES),
+        Sourced(0.15, _MISMATCH), Sourced(100.0, _REFRACTORY),
+        Sourced(0.002213, f"measured: ON background events less the shot noise's, in {_STREET}; "
+                          "0.01 Hz (v2e's default) before"),
+        Sourced(0.0003185, f"measured: twice the OFF background rate at the mean brightness, in "
+                           f"{_STREET}; 0.001 Hz (v2e's default) before"),
+        Sourced(0.5, "assumed: balanced shot noise (the background's excess ON events are leak)"),
+        {"readout": {"hot_pixel_fraction": Sourced(0.0, f"measured: no still pixel fires over 10x the "
+                                                        f"background rate in {_STREET} (the most "
+                                                        "active one: 4 events in 2.36 s)")}}),
+    "davis240": Sensor(
+        "davis240", "iniVation DAVIS240C (DVS + APS)", Sourced(240, _RES), Sourced(180, _RES),
+        Sourced(0.05, _SLIDER), Sourced(300.0, _SLIDER),
+        Sourced(0.01, _V2E + " (leak 0.01 Hz; the recording has no still region)"),
+        Sourced(0.001, _V2E + " (shot noise 0.001 Hz)"),
+        Sourced(0.5, "assumed: balanced ON/OFF background activity"),
+        {"model": {"value": "voltmeter", "theta_on": 1.791, "theta_off": 1.596,
+                   "source": f"{_SLIDER}: DVS-Voltmeter with its DAVIS346 preset (k1..k6), the "
+                             "closer of the ideal and voltmeter fits (sum of the distances)"}}),
     "dvxplorer": _sensor(
         "dvxplorer", "iniVation DVXplorer", 640, 480, _RES,
         ba=Sourced(0.557, f"measured: background-activity rate of {_DVX} (95 % 0.531-0.581 Hz; "
@@ -166,10 +205,15 @@ def load_sensor_file(path: str | Path) -> Sensor:
     on = val("shot_noise_on_fraction", 0.5)
     if on.value > 1:
         raise InputError(f"{path}: 'shot_noise_on_fraction' must be in [0, 1]")
+    readout = {k: val(k) for k in READOUT_KEYS if doc.get(k) is not None}
+    for k in ("hot_pixel_fraction", "hot_pixel_on_fraction"):
+        if k in readout and readout[k].value > 1:
+            raise InputError(f"{path}: '{k}' must be in [0, 1]")
     return Sensor(str(doc.get("name", path.stem)), str(doc.get("description", f"custom ({path.name})")),
                   Sourced(int(w.value), w.source), Sourced(int(h.value), h.source),
                   val("theta_mismatch_rel", 0.0), val("refractory_us", 0.0),
-                  val("leak_rate_hz", 0.0), val("shot_noise_rate_hz", 0.0), on)
+                  val("leak_rate_hz", 0.0), val("shot_noise_rate_hz", 0.0), on,
+                  {"readout": readout} if readout else {})
 
 
 def get_sensor(settings: "EventSettings | dict") -> Sensor | None:

@@ -65,6 +65,15 @@ class EventSettings:
     leak_rate_hz: float | None
     shot_noise_rate_hz: float | None
     shot_noise_on_fraction: float | None
+    photoreceptor_cutoff_hz: float | None
+    photoreceptor_dark_fraction: float | None
+    hot_pixel_fraction: float | None
+    hot_pixel_rate_hz: float | None
+    hot_pixel_on_fraction: float | None
+    readout_rate_meps: float | None
+    readout_latency_us: float | None
+    readout_jitter_us: float | None
+    readout_queue_events: int | None
     log_eps: float
     max_duration_s: float | None
     sampling: SamplingSettings

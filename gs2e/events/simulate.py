@@ -22,6 +22,7 @@ sequence length (the npz export, when asked for, reads the events back).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import time
@@ -39,6 +40,7 @@ from gs2e.common.progress import progress
 from gs2e.events.containers import CONTAINERS, ContainerWriter, container_limits
 from gs2e.events.io import H5EventWriter, TextEventWriter, read_h5, write_npz
 from gs2e.events.models import Events, TileBatch, make_model
+from gs2e.events.readout import SensorChain, resolve_readout
 from gs2e.events.represent import PreviewWriter
 from gs2e.events.settings import EventSettings, event_settings
 from gs2e.events.stats import StatsAccumulator
@@ -138,9 +140,12 @@ def simulate_to_folder(source, settings: EventSettings | dict, out_dir: str | Pa
     threads = numba.get_num_threads()  # set by the caller (gs2e.common.threads); recorded only
     model_seed = int(seed) + int(settings.seed_offset)
     model, info = make_model(settings, shape, model_seed, source=name)
+    readout, readout_sources = resolve_readout(settings)
+    chain = SensorChain(model, readout, model_seed)  # the model itself when readout is all off
     meta = {"gs2e_version": __version__, "config": settings.as_dict(), "seed": model_seed,
             "source": name, **info, **(extra_meta or {})}
     meta.update(model.describe(info["theta_on_nominal"]))
+    meta["readout"] = {"values": dataclasses.asdict(readout), "sources": readout_sources}
     acc = StatsAccumulator(shape, name=name)
     t_last = int(t_first)
     span_us = getattr(source, "duration_us", None)
@@ -159,7 +164,7 @@ def simulate_to_folder(source, settings: EventSettings | dict, out_dir: str | Pa
                 pv = _PreviewWindows(pw, int(t_first), int(round(settings.preview_window_ms * 1000)))
             bar = stack.enter_context(progress(None, desc=f"events {name}", unit="ms",
                                                total=round(span_us / 1000) if span_us else None))
-            model.start(int(t_first), f_first)
+            chain.start(int(t_first), f_first)
 
             clock = dict.fromkeys(("source_s", "model_s", "stats_s", "write_s"), 0.0)
 
@@ -187,22 +192,23 @@ def simulate_to_folder(source, settings: EventSettings | dict, out_dir: str | Pa
                 if item is None:
                     break
                 if isinstance(item, TileBatch):
-                    ev = model.process_tiles(item)
+                    ev = chain.process_tiles(item)
                     t_last = max(t_last, int(item.t1_us.max()))
                 else:
-                    ev = model.process_batch(*item)
+                    ev = chain.process_batch(*item)
                     t_last = int(item[0][-1])
                 clock["model_s"] += time.perf_counter() - b
-                emit(ev, model.horizon_us)
-                now_ms = (model.horizon_us - int(t_first)) // 1000
+                emit(ev, chain.horizon_us)
+                now_ms = max(0, (chain.horizon_us - int(t_first)) // 1000)
                 bar.update(now_ms - done_ms)
                 done_ms = now_ms
-            emit(model.flush(), None)
+            emit(chain.flush(), None)
             if pv:
                 pv.finish(source.luminance)
             timings["simulate_s"] = time.perf_counter() - t_start
             timings.update(clock)
             md = model.metadata()
+            md.update(chain.describe())
             meta["model_metadata"] = md
             hw.attrs.update({"model": settings.model, "seed": model_seed,
                              "metadata": meta, "theta/on": model.th_on.astype(np.float32),

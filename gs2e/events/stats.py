@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from gs2e.common.errors import InputError
 from gs2e.events.models import Events
 
 
@@ -248,7 +249,7 @@ def _refractory(ev: Events, W: int, q: float, n_boot: int, rng) -> tuple[float, 
 
 
 def sensor_preset(cal: dict, name: str, shape: tuple[int, int], source: str,
-                  size_source: str | None = None) -> dict:
+                  size_source: str | None = None, still: dict | None = None) -> dict:
     """A custom sensor preset from :func:`calibrate_noise`'s result.
 
     Layout (what :func:`write_sensor_preset` writes, one mapping per value)::
@@ -259,6 +260,12 @@ def sensor_preset(cal: dict, name: str, shape: tuple[int, int], source: str,
         shot_noise_rate_hz:     {value, ci95: [low, high], method, source: measured from <file>}
         shot_noise_on_fraction: {value, ci95, method, source}   # of background-activity events
         refractory_us:          {value, ci95, method, source}
+
+    With ``still`` (:func:`still_background` of the same recording), the
+    background comes from the still region instead: ``leak_rate_hz``,
+    ``shot_noise_rate_hz``, ``shot_noise_on_fraction``, ``hot_pixel_fraction``,
+    ``hot_pixel_rate_hz``, ``hot_pixel_on_fraction`` (no interval: method and
+    source only).
 
     The keys are the ``events`` config keys they set: the file is a sensor for
     ``events.sensor: custom`` / ``events.sensor_file``
@@ -271,7 +278,7 @@ def sensor_preset(cal: dict, name: str, shape: tuple[int, int], source: str,
     def sig(v: float) -> float:  # 4 significant digits: the intervals are wider
         return float(f"{v:.4g}")
 
-    return {
+    out = {
         "name": name,
         "width": {"value": int(W), "source": size_source or f"header of {source}"},
         "height": {"value": int(H), "source": size_source or f"header of {source}"},
@@ -291,6 +298,26 @@ def sensor_preset(cal: dict, name: str, shape: tuple[int, int], source: str,
                       "over pixels",
             "source": measured},
     }
+    if still is not None:
+        region = (f"the still region of {source} (APS std < {still['still_std']:g} over the recording, "
+                  f"{still['erode_px']} px from any moving pixel; {still['still_fraction']:.0%} of the "
+                  f"pixels, {still['duration_s']:.2f} s)")
+        how = {"leak_rate_hz": "ON events of the background less the shot noise's (gs2e.events.stats."
+                               "still_background)",
+               "shot_noise_rate_hz": "twice the OFF rate, scaled to gs2e's 2 (1 - L) at the region's "
+                                     f"mean APS brightness {still['lum_mean']:.3f}",
+               "shot_noise_on_fraction": "shot noise taken as balanced (all excess ON events are leak)",
+               "hot_pixel_fraction": f"still pixels firing over {still['hot_factor']:g} x the others' "
+                                     "mean rate",
+               "hot_pixel_rate_hz": "mean rate of those pixels",
+               "hot_pixel_on_fraction": "ON fraction of their events (0.5 when there are none)"}
+        vals = {"leak_rate_hz": still["leak_rate_hz"], "shot_noise_rate_hz": still["shot_noise_rate_hz"],
+                "shot_noise_on_fraction": still["shot_noise_on_fraction"],
+                "hot_pixel_fraction": still["hot_fraction"], "hot_pixel_rate_hz": still["hot_rate_hz"],
+                "hot_pixel_on_fraction": (still["hot_on_fraction"] if still["n_hot"] else 0.5)}
+        for k, v in vals.items():
+            out[k] = {"value": sig(float(v)), "method": how[k], "source": f"measured in {region}"}
+    return out
 
 
 def write_sensor_preset(path, preset: dict) -> None:
@@ -386,3 +413,101 @@ class StatsAccumulator:
             iei_median_ms=self._pct(50), iei_mean_ms=(self.sums[0] / n_iei * 1e-3) if n_iei else nan,
             iei_p10_ms=self._pct(10), iei_p90_ms=self._pct(90), n_iei=n_iei)
         return row
+
+
+# ---------------------------------------------------------------- still background
+def still_background(ev: Events, shape: tuple[int, int], aps: np.ndarray, still_std: float = 0.01,
+                     erode_px: int = 2, hot_factor: float = 10.0, n_bins: int = 5,
+                     mask: np.ndarray | None = None) -> dict:
+    """Background activity and hot pixels of a recording's still region,
+    against the APS brightness.
+
+    Parameters
+    ----------
+    ev : time-sorted events (t in us) of a sensor of ``shape`` (H, W).
+    aps : (N, H, W) APS frames in [0, 1] (linear) over the recording.
+    still_std : a pixel is still where its APS values' std over the frames
+        is below this, and so are those within ``erode_px`` pixels.
+    hot_factor : a still pixel is hot where its rate exceeds this many times
+        the mean rate of the other still pixels (iterated to a fixed point;
+        a Poisson count at the background's mean reaches it with negligible
+        probability at the rates of real sensors).
+    n_bins : brightness bins (quantiles of the still pixels' mean APS value).
+    mask : (H, W) bool still region to use instead (e.g. a real recording's,
+        to measure a simulation over the same pixels).
+
+    Returns
+    -------
+    dict: ``duration_s``; ``still_fraction``; ``ba_rate_hz`` (events per
+    non-hot still pixel per second) and ``ba_on_fraction``; ``hot_fraction``
+    (of the still pixels), ``hot_rate_hz`` (mean per hot pixel),
+    ``hot_on_fraction``, ``n_hot``; ``by_brightness``: per bin
+    {lum_lo, lum_hi, lum_mean, n_pixels, ba_rate_hz, ba_on_fraction}; and
+    gs2e's noise model fitted by polarity: leak events are ON at a constant
+    rate, shot noise half ON at ``shot 2 (1 - L)``, so the OFF events are half
+    the shot noise at the region's mean brightness ``lum_mean``:
+    ``leak_rate_hz``, ``shot_noise_rate_hz``, ``shot_noise_on_fraction`` (0.5).
+    ``_mask`` and ``_hot`` (arrays) are the pixels used.
+    """
+    import cv2
+
+    H, W = shape
+    aps = np.asarray(aps, np.float64)
+    if aps.ndim != 3 or aps.shape[1:] != (H, W):
+        raise InputError(f"APS frames of shape {aps.shape} do not match the sensor {W}x{H}")
+    if mask is None:
+        moving = (aps.std(axis=0) >= still_std).astype(np.uint8)
+        if erode_px > 0:
+            k = np.ones((2 * erode_px + 1, 2 * erode_px + 1), np.uint8)
+            moving = cv2.dilate(moving, k)
+        mask = moving == 0
+    dur_s = (int(ev.t[-1]) - int(ev.t[0])) * 1e-6 if len(ev) > 1 else float("nan")
+    pix = ev.y.astype(np.int64) * W + ev.x.astype(np.int64)
+    counts = np.bincount(pix, minlength=H * W).reshape(H, W).astype(np.float64)
+    on = np.bincount(pix, weights=ev.p.astype(np.float64), minlength=H * W).reshape(H, W)
+    rate = counts / dur_s
+    hot = np.zeros((H, W), bool)
+    for _ in range(20):
+        base = rate[mask & ~hot]
+        mean = float(base.mean()) if base.size else 0.0
+        new = mask & (rate > hot_factor * max(mean, 1.0 / dur_s))
+        if np.array_equal(new, hot):
+            break
+        hot = new
+    bg = mask & ~hot
+    lum = aps.mean(axis=0)
+    out = {"duration_s": dur_s, "still_fraction": float(mask.mean()), "still_std": still_std,
+           "erode_px": erode_px, "hot_factor": hot_factor,
+           "ba_rate_hz": float(rate[bg].mean()) if bg.any() else float("nan"),
+           "ba_on_fraction": float(on[bg].sum() / counts[bg].sum()) if counts[bg].sum() else float("nan"),
+           "n_hot": int(hot.sum()), "hot_fraction": float(hot.sum() / max(1, mask.sum())),
+           "hot_rate_hz": float(rate[hot].mean()) if hot.any() else 0.0,
+           "hot_on_fraction": float(on[hot].sum() / counts[hot].sum()) if counts[hot].sum() else float("nan")}
+    bins = []
+    if bg.any():
+        edges = np.unique(np.quantile(lum[bg], np.linspace(0, 1, n_bins + 1)))
+        which = np.clip(np.searchsorted(edges, lum, side="right") - 1, 0, len(edges) - 2)
+        for b in range(len(edges) - 1):
+            sel = bg & (which == b)
+            if not sel.any():
+                continue
+            n_ev = counts[sel].sum()
+            bins.append({"lum_lo": float(edges[b]), "lum_hi": float(edges[b + 1]),
+                         "lum_mean": float(lum[sel].mean()), "n_pixels": int(sel.sum()),
+                         "ba_rate_hz": float(rate[sel].mean()),
+                         "ba_on_fraction": float(on[sel].sum() / n_ev) if n_ev else float("nan")})
+    out["by_brightness"] = bins
+    # gs2e's noise model: leak events (ON, constant rate) plus shot noise at
+    # shot 2 (1 - L), half ON: the OFF events are half the shot noise
+    ba, q = out["ba_rate_hz"], out["ba_on_fraction"]
+    if np.isfinite(ba) and np.isfinite(q):
+        shot_emitted = min(ba, 2.0 * ba * (1.0 - q))
+        lum_bar = float(lum[bg].mean())
+        out.update(lum_mean=lum_bar, leak_rate_hz=float(ba - shot_emitted),
+                   shot_noise_rate_hz=float(shot_emitted / (2.0 * (1.0 - lum_bar))) if lum_bar < 1 else 0.0,
+                   shot_noise_on_fraction=0.5)
+    else:
+        out.update(lum_mean=float("nan"), leak_rate_hz=float("nan"), shot_noise_rate_hz=float("nan"),
+                   shot_noise_on_fraction=float("nan"))
+    out["_mask"], out["_hot"] = mask, hot
+    return out

@@ -17,6 +17,8 @@ LAYOUT_HELP = """layouts:
                   (+ colmap/ sparse model for points)
   nerf            transforms.json / transforms_train.json (NeRF, instant-ngp,
                   nerfstudio); SRC may be the json file
+  ecd             an Event Camera Dataset sequence: images.txt, groundtruth.txt
+                  (poses interpolated at the frames' times), calib.txt
 """
 
 

@@ -29,6 +29,11 @@ Layouts (``src`` is a folder unless said otherwise):
 ``nerf``
     ``transforms.json`` (or ``transforms_train.json``) of NeRF synthetic /
     instant-ngp / nerfstudio; ``src`` may also be the json file itself.
+``ecd``
+    An Event Camera Dataset sequence folder (``images.txt``, ``groundtruth.txt``,
+    ``calib.txt``; :mod:`gs2e.io.ecd`): the calibrated, distorted camera and
+    each frame's pose interpolated at its time; frames outside the ground
+    truth's span are left out. ``extra["sequential"] = True``.
 
 Every layout goes through the same steps: sort views by name (natural order),
 subsample to ``max_views`` evenly spaced views (first and last kept), read each
@@ -324,6 +329,13 @@ def _read_nerf(src: Path, cfg: dict) -> _Source:
     return _Source(sort_views(views), provenance=prov)
 
 
+def _read_ecd(src: Path, cfg: dict) -> _Source:
+    from gs2e.io.ecd import read_ecd_views
+
+    views, prov = read_ecd_views(src)
+    return _Source(views, extra={"sequential": True}, provenance=prov)
+
+
 _READERS = {
     "demo": _read_internal,
     "internal": _read_internal,
@@ -332,6 +344,7 @@ _READERS = {
     "mvimgnet": _read_mvimgnet,
     "dl3dv": _read_dl3dv,
     "nerf": _read_nerf,
+    "ecd": _read_ecd,
 }
 
 

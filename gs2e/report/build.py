@@ -197,6 +197,54 @@ def _real_video_part(sec: H.Section, bench: pd.DataFrame | None, real: pd.DataFr
     sec.add(H.table(real_vs_synthetic(bench, real)))
 
 
+def sim2real_table(dist: pd.DataFrame) -> pd.DataFrame:
+    """One row per metric, one column per variant: "distance (floor)"; the
+    real recording's and the best variant's values beside."""
+    rows = []
+    variants = list(dict.fromkeys(dist["variant"].astype(str)))
+    for metric, g in dist.groupby("metric", sort=False):
+        g = g.set_index("variant")
+        row = {"metric": metric, "real": g["real"].iloc[0]}
+        for v in variants:
+            if v in g.index:
+                d, f = g.at[v, "distance"], g.at[v, "floor"] if "floor" in g.columns else np.nan
+                row[v] = None if pd.isna(d) else f"{d:.3f} ({f:.3f})" if pd.notna(f) else f"{d:.3f}"
+        best = g["distance"].astype(float)
+        row["closest"] = best.idxmin() if best.notna().any() else None
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def _sim2real_part(sec: H.Section, results_dir: Path, scenes: list[str]) -> None:
+    found = False
+    for scene in scenes:
+        folder = results_dir / scene / "sim2real"
+        dist = R.read_sim2real(folder)
+        if dist is None:
+            continue
+        found = True
+        sec.add(H.paragraph(f"Sim-to-real on {scene} (bench.sim2real, gs2e bench-sim2real): the scene "
+                            "rebuilt from the recording's own frames and poses, simulated along the "
+                            "recorded camera path and compared with the real events over the same time. "
+                            "Each cell: the distance to the real events (0 = the same), in brackets "
+                            "its floor, the variant's distance to itself at another seed (no "
+                            "simulation with threshold mismatch gets closer to a real sensor's own "
+                            "mismatch map than about that). count_ratio |log N_sim/N_real|; "
+                            "on_fraction, edge_fraction absolute differences; count_corr(_pooled) "
+                            "1 - Pearson r of per-pixel counts per window (pooled 4x4); count_l1, "
+                            "rate_l1 L1 after matching the totals (2 = disjoint); iei_w1 "
+                            "1-Wasserstein distance of log10 inter-event intervals (decades). "
+                            "See gs2e.bench.sim2real."))
+        sec.add(H.table(sim2real_table(dist)))
+        png = folder / "sim2real.png"
+        if png.is_file():
+            sec.add(H.image(png.read_bytes(), f"{scene} sim-to-real",
+                            f"{scene}: real and simulated events, one window each, and the rates"))
+    if not found:
+        sec.add(H.paragraph("Not run here: sim-to-real on a real recording of a scene (bench.sim2real "
+                            "is not set for any scene; make sim2real runs it on slider_depth).", "meta"))
+
+
 def _by_speed(path: Path) -> tuple:
     """Sort key of a per-trajectory example strip (bench/<task>/<trajectory>.png):
     the speed presets in order (mild, medium, strong), then the name, then the
@@ -330,6 +378,7 @@ def build_report(results_dir: str | Path, real_events: str | Path | None = None,
                            f"{st['rate_meps']:.3g} M events/s, ON fraction {st['on_fraction']:.3f}, "
                            f"median per-pixel inter-event interval {st['iei_median_ms']:.3g} ms. "
                            "Drawn black and dashed in each scene's event statistics."))
+    _sim2real_part(rs, results_dir, all_scenes)
     sections.append(rs)
 
     shown = all_scenes[:cfg["max_scene_sections"]]

@@ -31,6 +31,11 @@ def read_bench_real(results_dir: Path) -> pd.DataFrame | None:
     return _read_parquet(Path(results_dir) / "bench_real.parquet")
 
 
+def read_sim2real(folder: Path) -> pd.DataFrame | None:
+    """A scene's sim-to-real distances (gs2e bench-sim2real), or None."""
+    return _read_parquet(Path(folder) / "distances.parquet")
+
+
 def read_summary(results_dir: Path) -> pd.DataFrame | None:
     return _read_parquet(Path(results_dir) / "summary.parquet")
 

@@ -77,3 +77,35 @@ rule bench_real:
         runtime=lambda wc, attempt: 30 * attempt,
     shell:
         "{GS2E} bench-real {input:q} --out {output:q} --config-json {params.cfg:q} 2> {log:q}"
+
+
+# Simulated against real events on a real recording of the scene (bench.sim2real:
+# an ECD sequence folder, the scene ingested with layout ecd): one job per scene.
+rule sim2real:
+    input:
+        model=res("{scene}", "splat"),
+        scene=res("{scene}", "sfm"),
+        recording=lambda wc: SCENE_CFG[wc.scene]["bench"]["sim2real"],
+    output:
+        report(directory(res("{scene}", "sim2real")), patterns=["sim2real.png"], category="Sim-to-real",
+               subcategory="{scene}", caption="../report/sim2real.rst", labels={"scene": "{scene}"}),
+    params:
+        cfg=lambda wc: section_json({"bench": {k: v for k, v in SCENE_CFG[wc.scene]["bench"].items()
+                                               if k.startswith("sim2real_")}}, "bench"),
+        events=stage_cfg("events"),
+        seed=lambda wc: derive_seed(SCENE_CFG[wc.scene]["seed"], wc.scene, "sim2real"),
+        code=code_version("sim2real"),
+    conda:
+        ENV
+    log:
+        res("{scene}", "logs", "sim2real.log"),
+    benchmark:
+        res("{scene}", "benchmarks", "sim2real.tsv")
+    threads: 1
+    resources:
+        mem_mb=lambda wc, attempt: 4000 * attempt,
+        runtime=lambda wc, attempt: 60 * attempt,
+    shell:
+        "{GS2E} bench-sim2real --model {input.model:q} --scene {input.scene:q}"
+        " --recording {input.recording:q} --out {output:q} --seed {params.seed}"
+        " --events-json {params.events:q} --config-json {params.cfg:q} 2> {log:q}"

@@ -97,7 +97,9 @@ def sweep_stale_temporaries():
 # so that listing one more trajectory does not rerun the others.
 # (bench.real_video*: the dataset-level bench_real job's, not a scene's)
 NOT_PARAMS = {"render": ("trajectories",), "export": ("formats",),
-              "bench": ("tasks", "real_video", "real_video_theta")}
+              "bench": ("tasks", "real_video", "real_video_theta", "sim2real", "sim2real_variants",
+                        "sim2real_fit", "sim2real_fps", "sim2real_window_ms", "sim2real_warmup_ms",
+                        "sim2real_aps_linear")}
 
 
 def stage_cfg(section):
@@ -203,9 +205,15 @@ BENCH = any(scene_bench(sid) for sid in SCENES)
 REAL_VIDEO = list(config["bench"]["real_video"])
 
 
+# Scenes with a real recording to compare with (bench.sim2real): their sim2real folders.
+SIM2REAL = [res(sid, "sim2real") for sid in SCENES if SCENE_CFG[sid]["bench"]["sim2real"]]
+
+
 def all_targets():
     """The dataset summary (which needs every scene's metrics and products),
     the HTML report, the configured exports and, with bench.tasks, the bench
-    table; with bench.real_video, the real recordings' table."""
+    table; with bench.real_video, the real recordings' table; with bench.sim2real,
+    the scene's sim-to-real folder."""
     return ([res("summary.parquet"), res("report.html")] + [p for sid in SCENES for p in scene_exports(sid)]
-            + ([res("bench.parquet")] if BENCH else []) + ([res("bench_real.parquet")] if REAL_VIDEO else []))
+            + ([res("bench.parquet")] if BENCH else []) + ([res("bench_real.parquet")] if REAL_VIDEO else [])
+            + SIM2REAL)

@@ -13,6 +13,8 @@ def report_inputs(wildcards):
         out["bench"] = res("bench.parquet")
     if REAL_VIDEO:
         out["bench_real"] = res("bench_real.parquet")
+    if SIM2REAL:
+        out["sim2real"] = SIM2REAL
     return out
 
 
