@@ -318,6 +318,8 @@ def _check_events(cfg: dict) -> None:
     if e["sampling"]["mode"] == "motion" and e["sampling"]["max_motion_px"] is None:
         raise ConfigError("events.sampling.mode=motion needs events.sampling.max_motion_px "
                           "(the largest image motion between samples, px)")
+    if e["theta_mismatch_sigma"] is not None and e["theta_mismatch_rel"] is not None:
+        raise ConfigError("events.theta_mismatch_sigma and events.theta_mismatch_rel are both set (set one)")
     if e["sensor"] == "custom":
         if not e["sensor_file"]:
             raise ConfigError("events.sensor=custom needs events.sensor_file (a sensor YAML)")
@@ -347,7 +349,7 @@ def _check_bench(cfg: dict) -> None:
         if not Path(path).exists():
             raise _missing(f"bench.real_video[{i}]", path)
     if b["sim2real"] is not None:
-        for f in ("events.txt", "groundtruth.txt", "calib.txt"):
+        for f in ("events.txt", "images.txt", "groundtruth.txt", "calib.txt"):
             if not (Path(b["sim2real"]) / f).is_file():
                 raise _missing("bench.sim2real", str(Path(b["sim2real"]) / f))
     # the sensors' names from the schema: importing the presets would put their values

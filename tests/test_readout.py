@@ -41,6 +41,19 @@ def _same(a: Events, b: Events) -> bool:
     return all(np.array_equal(getattr(a, k), getattr(b, k)) for k in "txyp")
 
 
+def test_chain_checks_before_it_runs():
+    ts, fr = _frames(n=5)
+    s = {"model": "ideal", "hot_pixel_fraction": 0.1, "hot_pixel_rate_hz": 5.0}
+    m, _ = make_model(s, (H, W), 0)
+    chain = SensorChain(m, resolve_readout(s)[0], 0)
+    with pytest.raises(InputError, match="start"):
+        chain.process_batch(ts[1:], fr[1:])
+    chain.start(int(ts[0]), fr[0])
+    with pytest.raises(InputError, match="integer"):
+        chain.process_batch(ts[1:] + 0.5, fr[1:])
+    assert len(chain.process_batch(ts[:0], fr[:0])) == 0
+
+
 def test_chain_off_is_the_model():
     ts, fr = _frames()
     m, _ = make_model({"model": "ideal", "theta_on": 0.2, "theta_off": 0.2}, (H, W), 3)

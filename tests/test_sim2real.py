@@ -97,18 +97,55 @@ def test_events_in_camera_undistorts():
 
 
 def test_variant_settings():
-    base = {"model": "voltmeter", "theta_on": 1.0, "theta_off": 1.0, "sensor": "dvxplorer"}
-    assert S.variant_settings("scene", base)["sensor"] is None
-    ideal = S.variant_settings("ideal", base)
-    assert ideal["model"] == "ideal" and ideal["theta_on"] == 0.2 and ideal["shot_noise_rate_hz"] == 0
-    d240 = S.variant_settings("davis240", base)
+    from gs2e.events.models import make_model
     from gs2e.events.sensors import SENSORS
 
+    base = {"model": "voltmeter", "theta_on": 1.0, "theta_off": 1.0, "sensor": "dvxplorer",
+            "theta_sampling": "uniform", "k3": 0.5, "refractory_us": 7.0}
+    assert S.variant_settings("scene", base) == base  # its sensor's noise included
+    ideal = S.variant_settings("ideal", base)
+    assert ideal["model"] == "ideal" and ideal["sensor"] is None and ideal["refractory_us"] is None
+    # a per-sequence threshold draw in the scene does not leak into a variant
+    _, info = make_model(ideal, (8, 8), 0)
+    assert info["theta_on_nominal"] == info["theta_off_nominal"] == 0.2
+    assert S.variant_settings("voltmeter", base)["k3"] is None
+    d240 = S.variant_settings("davis240", base)
     m = SENSORS["davis240"].extra["model"]
-    assert (d240["model"], d240["theta_on"], d240["theta_off"]) == (m["value"], m["theta_on"], m["theta_off"])
-    assert d240["theta_mismatch_sigma"] == pytest.approx(SENSORS["davis240"].theta_mismatch_rel.value * m["theta_on"])
+    assert (d240["model"], d240["preset"], d240["theta_on"], d240["theta_off"]) == \
+        (m["value"], m["preset"], m["theta_on"], m["theta_off"])
+    assert d240["sensor"] == "davis240" and d240["k3"] is None and d240["refractory_us"] is None
+    # the sensor's relative mismatch applies per polarity, as in the event stage
+    _, info = make_model(d240, (8, 8), 0)
+    rel = SENSORS["davis240"].theta_mismatch_rel.value
+    assert info["theta_mismatch_sigma"] == pytest.approx(rel * m["theta_on"])
+    assert info["theta_mismatch_sigma_off"] == pytest.approx(rel * m["theta_off"])
+    assert info["noise"]["refractory_us"] == SENSORS["davis240"].refractory_us.value
     with pytest.raises(ConfigError, match="nope"):
         S.variant_settings("nope", base)
+
+
+def test_fit_settings_and_fit_without_edges():
+    """A fit's trial has fixed thresholds, per-polarity relative mismatch and
+    no noise whatever the scene sets; fit_model runs without an edge map."""
+    from gs2e.events.models import make_model
+
+    scene = {"model": "voltmeter", "theta_sampling": "loguniform", "shot_noise_rate_hz": 3.0,
+             "theta_mismatch_sigma": 0.4, "sensor": "davis346", "preset": "gs2e_paper"}
+    s = S.fit_settings(scene, "voltmeter", 1.2, 0.8, 0.1, 50.0)
+    _, info = make_model(s, (8, 8), 0)
+    assert (info["theta_on_nominal"], info["theta_off_nominal"]) == (1.2, 0.8)
+    assert info["theta_mismatch_sigma"] == pytest.approx(0.12)
+    assert info["theta_mismatch_sigma_off"] == pytest.approx(0.08)
+    assert info["noise"]["shot_noise_rate_hz"] == 0 and s["preset"] == "dvs346"
+    H, W = 16, 24
+    ts = np.arange(0, 60001, 500, dtype=np.int64)
+    x = np.arange(W)[None, :]
+    fr = np.stack([np.broadcast_to(0.3 + 0.2 * np.sin(0.5 * x - 60 * t * 1e-6), (H, W)) for t in ts]
+                  ).astype(np.float32)
+    real = S.simulate_frames(S.fit_settings({}, "ideal", 0.25, 0.25, 0.0, 0.0), ts, fr, 3)
+    fit = S.fit_model("ideal", ts, fr, real, 10_000, 60_000, 10_000, {}, seed=3,
+                      mismatch_grid=(0.0, 0.1), refractory_grid=(0.0, 1000.0))
+    assert fit.theta_on == pytest.approx(0.25, rel=0.15) and math.isnan(fit.distances["edge_fraction"]["distance"])
 
 
 # ---------------------------------------------------------------- ECD scenes and paths
@@ -279,6 +316,8 @@ def test_sim2real_config_errors(tmp_path):
         load_config({"bench": {"sim2real": str(tmp_path)}})
     with pytest.raises(ConfigError, match="sim2real_variants"):
         load_config({"bench": {"sim2real_variants": ["davis999"]}})
+    with pytest.raises(ConfigError, match="theta_mismatch_rel"):
+        load_config({"events": {"theta_mismatch_sigma": 0.1, "theta_mismatch_rel": 0.1}})
     # the schema's sensor names (what the check reads) are the presets'
     from gs2e.config import load_schema
     from gs2e.events.sensors import SENSORS

@@ -218,12 +218,6 @@ def compare_events(sim: Events, real: Events, shape: tuple[int, int], t0_us: int
     return out
 
 
-def total_distance(d: dict) -> float:
-    """The sum of a comparison's distances (NaN when one is missing): what
-    the joint fit minimises."""
-    return float(sum(d[m]["distance"] for m in METRICS))
-
-
 # ---------------------------------------------------------------- simulation
 def simulate_frames(settings: dict, ts_us: np.ndarray, frames: np.ndarray, seed: int) -> Events:
     """All events of an in-memory frame sequence ((N,) int us, (N, H, W)
@@ -234,49 +228,64 @@ def simulate_frames(settings: dict, ts_us: np.ndarray, frames: np.ndarray, seed:
     return SensorChain(model, resolve_readout(settings)[0], int(seed)).simulate(ts_us, frames)
 
 
+# what every variant other than the scene's own sets: one threshold each, as given
+FIXED_THETA = {"theta_sampling": "fixed", "theta_on_off_independent": False}
+_VOLTMETER_K = {f"k{i}": None for i in range(1, 7)}
+
+
 def variant_settings(name: str, scene_events: dict) -> dict:
     """The ``events`` section of a named variant.
 
-    ``scene``: the scene's own section; ``ideal``: the ideal model at
-    threshold 0.2 (log units), no noise; ``voltmeter``: DVS-Voltmeter with
-    its DAVIS346 preset; a sensor name (:data:`gs2e.events.sensors.SENSORS`):
-    the scene's section with that sensor's pixel non-idealities and, where
-    the sensor has them, its fitted model and thresholds (the recording's
-    pixel array is kept: the comparison is pixel by pixel).
+    ``scene``: the scene's own section (its sensor's noise and readout
+    included); ``ideal``: the ideal model at threshold 0.2 (log units), no
+    noise; ``voltmeter``: DVS-Voltmeter with its DAVIS346 preset (``dvs346``,
+    its own k1..k6) at 1.0, no noise; a sensor name
+    (:data:`gs2e.events.sensors.SENSORS`): that sensor's pixel
+    non-idealities and readout parts and, where it has them, its fitted
+    model, preset and thresholds. Frames are already rendered, so a sensor's
+    pixel array changes nothing here: the comparison is pixel by pixel in
+    the recording's camera.
     """
-    from gs2e.events.sensors import NOISE_KEYS, SENSORS, get_sensor
+    from gs2e.events.sensors import NOISE_KEYS, READOUT_KEYS, SENSORS, get_sensor
 
-    base = {k: v for k, v in copy.deepcopy(scene_events).items()
-            if k not in ("sensor", "sensor_file", "max_duration_s")}
+    base = {k: v for k, v in copy.deepcopy(scene_events).items() if k != "max_duration_s"}
     if name == "scene":
-        return {**base, "sensor": None}
+        return base
+    quiet = {**{k: None for k in (*NOISE_KEYS, *READOUT_KEYS, "theta_mismatch_rel")},
+             "sensor": None, "sensor_file": None, **FIXED_THETA}
     if name == "ideal":
-        return {**base, "model": "ideal", "theta_on": 0.2, "theta_off": 0.2, "sensor": None,
-                **{k: (0.5 if k == "shot_noise_on_fraction" else 0.0) for k in NOISE_KEYS}}
+        return {**base, **quiet, "model": "ideal", "theta_on": 0.2, "theta_off": 0.2}
     if name == "voltmeter":
-        return {**base, "model": "voltmeter", "preset": "dvs346", "theta_on": 1.0, "theta_off": 1.0,
-                "sensor": None}
+        return {**base, **quiet, **_VOLTMETER_K, "model": "voltmeter", "preset": "dvs346",
+                "theta_on": 1.0, "theta_off": 1.0}
     if name not in SENSORS:
         raise ConfigError(f"bench.sim2real_variants: unknown variant '{name}' (choose from scene, "
                           f"ideal, voltmeter, {', '.join(SENSORS)})")
-    sensor = get_sensor({"sensor": name})
-    out = {**base, "sensor": None}
-    model = sensor.extra.get("model")
+    # the sensor's own values: config keys that would win over them are cleared
+    out = {**base, **quiet, "sensor": name}
+    model = get_sensor({"sensor": name}).extra.get("model")
     if model:
         out.update(model=model["value"], theta_on=model["theta_on"], theta_off=model["theta_off"])
-    nominal = float(out.get("theta_on", 1.0))
-    out["theta_mismatch_sigma"] = float(sensor.theta_mismatch_rel.value) * nominal
-    for k in ("refractory_us", "leak_rate_hz", "shot_noise_rate_hz", "shot_noise_on_fraction"):
-        out[k] = float(getattr(sensor, k).value)
+        if model["value"] == "voltmeter":
+            out.update(preset=model.get("preset", "dvs346"), **_VOLTMETER_K)
     return out
+
+
+def total_distance(d: dict) -> float:
+    """The sum of a comparison's finite distances: what the joint fit
+    minimises (a metric that cannot be computed, e.g. edges without an APS
+    frame, adds nothing)."""
+    v = [d[m]["distance"] for m in METRICS]
+    return float(sum(x for x in v if np.isfinite(x)))
 
 
 # ---------------------------------------------------------------- calibration
 @dataclass
 class FitResult:
     """An event model fitted to a recording: thresholds (the model's units),
-    the relative threshold mismatch, the refractory period (us) and the
-    distances at the fit; ``history`` lists every trial."""
+    the threshold mismatch relative to each polarity's threshold, the
+    refractory period (us) and the distances at the fit; ``history`` lists
+    every trial."""
 
     model: str
     theta_on: float
@@ -287,10 +296,25 @@ class FitResult:
     history: list = field(default_factory=list)
 
     def settings(self, base: dict) -> dict:
-        return {**base, "model": self.model, "sensor": None, "theta_on": self.theta_on,
-                "theta_off": self.theta_off,
-                "theta_mismatch_sigma": self.mismatch_rel * self.theta_on,
-                "refractory_us": self.refractory_us, "leak_rate_hz": 0.0, "shot_noise_rate_hz": 0.0}
+        return fit_settings(base, self.model, self.theta_on, self.theta_off, self.mismatch_rel,
+                            self.refractory_us)
+
+
+def fit_settings(base: dict, model: str, theta_on: float, theta_off: float, mismatch_rel: float,
+                 refractory_us: float) -> dict:
+    """The ``events`` section of one trial of a fit: ``base`` with the model,
+    fixed thresholds, relative mismatch and refractory period; no noise, no
+    sensor, no readout parts (a still-free recording pins none of them)."""
+    from gs2e.events.sensors import NOISE_KEYS, READOUT_KEYS
+
+    out = {**base, **{k: None for k in READOUT_KEYS}, **{k: 0.0 for k in NOISE_KEYS},
+           "shot_noise_on_fraction": 0.5, "sensor": None, "sensor_file": None, **FIXED_THETA,
+           "model": model, "theta_on": float(theta_on), "theta_off": float(theta_off),
+           "theta_mismatch_sigma": None, "theta_mismatch_rel": float(mismatch_rel),
+           "refractory_us": float(refractory_us)}
+    if model == "voltmeter":  # the DAVIS346 calibration of the public code, whatever the scene's
+        out.update(preset="dvs346", **_VOLTMETER_K)
+    return out
 
 
 NOMINAL_THETA = {"ideal": 0.2, "voltmeter": 1.0}  # where the threshold search is centred
@@ -300,8 +324,8 @@ def fit_model(model: str, ts_us: np.ndarray, frames: np.ndarray, real: Events, t
               window_us: int, base: dict, seed: int = 0, edges=None,
               theta_grid=None, ratio_grid=None, mismatch_grid=(0.0, 0.05, 0.1, 0.15, 0.2, 0.3),
               refractory_grid=(0.0, 100.0, 300.0, 1000.0, 3000.0, 10000.0)) -> FitResult:
-    """Fit ``model`` (``ideal``, or ``voltmeter`` with the preset of
-    ``base``) to real events of the same frames by coordinate search, one
+    """Fit ``model`` (``ideal``, or ``voltmeter`` with its ``dvs346`` preset)
+    to real events of the same frames by coordinate search, one
     parameter per distance it governs:
 
     1. the threshold scale (ON = OFF) to the event count (``count_ratio``);
@@ -324,9 +348,7 @@ def fit_model(model: str, ts_us: np.ndarray, frames: np.ndarray, real: Events, t
 
     def trial(scale, ratio, mis, refr):
         on, off = scale * math.sqrt(ratio), scale / math.sqrt(ratio)
-        s = {**base, "model": model, "sensor": None, "theta_on": on, "theta_off": off,
-             "theta_mismatch_sigma": mis * on, "refractory_us": refr, "leak_rate_hz": 0.0,
-             "shot_noise_rate_hz": 0.0}
+        s = fit_settings(base, model, on, off, mis, refr)
         d = compare_events(simulate_frames(s, ts_us, frames, seed), real, shape, t0_us, t1_us,
                            window_us, edges)
         history.append({"theta_scale": float(scale), "on_off_ratio": float(ratio),
@@ -352,7 +374,7 @@ def fit_model(model: str, ts_us: np.ndarray, frames: np.ndarray, real: Events, t
              for rf in sorted({0.0, refr / 3, refr, refr * 3} if refr else {0.0, 30.0, 100.0})
              for mi in sorted({max(0.0, mis - 0.05), mis, mis + 0.05})]
     totals = [total_distance(trial(sc, ratio, mi, rf)) for sc, rf, mi in joint]
-    scale, refr, mis = joint[int(np.nanargmin(totals))]
+    scale, refr, mis = joint[int(np.argmin(totals))]
     d = trial(scale, ratio, mis, refr)
     return FitResult(model, float(scale * math.sqrt(ratio)), float(scale / math.sqrt(ratio)), float(mis),
                      float(refr), d, history)

@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from gs2e.common.errors import InputError
 from gs2e.events import _kernels as K
 from gs2e.events.models import Events, TileBatch
 from gs2e.events.sensors import READOUT_KEYS
@@ -355,28 +356,39 @@ class SensorChain:
             ev = self.readout.process(ev, horizon)
         return ev
 
+    def _started(self) -> None:
+        if self._hot_t is None:
+            raise InputError(f"{self.model.source}: start() the sensor chain with a first frame")
+
     def process_batch(self, ts_us, frames) -> Events:
         if not self.cfg.any_on:
             return self.model.process_batch(ts_us, frames)
-        ts_us = np.asarray(ts_us, np.int64)
+        self._started()
+        ts_us, frames = self.model._check_frames(ts_us, frames)  # the model's own checks, first
+        if len(ts_us) == 0:
+            return Events.empty()
         if self.photo is not None:
-            frames = self.photo.filter(ts_us, np.asarray(frames))
-        self._t_last = int(ts_us[-1])
+            frames = self.photo.filter(ts_us, frames)
+        self._t_last = max(self._t_last, int(ts_us[-1]))
         return self._after(self.model.process_batch(ts_us, frames), self.model.horizon_us)
 
     def process_tiles(self, b: TileBatch) -> Events:
         if not self.cfg.any_on:
             return self.model.process_tiles(b)
+        self._started()
+        if len(b) == 0:
+            return self.model.process_tiles(b)
         if self.photo is not None:
             from gs2e.events.models import TILE
 
             b = self.photo.filter_tiles(b, TILE, self.shape[1])
-        self._t_last = int(np.max(b.t1_us))
+        self._t_last = max(self._t_last, int(np.max(b.t1_us)))
         return self._after(self.model.process_tiles(b), self.model.horizon_us)
 
     def flush(self) -> Events:
         if not self.cfg.any_on:
             return self.model.flush()
+        self._started()
         return self._after(self.model.flush(), None)
 
     def simulate(self, ts_us, frames) -> Events:

@@ -141,7 +141,7 @@ SENSORS: dict[str, Sensor] = {
         Sourced(0.01, _V2E + " (leak 0.01 Hz; the recording has no still region)"),
         Sourced(0.001, _V2E + " (shot noise 0.001 Hz)"),
         Sourced(0.5, "assumed: balanced ON/OFF background activity"),
-        {"model": {"value": "voltmeter", "theta_on": 1.791, "theta_off": 1.596,
+        {"model": {"value": "voltmeter", "preset": "dvs346", "theta_on": 1.791, "theta_off": 1.596,
                    "source": f"{_SLIDER}: DVS-Voltmeter with its DAVIS346 preset (k1..k6), the "
                              "closer of the ideal and voltmeter fits (sum of the distances)"}}),
     "dvxplorer": _sensor(
@@ -238,15 +238,21 @@ def resolve_noise(settings: "EventSettings | dict", theta_nominal: float) -> tup
     then the sensor's, then none (0; ON fraction 0.5).
 
     Returns (values, sources): ``values`` maps each key of :data:`NOISE_KEYS`
-    to a float (``theta_mismatch_sigma`` in the model's threshold units, the
-    sensor's relative mismatch x ``theta_nominal``); ``sources`` says where
-    each came from.
+    to a float (``theta_mismatch_sigma`` in the model's threshold units: the
+    config's, else the config's ``theta_mismatch_rel`` or the sensor's
+    relative mismatch x ``theta_nominal``); ``sources`` says where each came from.
     """
     cfg = event_settings(settings)
     sensor = get_sensor(cfg)
     values, sources = {}, {}
     for key, default in NOISE_KEYS.items():
-        if getattr(cfg, key) is not None:
+        if key == "theta_mismatch_sigma" and cfg.theta_mismatch_rel is not None:
+            if cfg.theta_mismatch_sigma is not None:
+                raise ConfigError("events.theta_mismatch_sigma and events.theta_mismatch_rel are both set "
+                                  "(set one)")
+            values[key] = float(cfg.theta_mismatch_rel) * float(theta_nominal)
+            sources[key] = "config (theta_mismatch_rel)"
+        elif getattr(cfg, key) is not None:
             values[key], sources[key] = float(getattr(cfg, key)), "config"
         elif sensor is not None:
             if key == "theta_mismatch_sigma":

@@ -61,6 +61,7 @@ class EventSettings:
     theta_range: tuple[float, float]
     theta_on_off_independent: bool
     theta_mismatch_sigma: float | None
+    theta_mismatch_rel: float | None
     refractory_us: float | None
     leak_rate_hz: float | None
     shot_noise_rate_hz: float | None
