@@ -54,6 +54,7 @@ import numpy as np
 
 from gs2e.common.errors import ConfigError, InputError
 from gs2e.events.models import Events, make_model
+from gs2e.events.represent import window_events
 
 log = logging.getLogger("gs2e.bench")
 
@@ -140,10 +141,11 @@ def edge_mask(img: np.ndarray, quantile: float = EDGE_QUANTILE) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- comparison
-def clip_events(ev: Events, t0_us: int, t1_us: int) -> Events:
-    """The events with t0_us <= t < t1_us (time-sorted input)."""
-    a, b = np.searchsorted(ev.t, [t0_us, t1_us], side="left")
-    return Events(ev.t[a:b], ev.x[a:b], ev.y[a:b], ev.p[a:b])
+def rate_bins(ev: Events, t0_us: int, t1_us: int) -> np.ndarray:
+    """Events per :data:`RATE_BIN_US` bin over [t0_us, t1_us) (the last bin may
+    be shorter; ``ev`` already within the span)."""
+    nb = max(1, -(-(t1_us - t0_us) // RATE_BIN_US))
+    return np.bincount(np.minimum((ev.t - t0_us) // RATE_BIN_US, nb - 1), minlength=nb)
 
 
 def count_maps(ev: Events, shape: tuple[int, int], t0_us: int, t1_us: int, window_us: int) -> np.ndarray:
@@ -182,7 +184,7 @@ def compare_events(sim: Events, real: Events, shape: tuple[int, int], t0_us: int
     """
     from scipy.stats import wasserstein_distance
 
-    sim, real = clip_events(sim, t0_us, t1_us), clip_events(real, t0_us, t1_us)
+    sim, real = window_events(sim, t0_us, t1_us), window_events(real, t0_us, t1_us)
     ns, nr = len(sim), len(real)
     nan = float("nan")
     out = {}
@@ -200,9 +202,7 @@ def compare_events(sim: Events, real: Events, shape: tuple[int, int], t0_us: int
     out["count_corr_pooled"] = {"sim": rp, "real": 1.0, "distance": 1.0 - rp}
     l1 = float(np.abs(cs * (nr / ns) - cr).sum() / nr) if ns and nr else nan
     out["count_l1"] = {"sim": l1, "real": 0.0, "distance": l1}
-    nb = max(1, -(-(t1_us - t0_us) // RATE_BIN_US))
-    rs = np.bincount(np.minimum((sim.t - t0_us) // RATE_BIN_US, nb - 1), minlength=nb)
-    rr = np.bincount(np.minimum((real.t - t0_us) // RATE_BIN_US, nb - 1), minlength=nb)
+    rs, rr = rate_bins(sim, t0_us, t1_us), rate_bins(real, t0_us, t1_us)
     rl1 = float(np.abs(rs / ns - rr / nr).sum()) if ns and nr else nan
     out["rate_l1"] = {"sim": rl1, "real": 0.0, "distance": rl1}
     ls, lr = _iei_log10(sim, shape[1]), _iei_log10(real, shape[1])
@@ -489,7 +489,7 @@ def run_sim2real(model_dir, scene_dir, ecd_folder, out_dir, scene_events: dict,
             add(f"fitted_{model}", fit.settings(scene_events))
         write_metrics(tmp / "distances.parquet", rows)
         summary = {"recording": str(ecd_folder), "t0_us": t0, "compared_from_us": tc, "t1_us": t1,
-                   "t_offset_us": off_us, "n_real": len(clip_events(real, tc, t1)), "n_frames": int(len(ts)),
+                   "t_offset_us": off_us, "n_real": len(window_events(real, tc, t1)), "n_frames": int(len(ts)),
                    "shape": [H, W], "aps_frame_us": int(rec.t_us[k]), "settings": asdict(settings),
                    "timings": timings,
                    "fits": {m: {k2: v for k2, v in asdict(f).items() if k2 != "history"}
@@ -521,7 +521,7 @@ def plot_sim2real(path, real: Events, sims: dict, shape, t0_us: int, t1_us: int,
     ax[0, 0].imshow(aps, cmap="gray", vmin=0, vmax=1)
     ax[0, 0].set_title("APS (undistorted)", fontsize=8)
     for i, (name, ev) in enumerate(panels, start=1):
-        e = clip_events(ev, a, b)
+        e = window_events(ev, a, b)
         img = np.ones((*shape, 3))
         on, off = e.p == 1, e.p == 0
         img[e.y[on], e.x[on]] = (0.85, 0.1, 0.1)
@@ -534,11 +534,9 @@ def plot_sim2real(path, real: Events, sims: dict, shape, t0_us: int, t1_us: int,
     for a_ in ax[1]:
         a_.remove()
     axr = fig.add_subplot(gs[1, :])
-    nb = max(1, -(-(t1_us - t0_us) // RATE_BIN_US))
-    tt = (t0_us + (np.arange(nb) + 0.5) * RATE_BIN_US) * 1e-3
     for name, ev in panels:
-        e = clip_events(ev, t0_us, t1_us)
-        r = np.bincount(np.minimum((e.t - t0_us) // RATE_BIN_US, nb - 1), minlength=nb)
+        r = rate_bins(window_events(ev, t0_us, t1_us), t0_us, t1_us)
+        tt = (t0_us + (np.arange(len(r)) + 0.5) * RATE_BIN_US) * 1e-3
         axr.plot(tt, r / (RATE_BIN_US * 1e-6) / 1e6, lw=2.0 if name == "real" else 1.0,
                  color="k" if name == "real" else None, label=name)
     if compared_from_us is not None:

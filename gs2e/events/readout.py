@@ -126,22 +126,21 @@ class Photoreceptor:
     def __init__(self, cutoff_hz: float, dark_fraction: float):
         self.cutoff_hz, self.dark = float(cutoff_hz), float(dark_fraction)
         self.y = self.x = None
-        self.t_us = None
+        self.t_us = None  # of the last whole frame (tile intervals carry their own times)
 
     def start(self, t_us: int, frame: np.ndarray) -> np.ndarray:
         self.x = np.asarray(frame, np.float64).copy()
         self.y = self.x.copy()  # at rest: the output equals the input
-        self.t_us = np.full(frame.shape, int(t_us), np.int64)
+        self.t_us = int(t_us)
         return frame
 
     def filter(self, ts_us, frames) -> np.ndarray:
         out = np.empty_like(frames)
         for i, (t, f) in enumerate(zip(ts_us, frames)):
             x1 = np.asarray(f, np.float64)
-            dt = int(t) - int(self.t_us.flat[0])
-            self.y = lowpass_step(self.y, self.x, x1, dt, self.cutoff_hz, self.dark)
+            self.y = lowpass_step(self.y, self.x, x1, int(t) - self.t_us, self.cutoff_hz, self.dark)
             self.x, out[i] = x1, self.y
-            self.t_us[...] = int(t)
+            self.t_us = int(t)
         return out
 
     def filter_tiles(self, b: TileBatch, tile: int, width: int) -> TileBatch:
@@ -364,13 +363,13 @@ class SensorChain:
         if not self.cfg.any_on:
             return self.model.process_batch(ts_us, frames)
         self._started()
-        ts_us, frames = self.model._check_frames(ts_us, frames)  # the model's own checks, first
         if len(ts_us) == 0:
             return Events.empty()
-        if self.photo is not None:
-            frames = self.photo.filter(ts_us, frames)
-        self._t_last = max(self._t_last, int(ts_us[-1]))
-        return self._after(self.model.process_batch(ts_us, frames), self.model.horizon_us)
+        if self.photo is not None:  # bad frames filter to bad frames, which the model rejects
+            frames = self.photo.filter(ts_us, np.asarray(frames))
+        ev = self.model.process_batch(ts_us, frames)
+        self._t_last = self.model.t_prev
+        return self._after(ev, self.model.horizon_us)
 
     def process_tiles(self, b: TileBatch) -> Events:
         if not self.cfg.any_on:

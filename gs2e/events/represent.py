@@ -10,7 +10,8 @@ import numpy as np
 from gs2e.events.models import Events
 
 
-def _window(ev: Events, t0_us: int | None, t1_us: int | None) -> Events:
+def window_events(ev: Events, t0_us: int | None, t1_us: int | None) -> Events:
+    """The events with t0_us <= t < t1_us of a time-sorted stream (None: open end)."""
     if t0_us is None and t1_us is None:
         return ev
     i0 = 0 if t0_us is None else int(np.searchsorted(ev.t, t0_us, side="left"))
@@ -25,7 +26,7 @@ def event_frame(ev: Events, shape: tuple[int, int], t0_us: int | None = None,
     mode "counts": (2, H, W) int32, [0] OFF counts, [1] ON counts;
     mode "signed": (H, W) int32, ON minus OFF.
     """
-    e = _window(ev, t0_us, t1_us)
+    e = window_events(ev, t0_us, t1_us)
     H, W = shape
     idx = e.y.astype(np.int64) * W + e.x.astype(np.int64)
     if mode == "counts":
@@ -42,7 +43,7 @@ def voxel_grid(ev: Events, shape: tuple[int, int], n_bins: int, t0_us: int | Non
     """(n_bins, H, W) float32 voxel grid (Zhu et al. 2019): each event adds its
     polarity (+1 ON, -1 OFF) to the two nearest time bins with linear weights,
     time normalised so t0 -> bin 0 and t1 -> bin n_bins - 1."""
-    e = _window(ev, t0_us, t1_us)
+    e = window_events(ev, t0_us, t1_us)
     H, W = shape
     if len(e) == 0:
         return np.zeros((n_bins, H, W), np.float32)
@@ -147,7 +148,7 @@ def write_preview(path, frames: Iterable[tuple[int, np.ndarray]], ev: Events, fp
             if pw is None:
                 pw = PreviewWriter(path, f.shape, fps, every)
             if prev_t is not None:
-                pw.add(f, _window(ev, prev_t, t))
+                pw.add(f, window_events(ev, prev_t, t))
             prev_t = t
         n = pw.written if pw else 0
     except BaseException:
