@@ -20,7 +20,7 @@ DEMO_CONFIG := $(if $(wildcard $(REAL_EVENTS))$(REAL_VIDEO_FOUND),--config) \
 	$(if $(wildcard $(REAL_EVENTS)),'metrics={real_events: $(abspath $(REAL_EVENTS))}',) \
 	$(if $(REAL_VIDEO_FOUND),'bench={real_video: [$(subst $(space),$(comma)$(space),$(REAL_VIDEO_FOUND))]}',)
 
-.PHONY: setup demo test test-slow test-all bench finetune sim2real dryrun clean-results help
+.PHONY: setup demo test test-slow test-all bench finetune sim2real table1 dryrun clean-results help
 
 help:
 	@echo "make demo      - set up .venv and run the workflow on the built-in demo scene"
@@ -29,6 +29,7 @@ help:
 	@echo "make bench     - quick benchmarks (benchmarks/*.py --quick)"
 	@echo "make finetune  - PIE-Net-Lite fine-tuned on gs2e data of four scenes, scored before and after"
 	@echo "make sim2real  - simulated against real events on ECD slider_depth; DAVIS346 background refit"
+	@echo "make table1    - the paper's Table 1 (event-based 3DGS by speed) on three real scenes"
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -84,6 +85,14 @@ SIM2REAL_DATA ?= results/sim2real_data
 sim2real: $(STAMP)
 	$(BIN)/snakemake --cores $(CORES) --configfile config/config.yaml --config scenes=config/sim2real.tsv results_dir=$(SIM2REAL_DATA) -- $(SIM2REAL_DATA)/slider_depth/sim2real
 	$(BIN)/python benchmarks/bench_sim2real.py --root $(SIM2REAL_DATA)
+
+# temple_ring, llff_fern and mouse_colmap at DAVIS346 with recon3d on each speed
+# (config/table1.tsv, about 2 h on 2 cores), then the table from the workflow's own
+# recon3d jobs through benchmarks/bench_tasks.py.
+TABLE1_DATA ?= results/table1_data
+table1: $(STAMP)
+	$(BIN)/snakemake --cores $(CORES) --configfile config/config.yaml --config scenes=config/table1.tsv results_dir=$(TABLE1_DATA)
+	$(BIN)/python benchmarks/bench_tasks.py --part recon3d --scenes temple_ring,llff_fern,mouse_colmap --results $(TABLE1_DATA)
 
 dryrun: $(STAMP)
 	$(BIN)/snakemake -n --cores $(CORES)

@@ -20,7 +20,9 @@ gs2e modules their string constants name (lazy import tables: ``module`` or
 the dispatcher's list of the other stages' CLI modules, which ``gs2e`` imports only to declare their subcommands'
 arguments. No list is kept by hand, so a new import is covered the moment it is
 written (tests/test_codeversion.py runs each stage and checks that every gs2e
-module it loaded is covered).
+module it loaded is covered). The installed versions of the few other
+packages that ship results of their own (network weights, :data:`VERSIONED`)
+join the hash of the stages that import them.
 """
 
 from __future__ import annotations
@@ -59,6 +61,10 @@ STAGE_ENTRY: dict[str, str] = {
 COMMAND_ROOTS = ("gs2e.__main__", "gs2e.cli")
 # Its string constants name the stage CLIs it registers: not imports of a stage.
 DISPATCHER = "gs2e.cli"
+# Other packages whose version changes a stage's results beyond rounding (shipped
+# network weights): {import name: distribution}. Their installed version joins the
+# code version of every stage that imports them; numpy, torch and the like do not.
+VERSIONED = {"pie_net": "event-pienet"}
 
 _MODULE_NAME = re.compile(r"^[A-Za-z_]\w*(\.[A-Za-z_]\w*)*$")
 
@@ -149,8 +155,14 @@ def import_closure(roots: tuple[str, ...], pkg: Path | None = None) -> dict[str,
     packages: {module name: source file}. A root ``module:function`` follows
     only what that function of the module runs (see :func:`_entry_nodes`); a
     package reached only as a submodule's parent, only its module level."""
+    return _closure(roots, pkg)[0]
+
+
+def _closure(roots: tuple[str, ...], pkg: Path | None = None) -> tuple[dict[str, Path], set[str]]:
+    """(:func:`import_closure`, the top-level names of the other packages it imports)."""
     pkg = PKG if pkg is None else pkg
     modules = package_modules(pkg)
+    external: set[str] = set()
     found: dict[str, Path] = {}
     partial: set[str] = set()  # modules followed for one function only so far
     todo = list(roots)
@@ -160,6 +172,8 @@ def import_closure(roots: tuple[str, ...], pkg: Path | None = None) -> dict[str,
             continue
         f = modules.get(name)
         if f is None:
+            if name.partition(".")[0] != ROOT:
+                external.add(name.partition(".")[0])
             continue
         found[name] = f
         if function:
@@ -172,7 +186,7 @@ def import_closure(roots: tuple[str, ...], pkg: Path | None = None) -> dict[str,
         todo.extend(f"{'.'.join(parts[:i])}:{ON_THE_WAY}" for i in range(1, len(parts)))
         st = f.stat()
         todo.extend(_file_imports(f, (st.st_mtime_ns, st.st_size), name, function))
-    return found
+    return found, external
 
 
 def stage_modules(stage: str, pkg: Path | None = None) -> dict[str, Path]:
@@ -182,14 +196,36 @@ def stage_modules(stage: str, pkg: Path | None = None) -> dict[str, Path]:
     return import_closure(COMMAND_ROOTS + (STAGE_ENTRY[stage],), pkg)
 
 
+def _dist_version(dist: str) -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(dist)
+    except PackageNotFoundError:
+        return "absent"
+
+
+def stage_distributions(stage: str) -> dict[str, str]:
+    """{distribution: installed version} of the :data:`VERSIONED` packages the
+    stage's import closure imports."""
+    if stage not in STAGE_ENTRY:
+        raise KeyError(f"unknown stage '{stage}'")
+    external = _closure(COMMAND_ROOTS + (STAGE_ENTRY[stage],))[1]
+    return {VERSIONED[m]: _dist_version(VERSIONED[m]) for m in sorted(external & set(VERSIONED))}
+
+
 @functools.lru_cache(maxsize=None)
 def code_version(stage: str) -> str:
     """Short sha256 over the source files of the stage's import closure
-    (path relative to the package + content, in path order)."""
+    (path relative to the package + content, in path order) and the installed
+    versions of the :data:`VERSIONED` packages it imports."""
     h = hashlib.sha256()
     for f in sorted(stage_modules(stage).values()):
         h.update(str(f.relative_to(PKG)).encode())
         h.update(b"\0")
         h.update(f.read_bytes())
+        h.update(b"\0")
+    for dist, ver in stage_distributions(stage).items():
+        h.update(f"{dist}=={ver}".encode())
         h.update(b"\0")
     return h.hexdigest()[:16]

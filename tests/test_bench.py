@@ -230,3 +230,18 @@ def test_report_bench_tables_follow_the_papers_layout():
     assert list(tab.columns) == ["events", "method", "mild", "medium", "strong"]
     assert tab.iloc[1]["strong"] == "29.00 / 0.900"
     assert tab.iloc[-1]["method"].startswith("motion")
+
+
+def test_report_recon3d_table_shows_cost_and_the_fewest_held_out_frames():
+    from gs2e.bench.summary import summarise
+    from gs2e.report.build import bench_tables
+
+    rows = []
+    for scene, n_held in (("a", 9), ("b", 12)):
+        for preset in ("mild", "strong"):
+            for r in _rows("recon3d", "event_only", [20.0] * n_held, [0.1] * n_held):
+                rows.append({**r, "scene_id": scene, "preset": preset, "trajectory": f"base_{preset}",
+                             "mse_raw": 0.01, "psnr_rgb": 20.0, "cpu_s": 120.0, "n_gaussians": 10})
+    tab = bench_tables(pd.DataFrame(summarise(pd.DataFrame(rows))))["recon3d"]
+    assert tab.iloc[-2]["method"] == "event_only: CPU-minutes" and tab.iloc[-2]["mild"] == "2.0"
+    assert tab.iloc[-1]["method"].startswith("held-out frames") and tab.iloc[-1]["strong"] == "9"

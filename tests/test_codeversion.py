@@ -217,3 +217,24 @@ def test_an_edit_reruns_the_stages_that_load_it(tmp_path):
     # every command loads gs2e.config, which checks trajectory.velocity by parsing it
     for rel in ("common/__init__.py", "config.py", "trajectory/velocity.py"):
         assert edit_and_diff(rel) == set(stages)
+
+
+def test_the_installed_pienet_version_is_part_of_the_learned_stages_versions(monkeypatch):
+    """Another release of event-pienet (other weights) reruns the stages that
+    import it, and no other; a stage's code version names nothing not installed."""
+    import gs2e.codeversion as cv
+
+    assert cv.stage_distributions("bench") == {"event-pienet": cv._dist_version("event-pienet")}
+    assert cv.stage_distributions("sfm") == {}
+    before = {s: cv.code_version(s) for s in STAGE_ENTRY}
+    monkeypatch.setattr(cv, "_dist_version", lambda dist: "0.0.0-other")
+    cv.code_version.cache_clear()
+    try:
+        after = {s: cv.code_version(s) for s in STAGE_ENTRY}
+    finally:
+        monkeypatch.undo()
+        cv.code_version.cache_clear()
+    changed = {s for s in STAGE_ENTRY if after[s] != before[s]}
+    assert "bench" in changed and "bench_real" in changed
+    assert not changed & {"ingest", "sfm", "train", "trajectory", "render", "events", "windows", "export"}
+    assert cv._dist_version("surely-not-a-distribution-gs2e") == "absent"

@@ -46,7 +46,12 @@ from the 3 nearest neighbours (3DGS's rule).
 Evaluation: every ``test_every``-th usable frame (offset by half; a smaller
 step on short trajectories, so that at least 3 frames are held out) is held
 out: its sharp and blurred images are never trained on (its events stay in
-the stream, as in EventNeRF's evaluation). Renders at its pose are scored
+the stream, as in EventNeRF's evaluation). On a path travelled back and
+forth (``trajectory.min_duration_s``) the frames are held out by position
+instead (:func:`split_by_position`): every ``test_every``-th piece of the
+path, on every leg; a training frame whose exposure sweeps through a
+held-out piece gives ``event_blur`` no blurred image (its sharp image at its
+own pose stays a ``sharp`` training frame). Renders at its pose are scored
 on luminance (events carry no colour) after the literature's per-image
 correction for what events cannot observe (Robust e-NeRF / Deblur e-NeRF,
 Low & Lee 2023: an affine map of predicted log luminance, a log Y + b,
@@ -91,6 +96,8 @@ VARIANTS = ("event_only", "event_blur", "sharp")
 POSITION_LR = {"lr_position_init": 1.6e-3, "lr_position_final": 1.6e-5}
 # one blur sub-frame per this much image motion over the exposure (rendered px)
 BLUR_PX_PER_SUBFRAME = 2.0
+# poses along an exposure checked against the held-out pieces of a back-and-forth path
+EXPOSURE_POSES = 33
 
 
 @dataclass(frozen=True)
@@ -137,7 +144,7 @@ class Recon3dData:
     exposure_us: np.ndarray  # (F,)
     motion_px: np.ndarray  # (F,) median image motion over each exposure (px; NaN unknown)
     sharp: dict[int, torch.Tensor]  # train + test frames
-    blurred: dict[int, torch.Tensor]  # train frames (when blurred frames exist)
+    blurred: dict[int, torch.Tensor]  # train frames whose blur may be trained on (when blurred)
 
 
 # ------------------------------------------------------------------ losses
@@ -334,6 +341,7 @@ class _EventWindows:
         self.data, self.s, self.rng, self.bg, self.blur = data, s, rng, bg, blur
         self.render = functools.partial(render, backend=s.backend, grad_dtype=dtype)
         self.blurred = _Targets(data.blurred)
+        self.blur_frames = sorted(data.blurred)
         self.window = (0.0, 0.0)
 
     def step(self, p, it: int, downscale: int, sh_degree: int) -> Step:
@@ -349,7 +357,7 @@ class _EventWindows:
         img_a = self.render(p, _camera(d, pose[0], downscale), bg, sh_degree)[0]
         loss = event_loss(img_a, img_b, window_step_sum(d, t_a, t_b, downscale), d.log_eps)
         if self.blur:
-            j = d.train_idx[int(self.rng.integers(len(d.train_idx)))]
+            j = self.blur_frames[int(self.rng.integers(len(self.blur_frames)))]
             E = float(d.exposure_us[j])
             dsb = max(downscale, s.blur_downscale)
             k = blur_subframes(float(d.motion_px[j]) / dsb, s.blur_subframes)
@@ -372,7 +380,8 @@ def train_variant(variant: str, data: Recon3dData, s: Recon3dSettings,
     if variant != "event_only" and not data.train_idx:
         raise InputError(f"recon3d {variant}: no training frames")
     if variant == "event_blur" and not data.blurred:
-        raise InputError("recon3d event_blur: the trajectory has no blurred frames (render.write_blur)")
+        raise InputError("recon3d event_blur: no blurred training frames (render.write_blur off, or "
+                         "every exposure sweeps through a held-out piece of a back-and-forth path)")
     rng = np.random.default_rng(s.seed)
     gen = torch.Generator().manual_seed(s.seed)
     bg = torch.zeros(3) if background is None else background
@@ -435,6 +444,38 @@ def split_frames(usable: list[int], test_every: int, min_test: int = 3) -> tuple
     return [i for i in usable if i not in held], test
 
 
+def in_held_out_piece(position: np.ndarray, test_every: int, frames_per_leg: float) -> np.ndarray:
+    """Whether each position along one leg (in [0, 1], any shape) lies in a
+    held-out piece: the leg is cut into ``n = test_every * max(1,
+    round(frames_per_leg / test_every))`` pieces of equal arc length (about
+    one frame's travel each) and every ``test_every``-th piece, starting at
+    half that step, is held out."""
+    n = test_every * max(1, int(round(frames_per_leg / test_every)))
+    piece = np.minimum(n - 1, np.floor(np.clip(position, 0.0, 1.0) * n).astype(np.int64))
+    return piece % test_every == test_every // 2
+
+
+def split_by_position(usable: list[int], position: np.ndarray, test_every: int,
+                      frames_per_leg: float) -> tuple[list[int], list[int]]:
+    """(train, test) frame indices of a path travelled back and forth: a frame
+    whose pose lies in a held-out piece (:func:`in_held_out_piece`) is held
+    out, on every leg. So no sharp training image is taken inside a held-out
+    piece on any leg (an every-n-th rule would hold out frames whose poses
+    the other legs' training frames revisit).
+
+    Parameters
+    ----------
+    usable : frame indices.
+    position : (len(usable),) each frame's position along one leg, in [0, 1].
+    test_every : one held-out piece in this many.
+    frames_per_leg : frames one leg spans (its duration x the frame rate).
+    """
+    if test_every <= 0 or len(usable) < 2:
+        return list(usable), []
+    held = in_held_out_piece(np.asarray(position), test_every, frames_per_leg)
+    return ([i for i, h in zip(usable, held) if not h], [i for i, h in zip(usable, held) if h])
+
+
 # ------------------------------------------------------------------ the task
 def recon3d_data(ds: Dataset, settings) -> "object":
     """The trajectory's training data and held-out frames (gs2e.bench.recon3d)."""
@@ -451,7 +492,24 @@ def recon3d_data(ds: Dataset, settings) -> "object":
     if len(usable) < 2 or hi - lo <= 0:
         raise InputError(f"{ds.frames_dir}: recon3d needs at least 2 frames inside the simulated "
                          f"events ({ds.sim_span_us[0]}..{ds.sim_span_us[1]} us), found {len(usable)}")
-    train, test = split_frames(usable, settings.test_every)
+    blur_train = None
+    if len(traj.turns_us) and traj.meta.get("leg_duration_us"):
+        # back and forth: hold out by position, so that no leg trains where another is scored
+        L, s0 = float(traj.s.max() - traj.s.min()), float(traj.s.min())
+        fps = 1e6 / float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+        per_leg = float(traj.meta["leg_duration_us"]) * 1e-6 * fps
+        pos = (traj.arc_length_at(t[usable]) - s0) / max(L, 1e-300)
+        train, test = split_by_position(usable, pos, settings.test_every, per_leg)
+        if has_blur and test:
+            # a blurred frame whose exposure sweeps through a held-out piece would show
+            # the held-out views (smeared): not trained on (EXPOSURE_POSES poses checked)
+            u = np.linspace(-0.5, 0.5, EXPOSURE_POSES)
+            ts = np.clip(t[train, None] + E[train, None] * u[None], lo, hi)
+            swept = in_held_out_piece((traj.arc_length_at(ts.ravel()) - s0) / max(L, 1e-300),
+                                      settings.test_every, per_leg).reshape(ts.shape).any(axis=1)
+            blur_train = [i for i, sw in zip(train, swept) if not sw]
+    else:
+        train, test = split_frames(usable, settings.test_every)
     if not test:
         raise InputError(f"{ds.frames_dir}: recon3d holds out no frame (bench.recon3d_test_every)")
     H, W = ds.shape
@@ -459,8 +517,8 @@ def recon3d_data(ds: Dataset, settings) -> "object":
     x, y = ev.x[i0:i1].astype(np.int64), ev.y[i0:i1].astype(np.int64)
     steps = log_steps(ev.p[i0:i1], x, y, ds.theta_on, ds.theta_off)
     sharp = {i: torch.from_numpy(np.asarray(ds.image("rgb", i), np.float32)) for i in train + test}
-    blurred = ({i: torch.from_numpy(np.asarray(ds.image("blur", i), np.float32)) for i in train}
-               if has_blur else {})
+    blurred = ({i: torch.from_numpy(np.asarray(ds.image("blur", i), np.float32))
+                for i in (train if blur_train is None else blur_train)} if has_blur else {})
     c2w = np.stack([np.asarray(c, np.float64) for c in f["c2w"]])
     motion = np.array([motion_px(f.iloc[i]) for i in range(len(f))], np.float64)
     speed = motion[usable] / np.maximum(E[usable], 1.0)  # px per us over each exposure
@@ -484,8 +542,9 @@ def run(ds: Dataset, cfg, user: dict[str, Callable]):
     f = ds.frames
     t_first = int(f["t_us"].iloc[data.train_idx[0] if data.train_idx else 0])
     example = data.test_idx[len(data.test_idx) // 2]
-    log.info("recon3d: %d training frames, %d held out, %d events over %.2f s", len(data.train_idx),
-             len(data.test_idx), len(data.ev_t), (data.span_us[1] - data.span_us[0]) * 1e-6)
+    log.info("recon3d: %d training frames (%d with their blur), %d held out, %d events over %.2f s",
+             len(data.train_idx), len(data.blurred), len(data.test_idx), len(data.ev_t),
+             (data.span_us[1] - data.span_us[0]) * 1e-6)
     rows, shown = [], {}
     for variant in s.variants:
         p, st = train_variant(variant, data, s)

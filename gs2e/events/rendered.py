@@ -224,14 +224,18 @@ class RenderedSource:
         return int(min(sc.dt_max_us, max(sc.dt_min_us, 1e6 / sc.fixed_fps)))
 
     def motion_clock(self) -> Iterator[int]:
-        """Sample times after t0 of mode ``motion`` (:func:`motion_times`)."""
+        """Sample times after t0 of mode ``motion`` (:func:`motion_times`), one
+        clock per span between the path's turns (a turn is always sampled: a
+        step across it would measure the motion out and back as none)."""
         sc = self.sc
-        times = motion_times(lambda t: self.renderer.centres(self.pose_at(t)), image_motion_px,
-                             self.t0_us, self.t1_us, float(sc.max_motion_px),
-                             int(sc.dt_min_us), int(sc.dt_max_us), self._first_step_us(),
-                             self.stats)
-        next(times)
-        return times
+        edges = self.traj.monotone_spans(self.t0_us, self.t1_us).astype(np.int64)
+        for a, b in zip(edges[:-1], edges[1:]):
+            times = motion_times(lambda t: self.renderer.centres(self.pose_at(t)), image_motion_px,
+                                 int(a), int(b), float(sc.max_motion_px),
+                                 int(sc.dt_min_us), int(sc.dt_max_us), self._first_step_us(),
+                                 self.stats)
+            next(times)
+            yield from times
 
     def _adaptive_frames(self):
         cache: dict[int, np.ndarray] = {}
@@ -244,16 +248,21 @@ class RenderedSource:
         sc = self.sc
         dt0 = self._first_step_us()
         first = np.log(self.luminance.astype(np.float64) + self.log_eps)  # start() rendered t0
-        gen = adaptive_samples(render_log, self.t0_us, self.t1_us, self.bound, int(sc.dt_min_us),
-                               int(sc.dt_max_us), dt0, self.stats, float(sc.outlier_fraction),
-                               first_log=first)
-        next(gen)
-        self.stats.accepted -= 1  # start() counted t0
-        for t, _ in gen:
-            lum = cache.pop(t)
-            for k in [k for k in cache if k < t]:
-                del cache[k]
-            yield t, lum
+        # one clock per span between the path's turns: a step across a turn would
+        # compare two near-identical frames and miss the way out and back
+        edges = self.traj.monotone_spans(self.t0_us, self.t1_us).astype(np.int64)
+        for a, b in zip(edges[:-1], edges[1:]):
+            gen = adaptive_samples(render_log, int(a), int(b), self.bound, int(sc.dt_min_us),
+                                   int(sc.dt_max_us), dt0, self.stats, float(sc.outlier_fraction),
+                                   first_log=first)
+            next(gen)
+            self.stats.accepted -= 1  # start() or the previous span counted its first time
+            for t, log_frame in gen:
+                first = log_frame
+                lum = cache.pop(t)
+                for k in [k for k in cache if k < t]:
+                    del cache[k]
+                yield t, lum
 
     def _tile_batches(self) -> Iterator[TileBatch]:
         b = self._first_batch

@@ -94,8 +94,12 @@ def render_dataset(model_dir: str | Path, trajectory_path: str | Path, out_dir: 
             if cfg["write_blur"]:
                 ta = max(float(r.t0_us), t - E / 2)
                 tb = min(float(r.t1_us), t + E / 2)
-                motion = (pixel_motion_px(centres, r.pose(ta), r.pose(tb), r.K, r.width, r.height,
-                                          MOTION_PERCENTILES) if tb > ta else np.zeros(3))
+                # summed over the spans between turns: a back-and-forth path may reverse
+                # within the exposure, and its ends alone would hide the way out and back
+                spans = r.traj.monotone_spans(ta, tb)
+                motion = (sum(pixel_motion_px(centres, r.pose(a), r.pose(b), r.K, r.width, r.height,
+                                              MOTION_PERCENTILES) for a, b in zip(spans[:-1], spans[1:]))
+                          if tb > ta else np.zeros(3))
                 n_sub = subframes_needed(float(motion[2]), cfg["blur_max_step_px"], cfg["blur_max_subframes"])
                 if n_sub == 1:
                     blur = rgb

@@ -151,6 +151,11 @@ def bench_tables(bench: pd.DataFrame) -> dict[str, pd.DataFrame]:
                     v = m[m["preset"] == sp]["cpu_min"]
                     cost[sp] = f"{v.mean():.1f}" if v.notna().any() else None
                 extra.append(cost)
+            held = {"events": "", "method": "held-out frames (fewest of a scene's)"}
+            for sp in speeds:
+                v = g[g["preset"] == sp]["n_frames"]
+                held[sp] = f"{int(v.min())}" if v.notna().any() else None
+            extra.append(held)
         out[str(task)] = pd.DataFrame(rows + [motion] + extra)
     return out
 

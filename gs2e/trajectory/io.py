@@ -77,7 +77,7 @@ def write_outputs(out_dir: str | os.PathLike, result, cfg: dict, scene_dir: str,
                 "duration_us": tr.duration_us, "length": tr.length,
                 "max_rel_step_error": m.get("max_rel_step_error"),
                 "max_rel_step_error_chord": m.get("max_rel_step_error_chord"),
-                "width": tr.width, "height": tr.height,
+                "width": tr.width, "height": tr.height, "legs": m.get("legs", 1.0),
             })
         if plot:
             from gs2e.trajectory.plot import plot_scene

@@ -34,7 +34,8 @@ def preset_lines(trajs: dict) -> list[str]:
         else:
             how = (f"peak {v.get('max_angular_speed_deg_s')} deg/s or "
                    f"{v.get('max_linear_speed_scale_s')} scales/s (no sparse points)")
-        out.append(f"{name}: {dur:.2f} s, {how}")
+        legs = tr.meta.get("legs")
+        out.append(f"{name}: {dur:.2f} s, {how}" + (f", back and forth over {legs:.1f} legs" if legs else ""))
     return out
 
 
@@ -86,12 +87,13 @@ def plot_scene(result, path: str | Path) -> None:
     if base_name:
         from gs2e.trajectory.trajectory import achieved_steps_fine
         tr = trajs[base_name]
+        n = len(result.base.s)  # one leg of a back-and-forth path
         beta_n = tr.meta["beta"] / tr.meta["translation_scale"]
-        t = np.linspace(0.0, 1.0, len(tr.t_us))[:-1]
-        ds = np.diff(tr.s)  # proportional to the requested v(t_j) by construction
+        t = np.linspace(0.0, 1.0, n)[:-1]
+        ds = np.diff(tr.s[:n])  # proportional to the requested v(t_j) by construction
         req = ds / ds.mean()
         fine = achieved_steps_fine(result.base, tr.meta["alpha"], beta_n)
-        chord = pose_deltas(tr.c2w, tr.meta["alpha"], beta_n)
+        chord = pose_deltas(tr.c2w[:n], tr.meta["alpha"], beta_n)
         ax1.plot(t, req, "-", lw=3, color="0.75", label="requested v(t) (relative)")
         ax1.plot(t, fine / fine.mean(), "--", lw=1.3, color="C3",
                  label="achieved: arc length travelled per step")

@@ -1,7 +1,8 @@
 """The whole trajectory stage for one scene, without I/O.
 
 Base path (smoothing + velocity-controlled B-spline) timed by every preset in
-``speed_presets``, plus G mini-trajectories timed by ``mini_preset``.
+``speed_presets`` (travelled back and forth up to ``min_duration_s``), plus G
+mini-trajectories timed by ``mini_preset``.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from gs2e.common.log import timed
 from gs2e.io.scene import Scene
 from gs2e.trajectory.curve import pose_deltas
 from gs2e.trajectory.order import is_sequential, tour_order
-from gs2e.trajectory.trajectory import (SampledPath, Trajectory, achieved_steps_fine,
+from gs2e.trajectory.trajectory import (SampledPath, Trajectory, achieved_steps_fine, back_and_forth,
                                         build_base_path,
                                         build_mini_paths, check_config, hermite_eval,
                                         preset_duration_s, image_steps_width, timed_trajectory,
@@ -131,7 +132,13 @@ def generate(scene: Scene, cfg: dict, seed: int, timings: dict | None = None) ->
         t_us = timestamps_us(dur, len(base.s))
         # (the requested profile is not repeated here: diff(s) is proportional to v(t_j))
         meta = dict(base_meta, preset=name, preset_values=dict(preset))
-        out[f"base_{name}"] = timed_trajectory(base, t_us, Ks[0], scene.width, scene.height, meta)
+        tr = timed_trajectory(base, t_us, Ks[0], scene.width, scene.height, meta)
+        if cfg.get("min_duration_s"):
+            tr = back_and_forth(tr, int(round(float(cfg["min_duration_s"]) * 1e6)))
+            if tr.meta.get("legs"):
+                log.info("base_%s: %.3f s one way, travelled back and forth over %.2f legs (%.3f s)",
+                         name, dur, tr.meta["legs"], tr.duration_us * 1e-6)
+        out[f"base_{name}"] = tr
     with timed("mini-trajectories", log, timings):
         rng = np.random.default_rng(int(seed))
         sees, min_sees = None, 0.0

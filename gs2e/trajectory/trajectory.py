@@ -4,11 +4,13 @@ A :class:`Trajectory` maps a time t (microseconds) to a camera-to-world pose
 through three C^1 (or smoother) maps, all stored so that it can be rebuilt
 from its file:
 
-    t_us --(monotone cubic Hermite through (t_us_j, s_j))--> s   (arc length)
+    t_us --(cubic Hermite through (t_us_j, s_j), monotone per interval)--> s   (arc length)
     s    --(inverse arc-length table, monotone Hermite)-----> u   (curve parameter)
     u    --(pose curve, piecewise polynomial)---------------> (T, q) -> c2w
 
 At the sample times t_us_j it returns exactly the stored poses c2w_j.
+s rises along a one-way path; a path travelled back and forth
+(:func:`back_and_forth`) runs it down again on its return legs.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from gs2e.trajectory.velocity import reparameterise, sample_profile
 
 MIN_QUAT_NORM = 0.05  # below this the normalised quaternion curve is ill-defined
 DUP_TOL = 1e-9        # relative to the path length: shorter steps are duplicate poses
+MAX_SAMPLES = 10_000_000  # poses of a back-and-forth trajectory (1.3 GB of c2w)
 
 
 def fixed_times_us(t0_us: int, t1_us: int, fps: float) -> np.ndarray:
@@ -82,8 +85,30 @@ class Trajectory:
 
     @property
     def length(self) -> float:
-        """Total metric arc length (alpha*rad + beta*translation/scale)."""
-        return float(self.s[-1])
+        """Total metric arc length travelled (alpha*rad + beta*translation/scale);
+        a path travelled back and forth counts every leg."""
+        d = np.diff(self.s)
+        if np.all(d >= 0):
+            return float(self.s[-1] - self.s[0])
+        return float(np.abs(d).sum())
+
+    @property
+    def turns_us(self) -> np.ndarray:
+        """(K,) int64 sample times where the camera reverses along its path
+        (the ends of a back-and-forth path's legs, :func:`back_and_forth`)."""
+        d = np.diff(self.s)
+        moving = np.flatnonzero(d != 0)  # a step of zero length turns nothing
+        sign = np.sign(d[moving])
+        return self.t_us[moving[:-1][sign[:-1] != sign[1:]] + 1]
+
+    def monotone_spans(self, t0_us: float, t1_us: float) -> np.ndarray:
+        """(K + 2,) float64 times t0, the turns strictly inside (t0, t1), t1: within
+        each span the camera moves one way along its path, so the image motion
+        between a span's ends is the motion over it (a turn inside an interval
+        would hide the way out and back)."""
+        turns = self.turns_us.astype(np.float64)
+        inside = turns[(turns > t0_us) & (turns < t1_us)]
+        return np.concatenate([[float(t0_us)], inside, [float(t1_us)]])
 
     def arc_length_at(self, t_us: np.ndarray) -> np.ndarray:
         """Arc length s(t) (Q,) at times t_us (Q,) (float or int microseconds)."""
@@ -363,6 +388,51 @@ def timed_trajectory(path: SampledPath, t_us: np.ndarray, K: np.ndarray, width: 
                       width, height, meta)
 
 
+def back_and_forth(traj: Trajectory, min_duration_us: int) -> Trajectory:
+    """``traj`` travelled back and forth until it lasts ``min_duration_us``.
+
+    Legs alternate direction over the same path with the same time map (leg
+    k >= 1 starts where leg k-1 ended); at each turn the time map's slope is
+    zero, so the camera stops smoothly within one sample interval and goes
+    back (the slopes keep the Hermite map monotone inside every interval:
+    Fritsch-Carlson's condition holds with one end slope zero, so s never
+    leaves [0, L]). The last leg ends at the first sample at or after
+    ``min_duration_us``. A trajectory already that long is returned as it is.
+    The meta records ``legs`` (travelled duration over one leg's) and
+    ``leg_duration_us``.
+
+    Parameters
+    ----------
+    traj : a timed one-way path (t_us[0] == 0, s increasing).
+    min_duration_us : shortest duration of the result, microseconds.
+    """
+    t, s, c2w, m = traj.t_us, traj.s, traj.c2w, traj.ds_dt
+    D = int(t[-1] - t[0])
+    if len(t) < 2 or D <= 0 or D >= min_duration_us:
+        return traj
+    n_legs = -(-int(min_duration_us) // D)
+    if n_legs * len(t) > MAX_SAMPLES:
+        raise ConfigError(f"trajectory.min_duration_s: {min_duration_us * 1e-6:g} s is {n_legs} legs of "
+                         f"{D} us, {n_legs * len(t)} poses (at most {MAX_SAMPLES}); lower it or slow "
+                         "the preset")
+    parts_t, parts_s, parts_c, parts_m = [t], [s], [c2w], [m.copy()]
+    for k in range(1, n_legs):
+        fwd = k % 2 == 0
+        tt = (t - t[0]) if fwd else (D - (t[::-1] - t[0]))
+        parts_t.append(t[0] + k * D + tt[1:])
+        parts_s.append((s if fwd else s[::-1])[1:])
+        parts_c.append((c2w if fwd else c2w[::-1])[1:])
+        parts_m.append((m if fwd else -m[::-1])[1:].copy())
+        parts_m[-2][-1] = 0.0  # the turn
+    t_all = np.concatenate(parts_t)
+    end = int(np.searchsorted(t_all, t[0] + int(min_duration_us), side="left")) + 1
+    t_all = t_all[:end]
+    meta = dict(traj.meta, legs=float((t_all[-1] - t_all[0]) / D), leg_duration_us=D)
+    return Trajectory(traj.curve, traj.arc, t_all, np.concatenate(parts_s)[:end],
+                      np.concatenate(parts_m)[:end], np.concatenate(parts_c)[:end], traj.K,
+                      traj.width, traj.height, meta)
+
+
 def recorded_trajectory(t_us: np.ndarray, c2w: np.ndarray, K: np.ndarray, width: int, height: int,
                         meta: dict[str, Any]) -> Trajectory:
     """A trajectory through recorded timed poses (a real camera's ground truth).
@@ -436,5 +506,5 @@ def check_config(cfg: dict) -> None:
 
 
 __all__ = ["Trajectory", "SampledPath", "build_base_path", "build_mini_paths", "points_in_view_fraction",
-           "eval_at_s", "preset_duration_s", "image_steps_width", "timestamps_us", "timed_trajectory", "achieved_steps", "achieved_steps_fine", "check_config",
+           "eval_at_s", "back_and_forth", "preset_duration_s", "image_steps_width", "timestamps_us", "timed_trajectory", "achieved_steps", "achieved_steps_fine", "check_config",
            "hermite_eval"]
