@@ -189,11 +189,15 @@ def _closure(roots: tuple[str, ...], pkg: Path | None = None) -> tuple[dict[str,
     return found, external
 
 
-def stage_modules(stage: str, pkg: Path | None = None) -> dict[str, Path]:
-    """The modules ``code_version(stage)`` covers: {module name: source file}."""
+def _stage_closure(stage: str, pkg: Path | None = None) -> tuple[dict[str, Path], set[str]]:
     if stage not in STAGE_ENTRY:
         raise KeyError(f"unknown stage '{stage}'")
-    return import_closure(COMMAND_ROOTS + (STAGE_ENTRY[stage],), pkg)
+    return _closure(COMMAND_ROOTS + (STAGE_ENTRY[stage],), pkg)
+
+
+def stage_modules(stage: str, pkg: Path | None = None) -> dict[str, Path]:
+    """The modules ``code_version(stage)`` covers: {module name: source file}."""
+    return _stage_closure(stage, pkg)[0]
 
 
 def _dist_version(dist: str) -> str:
@@ -205,13 +209,14 @@ def _dist_version(dist: str) -> str:
         return "absent"
 
 
+def _distributions(external: set[str]) -> dict[str, str]:
+    return {VERSIONED[m]: _dist_version(VERSIONED[m]) for m in sorted(external & set(VERSIONED))}
+
+
 def stage_distributions(stage: str) -> dict[str, str]:
     """{distribution: installed version} of the :data:`VERSIONED` packages the
     stage's import closure imports."""
-    if stage not in STAGE_ENTRY:
-        raise KeyError(f"unknown stage '{stage}'")
-    external = _closure(COMMAND_ROOTS + (STAGE_ENTRY[stage],))[1]
-    return {VERSIONED[m]: _dist_version(VERSIONED[m]) for m in sorted(external & set(VERSIONED))}
+    return _distributions(_stage_closure(stage)[1])
 
 
 @functools.lru_cache(maxsize=None)
@@ -219,13 +224,14 @@ def code_version(stage: str) -> str:
     """Short sha256 over the source files of the stage's import closure
     (path relative to the package + content, in path order) and the installed
     versions of the :data:`VERSIONED` packages it imports."""
+    modules, external = _stage_closure(stage)  # one walk for both
     h = hashlib.sha256()
-    for f in sorted(stage_modules(stage).values()):
+    for f in sorted(modules.values()):
         h.update(str(f.relative_to(PKG)).encode())
         h.update(b"\0")
         h.update(f.read_bytes())
         h.update(b"\0")
-    for dist, ver in stage_distributions(stage).items():
+    for dist, ver in _distributions(external).items():
         h.update(f"{dist}=={ver}".encode())
         h.update(b"\0")
     return h.hexdigest()[:16]
