@@ -12,6 +12,9 @@ photos from ../shared/data, 320 px):
 * ``event_sample``: one whole event sample (project, bin, composite, luminance);
 * ``train_step``: one whole training step (render, 0.8 L1 + 0.2 D-SSIM,
   autograd, the hand-written backward, Adam) at full size in float64;
+  ``train_step_f32`` the same in float32, and ``train_step_auto`` in what
+  ``splat.compute_dtype: auto`` (the default) takes at this size;
+* ``ssim_f64``: SSIM of a frame in float64, as the benchmark tasks score frames;
 * and all of it again with the gs2e of ``--baseline-rev`` (a git worktree,
   its own workers and caches; a worker imports the gs2e of the checkout on
   its ``PYTHONPATH`` and stops if it got another) on the same inputs:
@@ -75,8 +78,14 @@ def worker(scenes: dict[str, str], reps: int, root: str) -> list[dict]:
     from gs2e.splat.forward import ForwardRenderer
     from gs2e.splat.model import load_model, render
     from gs2e.splat.rasterize import TILE, SplatCamera
+    from gs2e.splat.loss import ssim
     from gs2e.splat.strategy import PARAMS, Adam
     from gs2e.trajectory import load_trajectory
+
+    try:  # what `gs2e train` computes in by default (compute_dtype auto) at a training size
+        from gs2e.splat.optimise import training_dtype
+    except ImportError:  # a baseline from before the rule moved there
+        from gs2e.splat.train import training_dtype
 
     try:
         from gs2e.splat.train import train_step
@@ -162,9 +171,14 @@ def worker(scenes: dict[str, str], reps: int, root: str) -> list[dict]:
         with torch.no_grad():
             target = render(p, cam, bg3, int(info["sh_degree"]), "cpu")[0].clone()
         target = (target * 0.9 + 0.05).contiguous()  # a photo the model does not reproduce
-        opt = Adam({k: 1e-4 for k in PARAMS})
-        row("train_step", median_ms(lambda: train_step(p, opt, cam, target, bg3, int(info["sh_degree"]),
-                                                       "cpu", "float64", 0.2), reps))
+        for part, dtype in (("train_step", "float64"), ("train_step_f32", "float32"),
+                            ("train_step_auto", training_dtype("auto", (W, H)))):
+            opt = Adam({k: 1e-4 for k in PARAMS})
+            row(part, median_ms(lambda: train_step(p, opt, cam, target, bg3, int(info["sh_degree"]),
+                                                   "cpu", dtype, 0.2), reps))
+        # a frame's SSIM in float64, as the benchmark tasks score every method's frame
+        a64, b64 = target.double(), (target * 0.8 + 0.1).double()
+        row("ssim_f64", median_ms(lambda: ssim(a64, b64), reps))
     return rows
 
 
@@ -241,17 +255,17 @@ def main() -> int:
         r["baseline_ms"] = base.get((r["scene"], r["part"], r["target"]))
         r["speedup_vs_baseline"] = (r["baseline_ms"] / r["ms"]) if r["baseline_ms"] else None
     files = [harness.write_csv("bench_isa", rows), plot(rows, targets)]
-    table = [f"\n{'scene':12s} {'part':13s} {'target':6s} {'ms':>8s} {'ns/px':>8s} {'ns/pair':>8s} "
+    table = [f"\n{'scene':12s} {'part':15s} {'target':6s} {'ms':>8s} {'ns/px':>8s} {'ns/pair':>8s} "
              f"{'avx2/host':>9s} {'vs ' + args.baseline_rev:>10s}"]
     for r in rows:
         a = r["avx2_throughput_vs_host"]
         s = r["speedup_vs_baseline"]
-        table.append(f"{r['scene']:12s} {r['part']:13s} {r['target']:6s} {r['ms']:8.2f} {r['ns_per_px']:8.1f} "
+        table.append(f"{r['scene']:12s} {r['part']:15s} {r['target']:6s} {r['ms']:8.2f} {r['ns_per_px']:8.1f} "
                      f"{r['ns_per_pair']:8.1f} {'-' if a is None else f'{a:.2f}':>9s} "
                      f"{'-' if s is None else f'{s:.2f}x':>10s}")
     t0 = targets[0]
     sp = {p: [r["speedup_vs_baseline"] for r in rows if r["part"] == p and r["target"] == t0
-              and r["speedup_vs_baseline"]] for p in ("fwd_f32", "bwd_f64", "event_sample", "train_step")}
+              and r["speedup_vs_baseline"]] for p in ("fwd_f32", "bwd_f64", "event_sample", "train_step", "train_step_auto", "ssim_f64")}
     isa = "AVX-512" if (avx512 and t0 == "host") else "AVX2"
     line = ", ".join(f"{p} {min(v):.2f}-{max(v):.2f}x" for p, v in sp.items() if v)
     extra = ""

@@ -2,7 +2,9 @@
 
 Scenes: ../shared/data/temple_ring (47 photos) and llff_fern (20 photos), each
 ingested at 640 px long side and posed by SfM like the pipeline does (cached
-in ``--work``). Settings, each a fresh process on ``--threads`` threads:
+in ``--work``); ``--scenes demo`` trains the demo scene (ingest + SfM as
+the workflow does, 255x191 views). Settings, each a fresh process on
+``--threads`` threads:
 
 - ``auto``: the default recipe (detail budget from edge pixels);
 - ``adaptive``: ``splat.budget: adaptive`` (starts there, grows while held-out
@@ -231,7 +233,7 @@ def main() -> int:
             if not (sdir / "scene.json").exists():
                 print(f"skipping {scene}: {sdir} is absent (run bench_cost_model.py --run first)")
                 continue
-        elif scene != "demo-small" and not (a.data / PHOTOS[scene]).exists():
+        elif scene not in ("demo-small", "demo") and not (a.data / PHOTOS[scene]).exists():
             print(f"skipping {scene}: {a.data / PHOTOS[scene]} is absent")
             continue
         else:

@@ -35,6 +35,43 @@ def test_ssim_matches_skimage_on_interior():
     assert float(ours) == pytest.approx(ref, rel=0.05)
 
 
+def _ssim_reference(a: np.ndarray, b: np.ndarray) -> float:
+    """SSIM as gs2e defines it (11-tap Gaussian window, sigma 1.5, zero padding),
+    written independently with scipy's 1D correlations; a, b (..., H, W, C)."""
+    from scipy.ndimage import correlate1d
+
+    x = np.arange(11) - 5.0
+    g = np.exp(-x ** 2 / (2 * 1.5 ** 2))
+    g /= g.sum()
+
+    def blur(v):
+        v = correlate1d(v, g, axis=-2, mode="constant")
+        return correlate1d(v, g, axis=-3, mode="constant")
+
+    mx, my = blur(a), blur(b)
+    sxx, syy, sxy = blur(a * a) - mx ** 2, blur(b * b) - my ** 2, blur(a * b) - mx * my
+    c1, c2 = 0.01 ** 2, 0.03 ** 2
+    return float(np.mean((2 * mx * my + c1) * (2 * sxy + c2) / ((mx ** 2 + my ** 2 + c1) * (sxx + syy + c2))))
+
+
+@pytest.mark.parametrize("shape", [(37, 53, 3), (2, 19, 64, 1), (12, 9, 3)])
+def test_ssim_matches_reference_in_both_precisions(shape):
+    # float64 runs on contiguous NCHW and float32 on the channels-last view
+    # (the faster torch path of each): both must give the defined value, and a
+    # gradient through either; images smaller than the window included.
+    rng = np.random.default_rng(1)
+    a = rng.random(shape)
+    b = np.clip(a + 0.2 * rng.standard_normal(shape), 0, 1)
+    ref = _ssim_reference(a, b)
+    for dtype, tol in ((torch.float64, 1e-13), (torch.float32, 2e-6)):
+        ta = torch.tensor(a, dtype=dtype, requires_grad=True)
+        val = ssim(ta, torch.tensor(b, dtype=dtype))
+        assert val.dtype == dtype
+        assert float(val) == pytest.approx(ref, abs=tol)
+        val.backward()
+        assert ta.grad.shape == ta.shape and torch.isfinite(ta.grad).all() and ta.grad.abs().sum() > 0
+
+
 def test_loss_gradient_flows():
     a = torch.rand(16, 16, 3, dtype=torch.float64, requires_grad=True)
     b = torch.rand(16, 16, 3, dtype=torch.float64)

@@ -121,8 +121,10 @@ def test_auto_compute_dtype_by_training_size():
     from gs2e.splat.optimise import F32_TRAIN_MIN_PIXELS, training_dtype
 
     assert training_dtype("auto", (1280, 960)) == "float32"  # IMX636's training size
-    assert training_dtype("auto", (349, 260)) == "float64"   # DAVIS346's
-    assert training_dtype("auto", (640, 480)) == "float64"
+    assert training_dtype("auto", (349, 260)) == "float32"   # DAVIS346's
+    assert training_dtype("auto", (640, 480)) == "float32"
+    assert training_dtype("auto", (255, 191)) == "float32"   # the demo's
+    assert training_dtype("auto", (128, 96)) == "float64"    # below every size measured
     assert training_dtype("auto", (F32_TRAIN_MIN_PIXELS, 1)) == "float32"
     assert training_dtype("auto", (F32_TRAIN_MIN_PIXELS - 1, 1)) == "float64"
     assert training_dtype("float64", (4000, 3000)) == "float64"

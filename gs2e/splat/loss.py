@@ -34,7 +34,11 @@ def _blur(x: torch.Tensor, size: int, sigma: float) -> torch.Tensor:
 def _bchw(img: torch.Tensor) -> torch.Tensor:
     if img.dim() == 3:
         img = img.unsqueeze(0)
-    return img.permute(0, 3, 1, 2)
+    x = img.permute(0, 3, 1, 2)
+    # Torch's CPU depthwise convolution is fast on channels-last float32 (the
+    # permuted view: training) but has no such path for float64 (scores), which
+    # runs 2-9x faster on contiguous NCHW (bench_isa.py's ssim_f64; docs/bench.md).
+    return x.contiguous() if x.dtype == torch.float64 else x
 
 
 def ssim(a: torch.Tensor, b: torch.Tensor, window: int = 11, sigma: float = 1.5) -> torch.Tensor:
