@@ -35,7 +35,7 @@ from harness import REPO
 BASELINE_REV = "621e2f6"  # main before float32 training from the demo's size and float64 SSIM on NCHW
 _LINE = re.compile(r"INFO gs2e: gs2e \S+ (?P<args>.*)$")
 # flags naming what a job writes: redirected to the run's own folder
-_OUTPUTS = ("--out", "--png", "--checkpoint-dir")
+_OUTPUTS = ("-o", "--out", "--png", "--checkpoint-dir")
 
 
 def job_args(log: Path) -> list[str]:
@@ -54,16 +54,21 @@ def logged_cpu_s(log: Path) -> float:
     return float(m[-1]) if m else float("nan")
 
 
-def redirect(args: list[str], out: Path) -> list[str]:
+def redirect(args: list[str], out: Path, workdir: Path) -> list[str]:
     """``args`` with every output flag's path moved into ``out`` and every
-    input path made absolute (the job runs in the checkout it times: ``python
-    -m gs2e`` imports the gs2e of its working directory first)."""
+    input path relative to ``workdir`` (where the workflow ran) made absolute:
+    the job runs in the checkout it times (``python -m gs2e`` imports the gs2e
+    of its working directory first). A job that writes anywhere else (no
+    output flag, or ``report``'s default) is refused: it would overwrite the
+    workflow's results."""
+    if args[0] == "report" or not any(a in _OUTPUTS for a in args):
+        raise SystemExit(f"{args[0]}: its outputs cannot be redirected; choose other jobs")
     args = list(args)
     for i, a in enumerate(args):
         if i and args[i - 1] in _OUTPUTS:
             args[i] = str(out / Path(a).name)
-        elif not a.startswith(("-", "{")) and (REPO / a).exists():
-            args[i] = str((REPO / a).resolve())
+        elif "/" in a and not a.startswith(("-", "{")) and (workdir / a).exists():
+            args[i] = str((workdir / a).resolve())
     return args
 
 
@@ -82,30 +87,32 @@ def side_env(name: str, root: Path, tmp: Path) -> dict:
     return env
 
 
-def run_job(name: str, root: Path, env: dict, job: str, log: Path, out: Path) -> harness.ChildRun:
+def run_job(name: str, root: Path, env: dict, job: str, log: Path, out: Path, workdir: Path) -> harness.ChildRun:
     out.mkdir(parents=True)
-    r = harness.run_child([sys.executable, "-m", "gs2e", *redirect(job_args(log), out)], env=env, cwd=root)
+    r = harness.run_child([sys.executable, "-m", "gs2e", *redirect(job_args(log), out, workdir)], env=env,
+                          cwd=root)
     if r.returncode != 0:
         raise SystemExit(f"{name}: {job} failed:\n{r.output[-2000:]}")
     return r
 
 
-def run_sides(sides: dict[str, Path], jobs: dict[str, Path], tmp: Path) -> list[dict]:
+def run_sides(sides: dict[str, Path], jobs: dict[str, Path], tmp: Path, workdir: Path) -> list[dict]:
     """Each side (name -> checkout) compiles by running the cheapest job of
-    each command once, untimed; then every job runs on each side in turn, so
-    that a drift of the machine's speed over the run falls on both alike."""
+    each command once, untimed; then every job runs on each side in turn, the
+    side that goes first alternating, so that a drift of the machine's speed
+    and warm file caches fall on both alike."""
     envs = {name: side_env(name, root, tmp) for name, root in sides.items()}
     cheapest: dict[str, str] = {}
     for job, log in sorted(jobs.items(), key=lambda kv: logged_cpu_s(kv[1])):
         cheapest.setdefault(kind(job_args(log)), job)
     for name, root in sides.items():
         for k, job in cheapest.items():
-            r = run_job(name, root, envs[name], job, jobs[job], tmp / name / f"warm_{job}")
+            r = run_job(name, root, envs[name], job, jobs[job], tmp / name / f"warm_{job}", workdir)
             print(f"  {name}: compiled {k} ({r.cpu_s:.0f} CPU-s)", flush=True)
     rows = []
-    for job, log in jobs.items():
-        for name, root in sides.items():
-            r = run_job(name, root, envs[name], job, log, tmp / name / job)
+    for n, (job, log) in enumerate(jobs.items()):
+        for name, root in (list(sides.items()) if n % 2 == 0 else list(sides.items())[::-1]):
+            r = run_job(name, root, envs[name], job, log, tmp / name / job, workdir)
             rows.append({"job": job, "side": name, "cpu_s": round(r.cpu_s, 2), "wall_s": round(r.wall_s, 2),
                          "peak_rss_mb": round(r.peak_rss_mb, 1), "logged_cpu_s": logged_cpu_s(log)})
             print(f"  {name}: {job} {r.cpu_s:.1f} CPU-s", flush=True)
@@ -116,6 +123,8 @@ def main() -> int:
     ap = harness.parser(__doc__, quick="the novel-view path's deblurring job only (about a minute)",
                         baseline_rev=BASELINE_REV)
     ap.add_argument("--results", type=Path, default=REPO / "results", help="a finished workflow's results_dir")
+    ap.add_argument("--workdir", type=Path, default=REPO,
+                    help="the directory that workflow ran in (its jobs' relative paths start there)")
     ap.add_argument("--jobs", default="demo/train,demo/bench_*,bench_real",
                     help="comma-separated patterns of jobs: SCENE/LOG for a scene's job, LOG for "
                     "a workflow-wide one (results/logs), e.g. 'demo/bench_deblur_*'")
@@ -129,7 +138,7 @@ def main() -> int:
     print(f"{len(jobs)} jobs: {', '.join(jobs)}", flush=True)
     with tempfile.TemporaryDirectory(prefix="bench_demo_jobs_") as tmp, \
             harness.baseline_checkout(a.baseline_rev) as checkout:
-        rows = run_sides({"baseline": checkout, "today": REPO}, jobs, Path(tmp))
+        rows = run_sides({"baseline": checkout, "today": REPO}, jobs, Path(tmp), a.workdir.resolve())
     by = {(r["job"], r["side"]): r["cpu_s"] for r in rows}
     table = [{"job": j, "baseline_cpu_s": by[(j, "baseline")], "today_cpu_s": by[(j, "today")],
               "ratio": round(by[(j, "baseline")] / by[(j, "today")], 2)} for j in jobs]

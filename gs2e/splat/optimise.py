@@ -91,9 +91,10 @@ def training_dtype(compute_dtype: str, train_size: tuple[int, int]) -> str:
     """What the training passes compute in: ``splat.compute_dtype``, with
     ``auto`` resolved by the training size (W, H) px: float32 (16 lanes, fused
     multiply-adds, an exp without a table: 1.4-1.6x faster steps on AVX2 at
-    the DAVIS346 size, held-out PSNR within 0.2 dB of float64's there and at
-    HD) where the views have at least F32_TRAIN_MIN_PIXELS pixels, float64
-    below, where float32's quality was not measured."""
+    320 px, held-out PSNR within 0.2 dB of float64's at the demo's size, 320 px
+    and DAVIS346, within the seeds' spread at HD) where the views have at least
+    F32_TRAIN_MIN_PIXELS pixels, float64 below, where float32's quality was not
+    measured."""
     if compute_dtype != "auto":
         return compute_dtype
     return "float32" if train_size[0] * train_size[1] >= F32_TRAIN_MIN_PIXELS else "float64"
