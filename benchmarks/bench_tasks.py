@@ -223,8 +223,14 @@ def recon3d_run(out: Path, d: dict, traj: Path, r3_cfg: dict) -> list[dict]:
     wall = gs2e("bench", "--task", "recon3d", "--frames", d["frames"], "--events", d["events"],
                 "--windows", d["windows"], "--trajectory", traj, "--out", table,
                 "--png", out / "bench_recon3d.png", "--threads", "2", "--config-json", json.dumps(r3_cfg))
+    return recon3d_table_rows(table, Path(d["frames"]), traj, wall)
+
+
+def recon3d_table_rows(table: Path, frames: Path, traj: Path, wall: float) -> list[dict]:
+    """One row per variant of a recon3d table, with its trajectory's motion,
+    frame count and legs."""
     s = bench_psnr(table)
-    p50, _, n_frames = frames_motion(Path(d["frames"]))
+    p50, _, n_frames = frames_motion(frames)
     legs = load_trajectory(traj).meta.get("legs", 1.0)
     return [{"variant": v, "motion_px_p50": p50, "n_frames_total": n_frames, "legs": legs,
              "task_wall_s": wall, **{c: s[v][c] for c in R3_COLS}} for v in R3_VARIANTS if v in s]
@@ -247,18 +253,13 @@ def recon3d_rows_full(scenes: list[str], work: Path, results: Path | None, r3_cf
             done = src / "bench" / "recon3d" / f"{name}.parquet" if src is not None else None
             if done is not None and done.exists():
                 # the workflow's own recon3d job (bench.tasks: [recon3d]), as the report shows it
-                s = bench_psnr(done)
-                p50, _, n_frames = frames_motion(src / "frames" / name)
-                legs = load_trajectory(src / "trajectories" / f"{name}.npz").meta.get("legs", 1.0)
                 print(f"recon3d {scene} {speed}: the workflow's table {done}" +
                       (" (--recon3d-config ignored: the workflow's bench.recon3d_* keys ran it)"
                        if r3_cfg else ""), flush=True)
-                for v in R3_VARIANTS:
-                    if v in s:
-                        rows.append({"scene": scene, "speed": speed, "data": f"workflow {src}",
-                                     "render_s": math.nan, "events_s": math.nan, "variant": v,
-                                     "motion_px_p50": p50, "n_frames_total": n_frames, "legs": legs,
-                                     "task_wall_s": math.nan, **{c: s[v][c] for c in R3_COLS}})
+                for r in recon3d_table_rows(done, src / "frames" / name,
+                                            src / "trajectories" / f"{name}.npz", math.nan):
+                    rows.append({"scene": scene, "speed": speed, "data": f"workflow {src}",
+                                 "render_s": math.nan, "events_s": math.nan, **r})
                 continue
             if src is not None and (src / "windows" / f"{name}.parquet").exists():
                 traj = src / "trajectories" / f"{name}.npz"

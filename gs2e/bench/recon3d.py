@@ -496,17 +496,20 @@ def recon3d_data(ds: Dataset, settings) -> "object":
     if len(traj.turns_us) and traj.meta.get("leg_duration_us"):
         # back and forth: hold out by position, so that no leg trains where another is scored
         L, s0 = float(traj.s.max() - traj.s.min()), float(traj.s.min())
+
+        def position(times):  # along one leg, in [0, 1]
+            return (traj.arc_length_at(times) - s0) / max(L, 1e-300)
+
         fps = 1e6 / float(np.median(np.diff(t))) if len(t) > 1 else 1.0
         per_leg = float(traj.meta["leg_duration_us"]) * 1e-6 * fps
-        pos = (traj.arc_length_at(t[usable]) - s0) / max(L, 1e-300)
-        train, test = split_by_position(usable, pos, settings.test_every, per_leg)
+        train, test = split_by_position(usable, position(t[usable]), settings.test_every, per_leg)
         if has_blur and test:
             # a blurred frame whose exposure sweeps through a held-out piece would show
             # the held-out views (smeared): not trained on (EXPOSURE_POSES poses checked)
             u = np.linspace(-0.5, 0.5, EXPOSURE_POSES)
             ts = np.clip(t[train, None] + E[train, None] * u[None], lo, hi)
-            swept = in_held_out_piece((traj.arc_length_at(ts.ravel()) - s0) / max(L, 1e-300),
-                                      settings.test_every, per_leg).reshape(ts.shape).any(axis=1)
+            swept = in_held_out_piece(position(ts.ravel()), settings.test_every,
+                                      per_leg).reshape(ts.shape).any(axis=1)
             blur_train = [i for i, sw in zip(train, swept) if not sw]
     else:
         train, test = split_frames(usable, settings.test_every)

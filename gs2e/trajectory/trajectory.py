@@ -15,6 +15,7 @@ s rises along a one-way path; a path travelled back and forth
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from dataclasses import dataclass, field
@@ -92,10 +93,11 @@ class Trajectory:
             return float(self.s[-1] - self.s[0])
         return float(np.abs(d).sum())
 
-    @property
+    @functools.cached_property
     def turns_us(self) -> np.ndarray:
         """(K,) int64 sample times where the camera reverses along its path
-        (the ends of a back-and-forth path's legs, :func:`back_and_forth`)."""
+        (the ends of a back-and-forth path's legs, :func:`back_and_forth`);
+        found once per trajectory (the render stage asks for every frame)."""
         d = np.diff(self.s)
         moving = np.flatnonzero(d != 0)  # a step of zero length turns nothing
         sign = np.sign(d[moving])
