@@ -20,6 +20,7 @@ dtype; ``prange`` over Gaussians, each writes only its own row: deterministic.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -101,14 +102,6 @@ def cov3d_kernel(quats, logscales, cov6):
 
 
 @njit(inline="always", cache=True, fastmath=False)
-def _sym(cov6, g, i, j):
-    """Entry (i, j) of the symmetric 3x3 matrix stored as cov6[g]."""
-    if i > j:
-        i, j = j, i
-    return cov6[g, i * 3 - (i * (i - 1)) // 2 + (j - i)]
-
-
-@njit(inline="always", cache=True, fastmath=False)
 def project_one(g, means, cov6, V, t0, t1, t2, fx, fy, cx, cy, width, height, near, far,
                 lim_xp, lim_xn, lim_yp, lim_yn, means2d, conics, depths, radii):
     """Project Gaussian g (see module docstring); writes row g of the outputs."""
@@ -125,16 +118,19 @@ def project_one(g, means, cov6, V, t0, t1, t2, fx, fy, cx, cy, width, height, ne
     depths[g] = z
     if not (z >= near and z <= far):
         return
-    # Sc = V S3 V^T, in the order of _cov_cam (tmp = V S3, then tmp V^T)
-    tm00 = V[0, 0] * _sym(cov6, g, 0, 0) + V[0, 1] * _sym(cov6, g, 1, 0) + V[0, 2] * _sym(cov6, g, 2, 0)
-    tm01 = V[0, 0] * _sym(cov6, g, 0, 1) + V[0, 1] * _sym(cov6, g, 1, 1) + V[0, 2] * _sym(cov6, g, 2, 1)
-    tm02 = V[0, 0] * _sym(cov6, g, 0, 2) + V[0, 1] * _sym(cov6, g, 1, 2) + V[0, 2] * _sym(cov6, g, 2, 2)
-    tm10 = V[1, 0] * _sym(cov6, g, 0, 0) + V[1, 1] * _sym(cov6, g, 1, 0) + V[1, 2] * _sym(cov6, g, 2, 0)
-    tm11 = V[1, 0] * _sym(cov6, g, 0, 1) + V[1, 1] * _sym(cov6, g, 1, 1) + V[1, 2] * _sym(cov6, g, 2, 1)
-    tm12 = V[1, 0] * _sym(cov6, g, 0, 2) + V[1, 1] * _sym(cov6, g, 1, 2) + V[1, 2] * _sym(cov6, g, 2, 2)
-    tm20 = V[2, 0] * _sym(cov6, g, 0, 0) + V[2, 1] * _sym(cov6, g, 1, 0) + V[2, 2] * _sym(cov6, g, 2, 0)
-    tm21 = V[2, 0] * _sym(cov6, g, 0, 1) + V[2, 1] * _sym(cov6, g, 1, 1) + V[2, 2] * _sym(cov6, g, 2, 1)
-    tm22 = V[2, 0] * _sym(cov6, g, 0, 2) + V[2, 1] * _sym(cov6, g, 1, 2) + V[2, 2] * _sym(cov6, g, 2, 2)
+    # Sc = V S3 V^T, in the order of _cov_cam (tmp = V S3, then tmp V^T); S3
+    # symmetric, stored as its upper triangle (00, 01, 02, 11, 12, 22)
+    c00, c01, c02 = cov6[g, 0], cov6[g, 1], cov6[g, 2]
+    c11, c12, c22 = cov6[g, 3], cov6[g, 4], cov6[g, 5]
+    tm00 = V[0, 0] * c00 + V[0, 1] * c01 + V[0, 2] * c02
+    tm01 = V[0, 0] * c01 + V[0, 1] * c11 + V[0, 2] * c12
+    tm02 = V[0, 0] * c02 + V[0, 1] * c12 + V[0, 2] * c22
+    tm10 = V[1, 0] * c00 + V[1, 1] * c01 + V[1, 2] * c02
+    tm11 = V[1, 0] * c01 + V[1, 1] * c11 + V[1, 2] * c12
+    tm12 = V[1, 0] * c02 + V[1, 1] * c12 + V[1, 2] * c22
+    tm20 = V[2, 0] * c00 + V[2, 1] * c01 + V[2, 2] * c02
+    tm21 = V[2, 0] * c01 + V[2, 1] * c11 + V[2, 2] * c12
+    tm22 = V[2, 0] * c02 + V[2, 1] * c12 + V[2, 2] * c22
     s00 = tm00 * V[0, 0] + tm01 * V[0, 1] + tm02 * V[0, 2]
     s01 = tm00 * V[1, 0] + tm01 * V[1, 1] + tm02 * V[1, 2]
     s02 = tm00 * V[2, 0] + tm01 * V[2, 1] + tm02 * V[2, 2]
@@ -185,19 +181,24 @@ def view_limits(fx, fy, cx, cy, width, height):
 @njit(parallel=True, cache=True, fastmath=False)
 def project_forward_kernel(means, cov6, viewmat, fx, fy, cx, cy, width, height, near, far, idx,
                            means2d, conics, depths, radii):
-    """Project the Gaussians ``idx`` (all if idx is empty); rows of the others
-    are left untouched."""
+    """Project the Gaussians ``idx`` (M,) int64; rows of the others are left
+    untouched."""
     V = viewmat[:3, :3].copy()
     t0, t1, t2 = viewmat[0, 3], viewmat[1, 3], viewmat[2, 3]
     lim_xp, lim_xn, lim_yp, lim_yn = view_limits(fx, fy, cx, cy, width, height)
-    if idx.shape[0] == 0:
-        for g in prange(means.shape[0]):
-            project_one(g, means, cov6, V, t0, t1, t2, fx, fy, cx, cy, width, height, near, far,
-                        lim_xp, lim_xn, lim_yp, lim_yn, means2d, conics, depths, radii)
-    else:
-        for k in prange(idx.shape[0]):
-            project_one(idx[k], means, cov6, V, t0, t1, t2, fx, fy, cx, cy, width, height, near,
-                        far, lim_xp, lim_xn, lim_yp, lim_yn, means2d, conics, depths, radii)
+    # one parallel loop, over rows given even for all of them: numba compiles
+    # each loop as a function of its own, and a second copy of the inlined
+    # projection took a third of this kernel's 15 CPU-s cold compile
+    for k in prange(idx.shape[0]):
+        project_one(idx[k], means, cov6, V, t0, t1, t2, fx, fy, cx, cy, width, height, near, far,
+                    lim_xp, lim_xn, lim_yp, lim_yn, means2d, conics, depths, radii)
+
+
+@functools.lru_cache(maxsize=4)
+def _every_row(n: int) -> np.ndarray:
+    """0 .. n - 1, shared (a renderer projects every Gaussian at each pose;
+    left writeable: numba compiles a read-only array as another type)."""
+    return np.arange(n, dtype=np.int64)
 
 
 _CHUNK = 256  # Gaussians per parallel work item of the backward
@@ -414,7 +415,7 @@ def project_cov(means, cov6, viewmat, fx, fy, cx, cy, width, height, near=0.01, 
                            np.ascontiguousarray(viewmat, dtype=np.float64),
                            float(fx), float(fy), float(cx), float(cy),
                            float(width), float(height), float(near), float(far),
-                           np.empty(0, np.int64) if idx is None else idx,
+                           _every_row(n) if idx is None else idx,
                            means2d, conics, depths, radii)
     return means2d, conics, depths, radii
 
