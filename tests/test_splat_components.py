@@ -70,6 +70,31 @@ def test_projection_matches_reference_and_autograd():
         assert np.all(a[~vis] == 0), name
 
 
+def test_projection_of_a_subset_writes_only_its_rows():
+    """project_cov with idx projects those rows exactly as the whole projection
+    does and leaves every other row (all of them for an empty idx) as it was."""
+    p = random_scene(300, seed=5, extent=3.0)
+    cam = look_at_camera(eye=(0.2, 0.1, -3.0))
+    m = p["means"].detach().numpy()
+    cov6 = np.empty((len(m), 6))
+    P.cov3d_kernel(p["quats"].detach().numpy(), p["log_scales"].detach().numpy(), cov6)
+
+    def proj(idx, out=None):
+        return P.project_cov(m, cov6, cam.viewmat, cam.fx, cam.fy, cam.cx, cam.cy, cam.width,
+                             cam.height, cam.near, idx=idx, out=out)
+
+    whole = proj(None)
+    assert (whole[3] > 0).any()
+    stale = tuple(np.full_like(a, 7) for a in whole)
+    idx = np.arange(1, len(m), 3)
+    got = proj(idx, tuple(a.copy() for a in stale))
+    rest = np.setdiff1d(np.arange(len(m)), idx)
+    for a, s, w in zip(got, stale, whole):
+        assert np.array_equal(a[idx], w[idx]) and np.array_equal(a[rest], s[rest])
+    got = proj(np.empty(0, np.int64), tuple(a.copy() for a in stale))
+    assert all(np.array_equal(a, s) for a, s in zip(got, stale))
+
+
 def test_jacobian_clamp_far_off_screen():
     """A Gaussian far off to the side but with a huge footprint: the 1.3x FOV
     clamp of the Jacobian must act, and its gradient must match autograd."""
