@@ -1,20 +1,30 @@
-"""SfM against the size of the image SIFT sees (``sfm.max_image_size``, issue 44).
+"""SfM at the size and effort it needs (issue 44): SIFT size, extractor and
+bundle adjustment schedule against views registered, camera error and CPU.
 
 On the real captures of ../shared/data, ``gs2e sfm`` (incremental mapping,
-deterministic: COLMAP on one thread) at several SIFT sizes: views registered,
-points, mean reprojection error, camera error against the capture's own poses
-where it has them (mouse_colmap: its COLMAP project; temple_ring: Middlebury's
-calibration), CPU seconds of extraction, matching and the whole run. The
-baseline is the photos' own size (``max_image_size: null``, what ``gs2e sfm``
-did before), measured in the same run. Photos already smaller than a size are
-unchanged by it, so temple_ring (640 px) and llff_fern (706 px) run once, at
-``auto``, to show registration is kept.
+deterministic: COLMAP on one thread) in several configurations
+(``sfm.max_image_size``, ``sfm.extractor``, ``sfm.bundle_adjustment``): views
+registered, points, mean reprojection error, camera error against the
+capture's own poses where it has them (mouse_colmap: its COLMAP project;
+temple_ring: Middlebury's calibration), CPU seconds of extraction, matching,
+mapping, undistortion and the whole run. The baseline, in the same run, is
+what ``gs2e sfm`` did at 783ff0e: the photos' own size, COLMAP's SIFT and
+bundle adjustment schedule and COLMAP's undistorter. Each run also times
+COLMAP's undistorter on the same model (``colmap_undistortion_s``) beside
+the OpenCV resampling ``gs2e sfm`` now uses (``undistortion_s``). Photos
+already smaller than a size are unchanged by it, so temple_ring (640 px) and
+llff_fern (706 px) run at ``auto`` only, to show registration is kept.
 
-    python benchmarks/bench_sfm_size.py [--quick] [--sizes 800,1024,1600,native]
+    python benchmarks/bench_sfm_size.py [--quick] [--configs native:colmap:colmap,auto:colmap:fast,...]
+        [--seeds 0,1,2]
 
-``--quick``: mouse_colmap's first 16 views at ``auto`` and native only.
+A configuration is ``size:extractor:bundle_adjustment`` (size in px, ``auto``
+or ``native``). ``--seeds``: the mapper's seeds for mouse_colmap (a view at
+the edge of registering registers under some seeds only). ``--quick``:
+mouse_colmap's first 16 views at native and the default only.
 Writes benchmarks/results/bench_sfm_size.csv and .png; the last printed line
-is the headline (mouse_colmap: CPU at ``auto`` against native, views registered).
+is the headline (mouse_colmap: CPU of the default against the baseline,
+views registered).
 """
 
 from __future__ import annotations
@@ -23,11 +33,14 @@ import os
 import shutil
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import harness
+import pycolmap
 from gs2e.config import load_config
 from gs2e.io.ingest import ingest_scene
+from gs2e.sfm import colmap_sfm
 from gs2e.sfm.colmap_sfm import run_sfm, sift_image_size
 from harness import SHARED_SCENES
 
@@ -44,99 +57,148 @@ def _subset(src: Path, layout: str, n_views: int | None, tmp: Path) -> Path:
     return out
 
 
-def run_one(scene: str, scene_dir: Path, size, tmp: Path, threads: int) -> dict:
-    """``gs2e sfm`` of ``scene_dir`` with SIFT at ``size`` (px, ``auto`` or
-    None for the photos' own size): its statistics, wall and CPU seconds of
-    this process, all threads (COLMAP runs in-process)."""
+BASELINE = "native:colmap:colmap"  # gs2e sfm at 783ff0e (which also used COLMAP's undistorter)
+DEFAULT = "auto:colmap:fast"  # today's defaults
+
+
+def parse_config(text: str) -> dict:
+    """``size:extractor:bundle_adjustment`` -> sfm config overrides."""
+    size, extractor, ba = text.split(":")
+    max_image_size = None if size == "native" else "auto" if size == "auto" else int(size)
+    return {"max_image_size": max_image_size, "extractor": extractor, "bundle_adjustment": ba}
+
+
+def run_one(scene: str, scene_dir: Path, config: str, seed: int, tmp: Path, threads: int) -> dict:
+    """``gs2e sfm`` of ``scene_dir`` in ``config`` with the mapper's ``seed``:
+    its statistics (step times: wall seconds, COLMAP's steps on one thread),
+    CPU seconds of this process, all threads (COLMAP runs in-process), less
+    the CPU of COLMAP's undistorter run beside it on the same model (reported
+    apart). The baseline ``config`` uses COLMAP's undistorter itself, as gs2e
+    sfm did then."""
     cfg = load_config({})["sfm"]
-    cfg["max_image_size"] = size
-    out = tmp / f"sfm_{scene}_{size}"
+    cfg.update(parse_config(config))
+    out = tmp / f"sfm_{scene}_{config.replace(':', '_')}_{seed}"
+    ours = colmap_sfm._undistort
+    cpu = {"colmap": float("nan"), "ours": float("nan")}
+
+    def undistort_both(model_dir, image_dir, undist, n_threads):
+        c0 = time.process_time()
+        pycolmap.undistort_images(tmp / "colmap_undist", model_dir, image_dir, num_threads=n_threads)
+        cpu["colmap"] = time.process_time() - c0
+        if config == BASELINE:  # as gs2e sfm did: COLMAP's views are the output
+            shutil.move(str(tmp / "colmap_undist"), str(undist))
+            return
+        shutil.rmtree(tmp / "colmap_undist")
+        c0 = time.process_time()
+        ours(model_dir, image_dir, undist, n_threads)
+        cpu["ours"] = time.process_time() - c0
+
+    colmap_sfm._undistort = undistort_both
     with harness.clock() as t:
         try:
-            st = run_sfm(scene_dir, out, cfg, seed=0, threads=threads)
+            st = run_sfm(scene_dir, out, cfg, seed=seed, threads=threads)
             err = ""
         except Exception as exc:  # a size too small to register is a result, not a crash
             st, err = {}, str(exc).splitlines()[0][:120]
-    cpu, wall = t.cpu_s, t.wall_s
+        finally:
+            colmap_sfm._undistort = ours
+    baseline = config == BASELINE
     shutil.rmtree(out, ignore_errors=True)
-    return {"scene": scene, "max_image_size": "native" if size is None else size,
-            "sift_px": sift_image_size(cfg), "n_views": st.get("n_views"),
-            "n_registered": st.get("n_registered"), "n_points": st.get("n_points"),
+    return {"scene": scene, "config": config, "seed": seed, "sift_px": sift_image_size(cfg),
+            "extractor": cfg["extractor"], "bundle_adjustment": cfg["bundle_adjustment"],
+            "n_views": st.get("n_views"), "n_registered": st.get("n_registered"), "n_points": st.get("n_points"),
             "reproj_px": st.get("mean_reproj_error_px"),
             "gt_rot_deg": st.get("gt_rot_median_deg"), "gt_center_pct": st.get("gt_center_rmse_pct_extent"),
             "extraction_s": st.get("time_extraction_s"), "matching_s": st.get("time_matching_s"),
-            "mapping_s": st.get("time_mapping_s"), "undistortion_s": st.get("time_undistortion_s"),
-            "wall_s": wall, "cpu_s": cpu, "error": err}
+            "mapping_s": st.get("time_mapping_s"),
+            "undistortion_cpu_s": cpu["colmap"] if baseline else cpu["ours"], "colmap_undistortion_cpu_s": cpu["colmap"],
+            "wall_s": t.wall_s, "cpu_s": t.cpu_s - (0.0 if baseline else cpu["colmap"]), "error": err}
 
 
 def plot(rows: list[dict]) -> Path:
-    """CPU seconds and views registered against the SIFT size, per scene, as
-    benchmarks/results/bench_sfm_size.png; returns the path."""
+    """CPU seconds (by step) and views registered per configuration on
+    mouse_colmap, as benchmarks/results/bench_sfm_size.png; returns the path."""
+    import numpy as np
+
     plt = harness.pyplot()
-    fig, ax = plt.subplots(1, 2, figsize=(10, 3.6))
-    for scene in sorted({r["scene"] for r in rows}):
-        rs = [r for r in rows if r["scene"] == scene]
-        x = [r["sift_px"] for r in rs]
-        ax[0].plot(x, [r["cpu_s"] for r in rs], "o-", label=scene)
-        ax[1].plot(x, [(r["n_registered"] or 0) / (r["n_views"] or 1) for r in rs], "o-", label=scene)
-    ax[0].set(xlabel="longer side SIFT sees (px)", ylabel="CPU s (whole gs2e sfm)",
-              title="cost against SIFT size")
-    ax[1].set(xlabel="longer side SIFT sees (px)", ylabel="views registered (fraction)",
-              title="registration", ylim=(0, 1.05))
-    ax[0].legend()
+    rs = [r for r in rows if r["scene"] == "mouse_colmap" and not r["error"]]
+    configs = list(dict.fromkeys(r["config"] for r in rs))
+    steps = ("extraction_s", "matching_s", "mapping_s", "undistortion_cpu_s")
+    fig, ax = plt.subplots(1, 2, figsize=(11, 3.8))
+    bottom = np.zeros(len(configs))
+    for step in steps:
+        v = np.array([np.mean([r[step] or 0.0 for r in rs if r["config"] == c]) for c in configs])
+        ax[0].bar(range(len(configs)), v, bottom=bottom, label=step.split("_")[0])
+        bottom += v
+    ax[0].plot(range(len(configs)), [np.mean([r["cpu_s"] for r in rs if r["config"] == c]) for c in configs],
+               "k_", ms=30, label="whole gs2e sfm")
+    ax[0].set_xticks(range(len(configs)), configs, rotation=15, fontsize=7)
+    ax[0].set(ylabel="s (mean over seeds)", title="mouse_colmap: steps (s) and whole run (CPU s)")
+    ax[0].legend(fontsize=7)
+    for i, c in enumerate(configs):
+        reg = [r["n_registered"] for r in rs if r["config"] == c]
+        ax[1].plot([i] * len(reg), reg, "o", alpha=0.6)
+    ax[1].set_xticks(range(len(configs)), configs, rotation=15, fontsize=7)
+    n_views = rs[0]["n_views"] if rs else 1
+    ax[1].set(ylabel="views registered (each seed)", title=f"registration of {n_views} views",
+              ylim=(n_views - 4.5, n_views + 0.5))
     return harness.save_plot(fig, "bench_sfm_size", dpi=110)
 
 
 def main() -> int:
-    ap = harness.parser(__doc__, quick="mouse_colmap's first 16 views, auto and native (a few minutes)")
-    ap.add_argument("--sizes", default="800,1024,1600,native",
-                    help="comma-separated SIFT sizes for mouse_colmap (px, auto or native)")
+    ap = harness.parser(__doc__, quick="mouse_colmap's first 16 views, baseline and default (a few minutes)")
+    ap.add_argument("--configs", default=f"{BASELINE},auto:colmap:colmap,{DEFAULT},auto:opencv:fast",
+                    help="comma-separated size:extractor:bundle_adjustment for mouse_colmap")
+    ap.add_argument("--seeds", default="0,1,2", help="mapper seeds for mouse_colmap")
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args()
     os.environ.setdefault("GS2E_PROGRESS", "0")
     if not SHARED_SCENES["mouse_colmap"][1].is_dir():
         print(f"no real data under {SHARED_SCENES['mouse_colmap'][1].parent}; nothing to benchmark")
         return 0
-    parse = {"native": None, "auto": "auto"}
-    sizes = (["auto", None] if args.quick
-             else [parse[s] if s in parse else int(s) for s in args.sizes.split(",")])
-    plan = [("mouse_colmap", s) for s in sizes]
+    configs = [BASELINE, DEFAULT] if args.quick else args.configs.split(",")
+    seeds = [0] if args.quick else [int(x) for x in args.seeds.split(",")]
+    plan = [("mouse_colmap", c, seed) for c in configs for seed in (seeds if c != BASELINE else seeds[:1])]
     if not args.quick:
-        plan += [("temple_ring", "auto"), ("llff_fern", "auto")]
+        plan += [(scene, c, 0) for scene in ("temple_ring", "llff_fern") for c in (BASELINE, DEFAULT)]
     tmp = Path(tempfile.mkdtemp(prefix="bench_sfm_size_"))
     rows = []
     try:
         ingested = {}
-        for scene, size in plan:
+        for scene, config, seed in plan:
             if scene not in ingested:
                 layout, src = SHARED_SCENES[scene]
                 src = _subset(src, layout, 16 if args.quick else None, tmp)
                 layout = "folder" if args.quick else layout
                 ingested[scene] = tmp / f"ingest_{scene}"
                 ingest_scene(src, layout, ingested[scene], load_config({})["ingest"])
-            r = run_one(scene, ingested[scene], size, tmp, args.threads)
+            r = run_one(scene, ingested[scene], config, seed, tmp, args.threads)
             rows.append(r)
-            print(f"  {scene:13s} sift {r['sift_px']:5d} px: {r['n_registered']}/{r['n_views']} views, "
+            print(f"  {scene:13s} {config:22s} seed {seed}: {r['n_registered']}/{r['n_views']} views, "
                   f"{r['n_points']} points, {r['reproj_px'] or float('nan'):.3f} px, "
                   f"{r['cpu_s']:.1f} CPU-s {r['error']}", flush=True)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     files = [harness.write_csv("bench_sfm_size", rows), plot(rows)]
-    hdr = ("scene", "max_image_size", "sift_px", "n_registered", "n_views", "n_points", "reproj_px",
-           "gt_rot_deg", "gt_center_pct", "extraction_s", "matching_s", "mapping_s", "undistortion_s",
-           "cpu_s")
+    hdr = ("scene", "config", "seed", "sift_px", "n_registered", "n_views", "n_points", "reproj_px",
+           "gt_rot_deg", "gt_center_pct", "extraction_s", "matching_s", "mapping_s", "undistortion_cpu_s",
+           "colmap_undistortion_cpu_s", "cpu_s")
     table = ["\n" + " | ".join(hdr)]
     for r in rows:
         table.append(" | ".join("-" if r[k] is None else f"{r[k]:.3g}" if isinstance(r[k], float) else str(r[k])
                                 for k in hdr))
-    m = {r["max_image_size"]: r for r in rows if r["scene"] == "mouse_colmap"}
-    if "auto" in m and "native" in m:
-        a, n = m["auto"], m["native"]
-        head = (f"headline: mouse_colmap SfM at auto ({a['sift_px']} px) {a['cpu_s']:.0f} CPU-s against "
-                f"{n['cpu_s']:.0f} at the photos' size ({n['cpu_s'] / a['cpu_s']:.2f}x less), "
-                f"{a['n_registered']}/{a['n_views']} views registered (native {n['n_registered']})")
-    else:  # --sizes without both: no ratio to give
-        head = "headline: mouse_colmap SfM measured at " + ", ".join(str(s) for s in m) + " (no auto/native pair)"
+    m = [r for r in rows if r["scene"] == "mouse_colmap"]
+    base = [r for r in m if r["config"] == BASELINE]
+    dflt = [r for r in m if r["config"] == DEFAULT]
+    if base and dflt:
+        cpu = sum(r["cpu_s"] for r in dflt) / len(dflt)
+        head = (f"headline: mouse_colmap SfM with the defaults ({DEFAULT}) {cpu:.0f} CPU-s against "
+                f"{base[0]['cpu_s']:.0f} for 783ff0e's ({BASELINE}; {base[0]['cpu_s'] / cpu:.2f}x less), "
+                f"views registered {'/'.join(str(r['n_registered']) for r in dflt)} of {dflt[0]['n_views']} "
+                f"over seeds (783ff0e's: {base[0]['n_registered']})")
+    else:
+        head = "headline: mouse_colmap SfM measured in " + ", ".join(dict.fromkeys(r["config"] for r in m)) + \
+            f" (no {BASELINE} / {DEFAULT} pair)"
     harness.report("\n".join(table), head, files)
     return 0
 

@@ -1,8 +1,9 @@
 """COLMAP structure-from-motion through pycolmap.
 
-Steps: SIFT extraction -> matching (exhaustive or sequential) -> incremental
-mapping (or, when the scene has poses and ``reuse_poses`` is set, triangulation
-with the given poses) -> undistortion to PINHOLE. The output folder is an
+Steps: SIFT extraction (COLMAP's, or OpenCV's: gs2e.sfm.features) -> matching
+(exhaustive or sequential) -> incremental mapping (or, when the scene has poses
+and ``reuse_poses`` is set, triangulation with the given poses) -> undistortion
+to PINHOLE (COLMAP's cameras, views resampled by OpenCV: gs2e.sfm.undistort). The output folder is an
 internal-layout scene (undistorted ``images/``, ``scene.json``,
 ``points3d.npz``) plus ``sparse/0`` (COLMAP binary model), the input layout
 3DGS implementations expect.
@@ -56,26 +57,77 @@ def sift_image_size(cfg: dict) -> int:
     return SIFT_NATIVE_LIMIT if v is None else int(v)
 
 
-def _extract(db: Path, image_dir: Path, names: list[str], cfg: dict, threads: int,
-             camera_mode, camera_model: str) -> None:
+def _import_images(db: Path, image_dir: Path, names: list[str], camera_mode, camera_model: str):
+    """Images and cameras into a new database, one by one in name order: the
+    extractor's threads would otherwise number them in the order they finish,
+    and the mapper's result depends on the image ids. Returns the reader options."""
     import pycolmap
 
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = camera_model
+    pycolmap.Database.open(str(db)).close()  # creates the (empty) database
+    pycolmap.import_images(db, image_dir, camera_mode=camera_mode, image_names=names, options=reader)
+    return reader
+
+
+def _extract(db: Path, image_dir: Path, names: list[str], cfg: dict, threads: int,
+             camera_mode, camera_model: str, colmap_threads: int) -> None:
+    """SIFT keypoints and descriptors of every view into the database:
+    OpenCV's (``sfm.extractor: opencv``; a thread per view, each view's
+    result independent of the others) or COLMAP's own (``colmap``, on
+    ``colmap_threads``; on the GPU with ``sfm.gpu``)."""
+    import pycolmap
+
+    reader = _import_images(db, image_dir, names, camera_mode, camera_model)
+    if cfg["extractor"] == "opencv" and not cfg.get("gpu"):
+        _extract_opencv(db, image_dir, cfg, threads)
+        return
     extraction = pycolmap.FeatureExtractionOptions()
-    extraction.num_threads = threads
+    extraction.num_threads = colmap_threads
     extraction.use_gpu = bool(cfg.get("gpu"))
     extraction.sift.max_num_features = int(cfg["max_num_features"])
     extraction.max_image_size = sift_image_size(cfg)
-    # Images (and cameras) enter the database first, one by one in name order:
-    # the extractor's threads would otherwise number them in the order they
-    # finish, and the mapper's result depends on the image ids.
-    pycolmap.Database.open(str(db)).close()  # creates the (empty) database
-    pycolmap.import_images(db, image_dir, camera_mode=camera_mode, image_names=names,
-                           options=reader)
     pycolmap.extract_features(db, image_dir, image_names=names, camera_mode=camera_mode,
                               reader_options=reader, extraction_options=extraction,
                               device=_device(cfg))
+
+
+def _extract_opencv(db: Path, image_dir: Path, cfg: dict, threads: int) -> None:
+    """OpenCV SIFT (gs2e.sfm.features) of the database's images, ``threads``
+    views at a time, OpenCV itself on one thread (its own threads would make
+    the keypoint order depend on timing)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    import cv2
+    import pycolmap
+
+    from gs2e.common.progress import progress
+    from gs2e.sfm.features import sift_features
+
+    size, n_max = sift_image_size(cfg), int(cfg["max_num_features"])
+
+    def one(name: str):
+        path = image_dir / name
+        gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
+        if gray is None:
+            raise InputError(f"{path}: cannot read the image for SIFT")
+        return sift_features(gray, size, n_max)
+
+    database = pycolmap.Database.open(str(db))
+    cv_threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        images = sorted(database.read_all_images(), key=lambda im: im.image_id)
+        with ThreadPoolExecutor(max(1, threads)) as pool:
+            for im, (keypoints, descriptors) in zip(
+                    images, progress(pool.map(lambda im: one(im.name), images), total=len(images),
+                                     desc="SIFT", unit="view")):
+                database.write_keypoints(im.image_id, keypoints)
+                database.write_descriptors(im.image_id, pycolmap.FeatureDescriptors(
+                    pycolmap.FeatureExtractorType.SIFT, descriptors))
+    finally:
+        cv2.setNumThreads(cv_threads)
+        database.close()
 
 
 def _match(db: Path, matcher: str, cfg: dict, threads: int, seed: int) -> None:
@@ -100,12 +152,25 @@ def _match(db: Path, matcher: str, cfg: dict, threads: int, seed: int) -> None:
                                   verification_options=vopts, device=_device(cfg))
 
 
-def _mapper_options(threads: int, seed: int):
+# sfm.bundle_adjustment: fast = the schedule of COLMAP's automatic reconstructor
+# at its low quality level (COLMAP 3.x's 25 / 50 iterations halved, a global
+# adjustment each time the model grows by 32 % instead of 10 %, at most 2
+# refinement rounds): 0.6x the mapping CPU on mouse_colmap, same views
+# registered (benchmarks/bench_sfm_size.py).
+FAST_BUNDLE_ADJUSTMENT = {"ba_local_max_num_iterations": 12, "ba_global_max_num_iterations": 25,
+                          "ba_global_frames_ratio": 1.32, "ba_global_points_ratio": 1.32,
+                          "ba_global_max_refinements": 2}
+
+
+def _mapper_options(cfg: dict, threads: int, seed: int):
     import pycolmap
 
     opts = pycolmap.IncrementalPipelineOptions()
     opts.num_threads = threads
     opts.random_seed = int(seed)
+    if cfg["bundle_adjustment"] == "fast":
+        for key, value in FAST_BUNDLE_ADJUSTMENT.items():
+            setattr(opts, key, value)
     return opts
 
 
@@ -144,7 +209,8 @@ class _Run:
     scene_dir: Path
     cfg: dict
     seed: int
-    colmap_threads: int  # extraction, matching, mapping
+    threads: int  # OpenCV extraction, undistortion
+    colmap_threads: int  # COLMAP's extraction, matching, mapping
     work: Path  # scratch folder: database, models
     timings: dict[str, float] = field(default_factory=dict)
 
@@ -167,8 +233,8 @@ class _Run:
     def features(self, camera_mode, camera_model: str, matcher: str) -> None:
         """SIFT features and verified matches into the run's database."""
         with timed("extraction", log, self.timings):
-            _extract(self.db, self.image_dir, self.names, self.cfg, self.colmap_threads, camera_mode,
-                     camera_model)
+            _extract(self.db, self.image_dir, self.names, self.cfg, self.threads, camera_mode,
+                     camera_model, self.colmap_threads)
         with timed("matching", log, self.timings):
             _match(self.db, matcher, self.cfg, self.colmap_threads, self.seed)
 
@@ -195,7 +261,7 @@ def _reconstruct_known_poses(run: _Run, matcher: str):
     with timed("mapping", log, run.timings):
         rec = _known_pose_reconstruction(run.db, run.scene)
         return pycolmap.triangulate_points(rec, run.db, run.image_dir, run.model_dir,
-                                           options=_mapper_options(run.colmap_threads, run.seed))
+                                           options=_mapper_options(run.cfg, run.colmap_threads, run.seed))
 
 
 def _reconstruct_incremental(run: _Run, matcher: str):
@@ -213,7 +279,7 @@ def _reconstruct_incremental(run: _Run, matcher: str):
     run.features(mode, cfg["camera_model"], matcher)
     with timed("mapping", log, run.timings):
         recs = pycolmap.incremental_mapping(run.db, run.image_dir, run.work / "sparse",
-                                            options=_mapper_options(run.colmap_threads, run.seed))
+                                            options=_mapper_options(run.cfg, run.colmap_threads, run.seed))
     if not recs:
         raise InputError(f"{run.scene_dir}: COLMAP registered no views (no initial pair found)")
     rec = max(recs.values(), key=lambda r: r.num_reg_images())
@@ -236,6 +302,48 @@ def _check_registration(rec, run: _Run) -> set[str]:
     return registered
 
 
+def _undistort(model_dir: Path, image_dir: Path, undist: Path, threads: int) -> None:
+    """COLMAP's undistorted model (PINHOLE cameras, 2D points moved with them)
+    and the registered views resampled to it, into ``undist`` (``sparse/``,
+    ``images/``). The views are resampled with OpenCV (gs2e.sfm.undistort),
+    ``threads`` at a time; a camera model OpenCV cannot express leaves all of
+    it to COLMAP (as do views that are not PNG files, which ingest never writes)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    import cv2
+    import pycolmap
+
+    from gs2e.io.images import read_image, write_png
+    from gs2e.sfm.undistort import OPENCV_DISTORTION, undistort_image, undistortion_maps
+
+    rec = pycolmap.Reconstruction(str(model_dir))
+    images = [rec.image(i) for i in sorted(rec.reg_image_ids())]
+    if any(rec.cameras[im.camera_id].model.name not in OPENCV_DISTORTION or Path(im.name).suffix.lower() != ".png"
+           for im in images):
+        pycolmap.undistort_images(undist, model_dir, image_dir, num_threads=threads)
+        return
+    # Undistorting one view writes the whole undistorted model; that view is rewritten below.
+    pycolmap.undistort_images(undist, model_dir, image_dir, image_names=[images[0].name], num_threads=1)
+    cameras = pycolmap.Reconstruction(str(undist / "sparse")).cameras
+    maps = {}
+    for im in images:
+        if im.camera_id not in maps:
+            src, dst = rec.cameras[im.camera_id], cameras[im.camera_id]
+            maps[im.camera_id] = undistortion_maps(src.model.name, src.params, dst.params, (dst.width, dst.height))
+
+    def one(im) -> None:
+        rgb = read_image(image_dir / im.name)
+        write_png(undist / "images" / im.name, undistort_image(rgb, maps[im.camera_id]))
+
+    cv_threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        with ThreadPoolExecutor(max(1, threads)) as pool:
+            list(pool.map(one, images))
+    finally:
+        cv2.setNumThreads(cv_threads)
+
+
 def _write_undistorted(run: _Run, out: Path, threads: int, keep_points: bool, registered: set[str]) -> Scene:
     """Undistort the model's views to PINHOLE and write them as an internal-layout
     scene plus ``sparse/0`` into ``out``; returns that scene."""
@@ -245,7 +353,7 @@ def _write_undistorted(run: _Run, out: Path, threads: int, keep_points: bool, re
 
     undist = run.work / "undist"
     with timed("undistortion", log, run.timings):
-        pycolmap.undistort_images(undist, run.model_dir, run.image_dir, num_threads=threads)
+        _undistort(run.model_dir, run.image_dir, undist, threads)
     with timed("writing", log, run.timings):
         scene = run.scene
         out_scene = scene_from_reconstruction(pycolmap.Reconstruction(str(undist / "sparse")))
@@ -322,7 +430,7 @@ def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0
              "none" if mode == "given" else matcher, mode, threads, colmap_threads)
 
     with atomic_dir(out_dir) as out, scratch_dir(out_dir) as work:
-        run = _Run(scene, scene_dir, cfg, seed, colmap_threads, work)
+        run = _Run(scene, scene_dir, cfg, seed, threads, colmap_threads, work)
         run.model_dir.mkdir()
         if mode == "given":
             rec, matcher = _reconstruct_given(run), "none"
@@ -343,6 +451,8 @@ def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0
             "mean_track_length": float(rec.compute_mean_track_length()) if rec.num_points3D() else float("nan"),
             "matcher": matcher,
             "sift_max_image_size": None if mode == "given" else sift_image_size(cfg),
+            "sift_extractor": None if mode == "given" else "colmap" if cfg.get("gpu") else cfg["extractor"],
+            "bundle_adjustment": cfg["bundle_adjustment"] if mode == "incremental" else None,
             "mode": mode,
             "threads": threads,
             **{f"time_{k}_s": v for k, v in run.timings.items()},
