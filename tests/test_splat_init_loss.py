@@ -10,7 +10,7 @@ import torch
 
 from gs2e.common.errors import InputError
 from gs2e.splat.init import SH_C0, init_from_points, knn_log_scales
-from gs2e.splat.loss import photometric_loss, psnr, ssim
+from gs2e.splat.loss import photometric_loss, psnr, ssim, ssim_reference
 
 
 def test_ssim_identity_and_range():
@@ -70,6 +70,65 @@ def test_ssim_matches_reference_in_both_precisions(shape):
         assert float(val.detach()) == pytest.approx(ref, abs=tol)
         val.backward()
         assert ta.grad.shape == ta.shape and torch.isfinite(ta.grad).all() and ta.grad.abs().sum() > 0
+
+
+@pytest.mark.parametrize("shape", [(37, 53, 3), (2, 19, 64, 1), (12, 9, 3), (1, 1, 3)])
+@pytest.mark.parametrize("dtype,rtol", [(torch.float64, 1e-10), (torch.float32, 2e-3)])
+def test_ssim_gradient_in_closed_form_matches_autograd(shape, dtype, rtol):
+    """The CPU SSIM (OpenCV blurs, closed-form gradient) against torch's autograd
+    through its own convolutions (ssim_reference): the value, and the gradient
+    of both images where both need one, on images smaller than the window and
+    on a single pixel; flat regions (equal images there) included, where the
+    variances vanish and only C2 keeps the quotient finite."""
+    rng = np.random.default_rng(2)
+    a = rng.random(shape)
+    b = np.clip(a + 0.2 * rng.standard_normal(shape), 0, 1)
+    b[..., : shape[-2] // 2, :] = a[..., : shape[-2] // 2, :]  # half the image identical
+    a[..., :3, :3, :] = 0.5  # and a flat patch
+    grads = []
+    for fn in (ssim, ssim_reference):
+        ta = torch.tensor(a, dtype=dtype, requires_grad=True)
+        tb = torch.tensor(b, dtype=dtype, requires_grad=True)
+        val = fn(ta, tb)
+        (3.0 * val).backward()
+        grads.append((float(val.detach()), ta.grad, tb.grad))
+    (v, ga, gb), (v_ref, ga_ref, gb_ref) = grads
+    assert v == pytest.approx(v_ref, rel=1e-12 if dtype == torch.float64 else 1e-6)
+    for g, g_ref in ((ga, ga_ref), (gb, gb_ref)):
+        assert g.dtype == dtype and g.shape == g_ref.shape
+        scale = float(g_ref.abs().max())
+        assert scale > 0 and float((g - g_ref).abs().max()) <= rtol * scale
+
+
+def test_ssim_gradient_passes_gradcheck():
+    g = torch.Generator().manual_seed(3)
+    a = torch.rand(9, 14, 2, generator=g, dtype=torch.float64, requires_grad=True)
+    b = torch.rand(9, 14, 2, generator=g, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(ssim, (a, b))
+    # only one input needing a gradient: the other gets none
+    a2 = a.detach().clone().requires_grad_(True)
+    ssim(a2, b.detach()).backward()
+    assert a2.grad is not None and torch.isfinite(a2.grad).all()
+
+
+def test_ssim_is_the_same_bits_at_any_thread_count():
+    import cv2
+
+    rng = np.random.default_rng(4)
+    a = torch.tensor(rng.random((120, 161, 3)), dtype=torch.float32, requires_grad=True)
+    b = torch.tensor(rng.random((120, 161, 3)), dtype=torch.float32)
+    before = cv2.getNumThreads()
+    out = []
+    try:
+        for n in (1, 2, 4):
+            cv2.setNumThreads(n)
+            a.grad = None
+            v = ssim(a, b)
+            v.backward()
+            out.append((v.detach().clone(), a.grad.clone()))
+    finally:
+        cv2.setNumThreads(before)
+    assert all(torch.equal(o[0], out[0][0]) and torch.equal(o[1], out[0][1]) for o in out)
 
 
 def test_loss_gradient_flows():

@@ -41,8 +41,10 @@ def _bchw(img: torch.Tensor) -> torch.Tensor:
     return x.contiguous() if x.dtype == torch.float64 else x
 
 
-def ssim(a: torch.Tensor, b: torch.Tensor, window: int = 11, sigma: float = 1.5) -> torch.Tensor:
-    """Mean SSIM of two images (H, W, C) or (B, H, W, C), differentiable."""
+def ssim_reference(a: torch.Tensor, b: torch.Tensor, window: int = 11, sigma: float = 1.5) -> torch.Tensor:
+    """Mean SSIM of two images (H, W, C) or (B, H, W, C), differentiable by
+    torch's autograd through its depthwise convolutions: the definition
+    :func:`ssim` is tested against, and what runs on a GPU."""
     x, y = _bchw(a), _bchw(b)
     mu_x, mu_y = _blur(x, window, sigma), _blur(y, window, sigma)
     sxx = _blur(x * x, window, sigma) - mu_x ** 2
@@ -51,6 +53,83 @@ def ssim(a: torch.Tensor, b: torch.Tensor, window: int = 11, sigma: float = 1.5)
     num = (2 * mu_x * mu_y + C1) * (2 * sxy + C2)
     den = (mu_x ** 2 + mu_y ** 2 + C1) * (sxx + syy + C2)
     return (num / den).mean()
+
+
+def _blur_hwc(images: list[torch.Tensor], size: int, sigma: float) -> list[torch.Tensor]:
+    """The same zero-padded separable Gaussian as :func:`_blur`, of CPU
+    (B, H, W, C) float32/float64 tensors, channels last, by OpenCV's SIMD row
+    and column filters: 7x less CPU than torch's depthwise convolution, equal
+    to it within 3e-7 (float32) and 5e-16 (float64), and the same bits at any
+    thread count (each output is one fixed sum). Each image stays a
+    contiguous block: torch's elementwise ops on channel-interleaved views
+    cost 6x those on contiguous ones."""
+    import cv2
+
+    g = _gauss_1d(size, sigma, images[0].dtype).numpy()
+    out = []
+    for img in images:
+        src = img.detach().contiguous().numpy()
+        blurred = torch.empty(img.shape, dtype=img.dtype)
+        dst = blurred.numpy()
+        for i in range(src.shape[0]):  # cv2 drops a channel axis of length 1: write through a reshape
+            dst[i] = cv2.sepFilter2D(src[i], -1, g, g, borderType=cv2.BORDER_CONSTANT).reshape(dst[i].shape)
+        out.append(blurred)
+    return out
+
+
+class _SSIM(torch.autograd.Function):
+    """Mean SSIM of (B, H, W, C) CPU images with its gradient in closed form:
+    blurs of x, y, x², y² and xy forward, of three maps per input that needs a
+    gradient backward (the zero-padded symmetric Gaussian is its own
+    adjoint), each in OpenCV (:func:`_blur_hwc`)."""
+
+    @staticmethod
+    def forward(ctx, x, y, window: int, sigma: float):
+        mu_x, mu_y, bxx, byy, bxy = _blur_hwc([x, y, x * x, y * y, x * y], window, sigma)
+        a1, a2 = 2 * mu_x * mu_y + C1, 2 * (bxy - mu_x * mu_y) + C2
+        b1, b2 = mu_x * mu_x + mu_y * mu_y + C1, (bxx - mu_x * mu_x) + (byy - mu_y * mu_y) + C2
+        s_map = a1 * a2 / (b1 * b2)
+        ctx.save_for_backward(x, y, mu_x, mu_y, a1, a2, b1, b2, s_map)
+        ctx.window, ctx.sigma = window, sigma
+        return s_map.mean()
+
+    @staticmethod
+    def backward(ctx, grad):
+        x, y, mu_x, mu_y, a1, a2, b1, b2, s_map = ctx.saved_tensors
+        g = grad / s_map.numel()
+        inv_b12 = g / (b1 * b2)
+        d_bxy = 2 * a1 * inv_b12  # dL/d blur(xy)
+        d_bsq = -g * s_map / b2  # dL/d blur(x²) and dL/d blur(y²)
+        d_common = 2 * a2 * inv_b12
+        d_mu_own = g * 2 * s_map / b1
+        parts = []
+        for need, mu_own, mu_other in ((ctx.needs_input_grad[0], mu_x, mu_y), (ctx.needs_input_grad[1], mu_y, mu_x)):
+            if need:  # dL/d mu (through mu itself, the variance and the covariance), dL/d blur(square)
+                parts += [d_common * mu_other - d_mu_own * mu_own - 2 * mu_own * d_bsq - mu_other * d_bxy, d_bsq]
+        if not parts:
+            return None, None, None, None
+        blurred = _blur_hwc(parts + [d_bxy], ctx.window, ctx.sigma)
+        grads, i = [None, None], 0
+        for k, (own, other) in enumerate(((x, y), (y, x))):
+            if ctx.needs_input_grad[k]:
+                grads[k] = blurred[i] + 2 * own * blurred[i + 1] + other * blurred[-1]
+                i += 2
+        return grads[0], grads[1], None, None
+
+
+def ssim(a: torch.Tensor, b: torch.Tensor, window: int = 11, sigma: float = 1.5) -> torch.Tensor:
+    """Mean SSIM of two images (H, W, C) or (B, H, W, C), differentiable.
+
+    On the CPU in float32/float64 the blurs run in OpenCV and the gradient in
+    closed form (:class:`_SSIM`; a whole training step of temple_ring at
+    349x260 spends 0.3 of its CPU in torch's version); elsewhere (a GPU, other
+    dtypes) it is :func:`ssim_reference`. Both agree to rounding."""
+    if (a.device.type != "cpu" or b.device.type != "cpu" or a.dtype != b.dtype
+            or a.dtype not in (torch.float32, torch.float64)):
+        return ssim_reference(a, b, window, sigma)
+    x = a if a.dim() == 4 else a.unsqueeze(0)
+    y = b if b.dim() == 4 else b.unsqueeze(0)
+    return _SSIM.apply(x, y, window, float(sigma))
 
 
 def l1(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
