@@ -318,8 +318,8 @@ def _undistort(model_dir: Path, image_dir: Path, undist: Path, threads: int) -> 
 
     rec = pycolmap.Reconstruction(str(model_dir))
     images = [rec.image(i) for i in sorted(rec.reg_image_ids())]
-    if any(rec.cameras[im.camera_id].model.name not in OPENCV_DISTORTION or Path(im.name).suffix.lower() != ".png"
-           for im in images):
+    if not images or any(rec.cameras[im.camera_id].model.name not in OPENCV_DISTORTION
+                         or Path(im.name).suffix.lower() != ".png" for im in images):
         pycolmap.undistort_images(undist, model_dir, image_dir, num_threads=threads)
         return
     # Undistorting one view writes the whole undistorted model; that view is rewritten below.

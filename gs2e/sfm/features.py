@@ -4,7 +4,10 @@ COLMAP's own CPU SIFT (VLFeat) took 1.3 s of CPU per 1024 px view on an AVX2
 machine; OpenCV's SIMD SIFT finds keypoints of the same kind in about a
 quarter of that (benchmarks/bench_sfm_size.py). The keypoints and
 descriptors are written into COLMAP's feature database, so COLMAP's matcher
-and mapper use them as they would their own.
+and mapper use them as they would their own. They match less well than
+COLMAP's (fewer inliers per view pair on mouse_colmap: a view at the edge of
+registering is lost more often), so ``sfm.extractor: opencv`` is an option,
+not the default (docs/sfm.md).
 
 Conventions (those of COLMAP's extractor):
 
