@@ -117,18 +117,45 @@ def test_ssim_is_the_same_bits_at_any_thread_count():
     rng = np.random.default_rng(4)
     a = torch.tensor(rng.random((120, 161, 3)), dtype=torch.float32, requires_grad=True)
     b = torch.tensor(rng.random((120, 161, 3)), dtype=torch.float32)
-    before = cv2.getNumThreads()
+    import numba
+
+    before, before_nb = cv2.getNumThreads(), numba.get_num_threads()
     out = []
     try:
         for n in (1, 2, 4):
             cv2.setNumThreads(n)
+            numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
             a.grad = None
             v = ssim(a, b)
             v.backward()
             out.append((v.detach().clone(), a.grad.clone()))
     finally:
         cv2.setNumThreads(before)
+        numba.set_num_threads(before_nb)
     assert all(torch.equal(o[0], out[0][0]) and torch.equal(o[1], out[0][1]) for o in out)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_ssim_fused_map_is_torchs_elementwise_arithmetic(dtype):
+    """The fused per-pixel loop computes the SSIM map from the five blurs with
+    the operations of ssim_reference in their order: the same bits as torch's
+    elementwise ops (no contraction into fused multiply-adds), also where
+    the variances cancel (flat regions, mu^2 close to blur(x^2))."""
+    from gs2e.splat import loss as L
+
+    g = torch.Generator().manual_seed(5)
+    x = torch.rand(1, 40, 57, 3, generator=g, dtype=dtype)
+    x[:, :20] = 0.25  # flat: sigma^2 cancels to rounding
+    y = (x * 0.7 + 0.1 * torch.rand(x.shape, generator=g, dtype=dtype)).contiguous()
+    mu_x, mu_y, bxx, byy, bxy = L._blur_hwc([x, y, x * x, y * y, x * y], 11, 1.5)
+    a1, a2 = 2 * mu_x * mu_y + L.C1, 2 * (bxy - mu_x * mu_y) + L.C2
+    b1, b2 = mu_x * mu_x + mu_y * mu_y + L.C1, (bxx - mu_x * mu_x) + (byy - mu_y * mu_y) + L.C2
+    want = a1 * a2 / (b1 * b2)
+    got = torch.empty(x.shape, dtype=dtype)
+    c1, c2 = (np.dtype(str(dtype).split(".")[1]).type(c) for c in (L.C1, L.C2))
+    L._ssim_map(*(t.numpy().reshape(-1) for t in (mu_x, mu_y, bxx, byy, bxy)), c1, c2,
+                got.numpy().reshape(-1))
+    assert torch.equal(got, want)
 
 
 def test_loss_gradient_flows():
