@@ -61,6 +61,38 @@ def test_exposure_integral_degenerate_cases():
     assert np.isfinite(lat).all() and lat.min() >= 0
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_exposure_levels_give_the_integral_at_every_theta(seed):
+    """The theta search's form (levels once, then one exp per stretch) against
+    the direct integral, for one threshold: events before t0, after t1, at t0,
+    t_ref and t1, several at one time, thousands on one pixel (clamped exp)."""
+    from gs2e.bench import _kernels as K
+
+    rng = np.random.default_rng(seed)
+    shape, t0, t1, t_ref = (3, 5), 1000.0, 21000.0, 11000.0
+    n = 400
+    t = np.sort(np.concatenate([rng.uniform(0, 25000, n - 8), [t0, t0, t_ref, t_ref, t1, t1, 5e3, 5e3]]))
+    x, y = rng.integers(0, shape[1], n), rng.integers(0, shape[0], n)
+    x[:4] = y[:4] = 0  # several events of one pixel before t0
+    sign = np.where(rng.integers(0, 2, n) > 0, 1, -1)
+    lv = K.exposure_levels(t, x, y, sign, t0, t1, t_ref, *shape)
+    assert (lv[2] > 0).all() and len(lv[0]) <= 2 * n
+    for theta in (0.02, 0.3, 1.5):
+        want = D.exposure_mean_exp(t, x, y, sign * theta, t0, t1, t_ref, shape)
+        np.testing.assert_allclose(K.mean_exp_levels(*lv, theta, t1 - t0, *shape), want, rtol=1e-12)
+    e = np.empty(0, np.int64)
+    assert (K.mean_exp_levels(*K.exposure_levels(np.empty(0), e, e, e, 0.0, 100.0, 50.0, 2, 2), 0.3,
+                              100.0, 2, 2) == 1).all()  # no events
+    lv = K.exposure_levels(np.array([10.0]), np.zeros(1, np.int64), np.zeros(1, np.int64),
+                           np.ones(1, np.int64), 50.0, 50.0, 50.0, 1, 1)
+    assert len(lv[0]) == 0  # T = 0: nothing to integrate
+    many = np.linspace(0, 100, 5000)
+    z = np.zeros(5000, np.int64)
+    lv = K.exposure_levels(many, z, z, np.ones(5000, np.int64), 0.0, 100.0, 0.0, 1, 1)
+    m = K.mean_exp_levels(*lv, 1.0, 100.0, 1, 1)
+    assert np.isfinite(m).all() and m[0, 0] > 1e200
+
+
 def test_edi_inverts_an_exact_step():
     """A pixel whose linear intensity steps from a to b (one ON event of exactly
     the log step) at ts inside the exposure: EDI returns a before ts, b after."""

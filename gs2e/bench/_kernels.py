@@ -58,6 +58,63 @@ def exposure_mean_exp(t_us, x, y, inc, t0_us, t1_us, t_ref_us, H, W):
 
 
 @njit(cache=True)
+def exposure_levels(t_us, x, y, sign, t0_us, t1_us, t_ref_us, H, W):
+    """:func:`exposure_mean_exp` for events of one threshold (``sign`` +1 ON,
+    -1 OFF, each step theta), once for every theta: per pixel with an event,
+    how long over [t0, t1] its count n(tau) - n(t_ref) stays at each level.
+
+    Returns (pix, level, dur_us): pixel index (row * W + column), level
+    (int64) and duration (float64 us) of each stretch of positive length, so
+    that the mean over the exposure of exp(theta (n(tau) - n(t_ref))) is
+    sum(dur_us * exp(theta * level)) / (t1 - t0) over a pixel's stretches
+    (:func:`mean_exp_levels`), and 1 for a pixel without one.
+    """
+    n = t_us.shape[0]
+    level = np.zeros(H * W, np.int64)
+    for k in range(n):
+        if t_us[k] <= t_ref_us:
+            level[y[k] * W + x[k]] -= sign[k]  # count(t0) - count(t_ref)
+    last = np.full(H * W, np.nan)  # nan: no event yet
+    o_pix = np.empty(2 * n, np.int64)
+    o_lvl = np.empty(2 * n, np.int64)
+    o_dur = np.empty(2 * n)
+    m = 0
+    for k in range(n):
+        p = y[k] * W + x[k]
+        tk = min(max(float(t_us[k]), t0_us), t1_us)
+        t_prev = t0_us if math.isnan(last[p]) else last[p]
+        if tk > t_prev:
+            o_pix[m], o_lvl[m], o_dur[m] = p, level[p], tk - t_prev
+            m += 1
+        level[p] += sign[k]
+        last[p] = tk
+    for k in range(n):  # the stretch after each pixel's last event, once
+        p = y[k] * W + x[k]
+        if not math.isnan(last[p]):
+            if t1_us > last[p]:
+                o_pix[m], o_lvl[m], o_dur[m] = p, level[p], t1_us - last[p]
+                m += 1
+            last[p] = np.nan
+    return o_pix[:m], o_lvl[:m], o_dur[:m]
+
+
+@njit(cache=True)
+def mean_exp_levels(pix, level, dur_us, theta, T_us, H, W):
+    """(H, W) mean over an exposure of length ``T_us`` of exp(theta (n(tau) -
+    n(t_ref))) from :func:`exposure_levels`' stretches; 1 where a pixel has none."""
+    area = np.zeros(H * W)
+    touched = np.zeros(H * W, np.bool_)
+    for k in range(pix.shape[0]):
+        area[pix[k]] += dur_us[k] * _exp(theta * level[k])
+        touched[pix[k]] = True
+    out = np.ones(H * W)
+    for p in range(H * W):
+        if touched[p]:
+            out[p] = area[p] / T_us
+    return out.reshape(H, W)
+
+
+@njit(cache=True)
 def filter_events(t_us, x, y, inc, state, last_us, ref, alpha_per_us):
     """Advance a per-pixel log-intensity filter through events (in place).
 

@@ -58,11 +58,6 @@ def edi_latent(blur_srgb: np.ndarray, mean_exp: np.ndarray, log_eps: float) -> n
     return linear_to_srgb(np.clip(lat, 0.0, 1.0))
 
 
-def _log_latent(Y: np.ndarray, mean_exp: np.ndarray, log_eps: float) -> np.ndarray:
-    """log(L(t_ref) + eps) of a blurred luminance frame (the EDI inversion)."""
-    return np.log(Y + log_eps) - np.log(mean_exp)
-
-
 def choose_theta(blur_a: np.ndarray, blur_b: np.ndarray, t_us, x, y, p, t_a_us: float,
                  t_b_us: float, exposure_us: float, log_eps: float, theta_min: float,
                  theta_max: float, steps: int) -> float:
@@ -93,16 +88,22 @@ def choose_theta(blur_a: np.ndarray, blur_b: np.ndarray, t_us, x, y, p, t_a_us: 
     between = (t_us > t_a_us) & (t_us <= t_b_us)
     dE = np.zeros(shape)  # E(t_b) - E(t_a) per pixel, per unit threshold
     np.add.at(dE, (y[between], x[between]), unit[between])
+    # what does not depend on theta, once: each exposure's levels per pixel
+    # (K.exposure_levels: a theta costs one exp per stretch, not a pass over
+    # the events and the image) and the log of the blurred luminance
+    sign = unit.astype(np.int64)
+    H, W = shape
+    exposures = [(K.exposure_levels(t_us[w], x[w], y[w], sign[w], t - half, t + half, t, H, W),
+                  (t + half) - (t - half)) for w, t in ((wa, t_a_us), (wb, t_b_us))]
+    log_a, log_b = np.log(Ya[ok] + log_eps), np.log(Yb[ok] + log_eps)
+    dE_ok = dE[ok]
     cache: dict[float, float] = {}
 
     def cost(theta: float) -> float:
         if theta not in cache:
-            ma = exposure_mean_exp(t_us[wa], x[wa], y[wa], unit[wa] * theta, t_a_us - half,
-                                   t_a_us + half, t_a_us, shape)
-            mb = exposure_mean_exp(t_us[wb], x[wb], y[wb], unit[wb] * theta, t_b_us - half,
-                                   t_b_us + half, t_b_us, shape)
-            d = _log_latent(Ya, ma, log_eps) - (_log_latent(Yb, mb, log_eps) - theta * dE)
-            cache[theta] = float(np.mean(d[ok] ** 2))
+            ma, mb = (K.mean_exp_levels(*lv, theta, T, H, W)[ok] for lv, T in exposures)
+            d = (log_a - np.log(ma)) - ((log_b - np.log(mb)) - theta * dE_ok)
+            cache[theta] = float(np.mean(d ** 2))
         return cache[theta]
 
     grid = np.geomspace(theta_min, theta_max, steps)
