@@ -87,21 +87,7 @@ def worker(scenes: dict[str, str], reps: int, root: str) -> list[dict]:
     except ImportError:  # a baseline from before the rule moved there
         from gs2e.splat.train import training_dtype
 
-    try:
-        from gs2e.splat.train import train_step
-    except ImportError:  # a baseline from before the step was a function of its own: its loop's body
-        from gs2e.splat.loss import photometric_loss
-
-        def train_step(p, opt, cam, gt, bg, sh_degree, backend, compute_dtype, lambda_ssim):
-            for k in PARAMS:
-                p[k].requires_grad_(True)
-            photometric_loss(render(p, cam, bg, sh_degree, backend, compute_dtype)[0], gt,
-                             lambda_ssim).backward()
-            grads = {k: p[k].grad for k in PARAMS}
-            for k in PARAMS:
-                p[k].requires_grad_(False)
-                p[k].grad = None
-            opt.step(p, grads)
+    train_step = harness.train_step_function()
 
     harness.check_gs2e_root(root)
     numba.set_num_threads(2)

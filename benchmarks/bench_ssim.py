@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import os
 import sys
-import time
 
 os.environ.setdefault("GS2E_PROGRESS", "0")
 
@@ -37,18 +36,6 @@ SIZES = ((349, 260), (646, 482), (1280, 720))
 COST_RUNS = RESULTS / "cost_davis346" / "results"
 
 
-def cpu_ms(fn, reps: int) -> float:
-    """Median CPU ms (this process, all threads) of ``fn()`` over ``reps`` calls
-    after one untimed call."""
-    fn()
-    out = []
-    for _ in range(reps):
-        c0 = time.process_time()
-        fn()
-        out.append(time.process_time() - c0)
-    return 1e3 * float(np.median(out))
-
-
 def time_ssim(W: int, H: int, dtype, reps: int) -> list[dict]:
     g = torch.Generator().manual_seed(0)
     target = torch.rand(H, W, 3, generator=g, dtype=dtype)
@@ -62,35 +49,20 @@ def time_ssim(W: int, H: int, dtype, reps: int) -> list[dict]:
             x.grad = None
 
         with torch.no_grad():
-            value_ms = cpu_ms(lambda: fn(render, target), reps)
+            value_ms = harness.median_cpu_ms(lambda: fn(render, target), reps)
         rows.append({"part": f"ssim {W}x{H}", "dtype": str(dtype).replace("torch.", ""), "method": name,
-                     "value_ms": value_ms, "value_and_grad_ms": cpu_ms(both, reps), "gaussians": None})
+                     "value_ms": value_ms, "value_and_grad_ms": harness.median_cpu_ms(both, reps), "gaussians": None})
     return rows
 
 
 def time_training_step(scene: str, reps: int) -> list[dict]:
     """CPU ms of one training step at the cost model's training size, with
     each SSIM (the module attribute the loss calls is swapped)."""
-    import json
-
-    from gs2e.splat.model import load_model, render
-    from gs2e.splat.rasterize import SplatCamera
     from gs2e.splat.strategy import PARAMS, Adam
     from gs2e.splat.train import train_step
-    from gs2e.trajectory import load_trajectory
 
-    d = COST_RUNS / scene
-    stats = json.loads((d / "splat" / "train_stats.json").read_text())
-    W, H, dtype = int(stats["train_width"]), int(stats["train_height"]), stats["compute_dtype"]
-    traj = load_trajectory(d / "trajectories" / "base_medium.npz")
-    params, info = load_model(d / "splat")
-    K = np.asarray(traj.K, np.float64).copy()
-    K[:2] *= W / float(traj.width)
-    poses = traj.pose_at(np.asarray(traj.t_us[:: max(1, len(traj.t_us) // 16)], np.float64))
-    cams = [SplatCamera.from_c2w(c2w, K[0, 0], K[1, 1], K[0, 2], K[1, 2], W, H) for c2w in poses]
-    bg, sh = torch.zeros(3), int(info["sh_degree"])
-    with torch.no_grad():  # photos the model does not reproduce
-        targets = [(render(params, c, bg, sh, "cpu")[0] * 0.9 + 0.05).contiguous() for c in cams]
+    params, sh, cams, targets, (W, H), dtype = harness.cost_model_step_inputs(COST_RUNS / scene)
+    bg = torch.zeros(3)
     rows, fast = [], L.ssim
     try:
         for name, fn in (("torch autograd (before)", L.ssim_reference), ("OpenCV + closed form", fast)):
@@ -105,7 +77,7 @@ def time_training_step(scene: str, reps: int) -> list[dict]:
                 i[0] += 1
 
             rows.append({"part": f"training step {scene} {W}x{H}", "dtype": dtype, "method": name,
-                         "value_ms": float("nan"), "value_and_grad_ms": cpu_ms(step, reps),
+                         "value_ms": float("nan"), "value_and_grad_ms": harness.median_cpu_ms(step, reps),
                          "gaussians": int(params["means"].shape[0])})
     finally:
         L.ssim = fast

@@ -134,6 +134,20 @@ def median_ms(fn: Callable[[], object], reps: int) -> float:
     return 1e3 * (ts[(len(ts) - 1) // 2] + ts[len(ts) // 2]) / 2
 
 
+def median_cpu_ms(fn: Callable[[], object], reps: int) -> float:
+    """Median CPU time (this process, all its threads) of ``fn()`` in ms over
+    ``reps`` calls, after one untimed call: steadier than wall time on a
+    shared machine, and what issue 44's targets count."""
+    fn()
+    ts = []
+    for _ in range(reps):
+        c0 = time.process_time()
+        fn()
+        ts.append(time.process_time() - c0)
+    ts.sort()
+    return 1e3 * (ts[(len(ts) - 1) // 2] + ts[len(ts) // 2]) / 2
+
+
 def best_s(fn: Callable[[], object], reps: int) -> float:
     """Fastest wall time of ``fn()`` in seconds over ``reps`` calls (no warm-up:
     for work that does not compile, such as file I/O)."""
@@ -203,6 +217,62 @@ def check_gs2e_root(root: Path | str) -> None:
 
     if not Path(gs2e.__file__).resolve().is_relative_to(Path(root).resolve()):
         raise SystemExit(f"imported {gs2e.__file__}, not the gs2e of {root}")
+
+
+def train_step_function():
+    """``gs2e.splat.train.train_step`` of the gs2e imported (one optimiser step
+    on one view), or, for a baseline from before the step was a function of
+    its own, its training loop's body: render, loss, backward, Adam."""
+    try:
+        from gs2e.splat.train import train_step
+        return train_step
+    except ImportError:
+        from gs2e.splat.loss import photometric_loss
+        from gs2e.splat.model import render
+        from gs2e.splat.strategy import PARAMS
+
+        def train_step(p, opt, cam, gt, bg, sh_degree, backend, compute_dtype, lambda_ssim):
+            for k in PARAMS:
+                p[k].requires_grad_(True)
+            photometric_loss(render(p, cam, bg, sh_degree, backend, compute_dtype)[0], gt,
+                             lambda_ssim).backward()
+            grads = {k: p[k].grad for k in PARAMS}
+            for k in PARAMS:
+                p[k].requires_grad_(False)
+                p[k].grad = None
+            opt.step(p, grads)
+
+        return train_step
+
+
+def cost_model_step_inputs(scene_dir: Path | str, n_views: int = 16):
+    """What one training step of a cost-model run's scene takes, at the size and
+    dtype its training ran at (``splat/train_stats.json``): (params, sh_degree,
+    cameras, targets, (W, H), dtype). The cameras are ``n_views`` poses along its
+    ``base_medium`` path; the targets the model's own renders there, dimmed
+    (x 0.9 + 0.05) so that the loss has a gradient."""
+    import json
+
+    import numpy as np
+    import torch
+
+    from gs2e.splat.model import load_model, render
+    from gs2e.splat.rasterize import SplatCamera
+    from gs2e.trajectory import load_trajectory
+
+    d = Path(scene_dir)
+    stats = json.loads((d / "splat" / "train_stats.json").read_text())
+    W, H, dtype = int(stats["train_width"]), int(stats["train_height"]), stats["compute_dtype"]
+    traj = load_trajectory(d / "trajectories" / "base_medium.npz")
+    params, info = load_model(d / "splat")
+    K = np.asarray(traj.K, np.float64).copy()
+    K[:2] *= W / float(traj.width)
+    poses = traj.pose_at(np.asarray(traj.t_us[:: max(1, len(traj.t_us) // n_views)], np.float64))
+    cams = [SplatCamera.from_c2w(c2w, K[0, 0], K[1, 1], K[0, 2], K[1, 2], W, H) for c2w in poses]
+    sh = int(info["sh_degree"])
+    with torch.no_grad():
+        targets = [(render(params, c, torch.zeros(3), sh, "cpu")[0] * 0.9 + 0.05).contiguous() for c in cams]
+    return params, sh, cams, targets, (W, H), dtype
 
 
 # ------------------------------------------------------------------- results
