@@ -121,31 +121,23 @@ def run_child(cmd: list[str], env: dict | None = None, cwd: Path | str | None = 
                     os.waitstatus_to_exitcode(status), text)
 
 
-def median_ms(fn: Callable[[], object], reps: int) -> float:
-    """Median wall time of ``fn()`` in ms over ``reps`` calls, after one
-    untimed call (compiles, warms caches)."""
+def median_ms(fn: Callable[[], object], reps: int, clock: Callable[[], float] = time.perf_counter) -> float:
+    """Median time of ``fn()`` in ms over ``reps`` calls by ``clock`` (wall
+    time by default), after one untimed call (compiles, warms caches)."""
     fn()
     ts = []
     for _ in range(reps):
-        t0 = time.perf_counter()
+        t0 = clock()
         fn()
-        ts.append(time.perf_counter() - t0)
+        ts.append(clock() - t0)
     ts.sort()
     return 1e3 * (ts[(len(ts) - 1) // 2] + ts[len(ts) // 2]) / 2
 
 
 def median_cpu_ms(fn: Callable[[], object], reps: int) -> float:
-    """Median CPU time (this process, all its threads) of ``fn()`` in ms over
-    ``reps`` calls, after one untimed call: steadier than wall time on a
-    shared machine, and what issue 44's targets count."""
-    fn()
-    ts = []
-    for _ in range(reps):
-        c0 = time.process_time()
-        fn()
-        ts.append(time.process_time() - c0)
-    ts.sort()
-    return 1e3 * (ts[(len(ts) - 1) // 2] + ts[len(ts) // 2]) / 2
+    """:func:`median_ms` by CPU time (this process, all its threads): steadier
+    than wall time on a shared machine, and what issue 44's targets count."""
+    return median_ms(fn, reps, time.process_time)
 
 
 def best_s(fn: Callable[[], object], reps: int) -> float:

@@ -88,19 +88,23 @@ def _products(x, y, xx, yy, xy):
         xy[i] = x[i] * y[i]
 
 
+@njit(inline="always", cache=True)
+def _ssim_terms(mx, my, bxx, byy, bxy, c1, c2):
+    """SSIM's numerator and denominator factors (a1, a2, b1, b2) of one pixel
+    from its five blurs, in the order of operations of :func:`ssim_reference`
+    (2 x computed exactly as x + x)."""
+    d = bxy - mx * my
+    return ((mx + mx) * my + c1, (d + d) + c2, (mx * mx + my * my) + c1,
+            ((bxx - mx * mx) + (byy - my * my)) + c2)
+
+
 @njit(cache=True, parallel=True)
 def _ssim_map(mu_x, mu_y, bxx, byy, bxy, c1, c2, s_map):
     """The SSIM map from the five blurs (flat arrays; c1, c2 in their dtype),
     in the order of operations of :func:`ssim_reference`: the same bits as
     torch's elementwise ops, one pass instead of ~15 (each a memory sweep)."""
     for i in prange(mu_x.shape[0]):
-        mx, my = mu_x[i], mu_y[i]
-        mxy = mx * my
-        a1 = (mx + mx) * my + c1  # 2 mu_x mu_y + C1 (2 x exact as x + x)
-        d = bxy[i] - mxy
-        a2 = (d + d) + c2
-        b1 = (mx * mx + my * my) + c1
-        b2 = ((bxx[i] - mx * mx) + (byy[i] - my * my)) + c2
+        a1, a2, b1, b2 = _ssim_terms(mu_x[i], mu_y[i], bxx[i], byy[i], bxy[i], c1, c2)
         s_map[i] = (a1 * a2) / (b1 * b2)
 
 
@@ -113,12 +117,7 @@ def _ssim_back_maps(mu_x, mu_y, bxx, byy, bxy, c1, c2, g, s_map, own_x, own_y, d
     d_bsq, dL/d blur(xy) into d_bxy."""
     for i in prange(mu_x.shape[0]):
         mx, my = mu_x[i], mu_y[i]
-        mxy = mx * my
-        a1 = (mx + mx) * my + c1
-        d = bxy[i] - mxy
-        a2 = (d + d) + c2
-        b1 = (mx * mx + my * my) + c1
-        b2 = ((bxx[i] - mx * mx) + (byy[i] - my * my)) + c2
+        a1, a2, b1, b2 = _ssim_terms(mx, my, bxx[i], byy[i], bxy[i], c1, c2)
         s = s_map[i]
         inv_b12 = g / (b1 * b2)
         dbxy = (a1 + a1) * inv_b12
@@ -159,7 +158,7 @@ class _SSIM(torch.autograd.Function):
         xx, yy, xy = (torch.empty(x.shape, dtype=x.dtype) for _ in range(3))
         _products(_flat(x), _flat(y), _flat(xx), _flat(yy), _flat(xy))
         blurs = _blur_hwc([x, y, xx, yy, xy], window, sigma)
-        c1, c2 = (np.dtype(_flat(x).dtype).type(c) for c in (C1, C2))
+        c1, c2 = (_flat(x).dtype.type(c) for c in (C1, C2))
         s_map = torch.empty(x.shape, dtype=x.dtype)
         _ssim_map(*(_flat(b) for b in blurs), c1, c2, _flat(s_map))
         ctx.save_for_backward(x, y, *blurs, s_map)
