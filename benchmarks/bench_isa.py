@@ -24,12 +24,16 @@ Targets: ``host`` (numba's and torch's own choice for this CPU) and ``avx2``
 (numba generating code for Haswell, ``NUMBA_CPU_NAME=haswell``: AVX2 + FMA, no
 AVX-512, and torch's ``ATEN_CPU_CAPABILITY=avx2``). On a host without AVX-512
 both are the same code, so only ``host`` runs (reported as the AVX2 figure).
-Per row: ms per call (median, 2 threads), ns per pixel and per (tile,
-Gaussian) pair, the avx2 / host ratio (throughput of AVX2 code as a fraction
-of the host's) and the baseline / today ratio.
+Per row: CPU ms per call (the process's CPU time, both threads: the work a
+call costs, steadier than wall time on a shared machine), median of ``--reps``
+calls per worker and then over ``--rounds`` rounds, in which every worker
+(today and the baseline on each target) runs once, in turned order, so that
+a drift of the machine falls on all; ns per pixel and per (tile, Gaussian)
+pair, the avx2 / host ratio (throughput of AVX2 code as a fraction of the
+host's) and the baseline / today ratio.
 
     python benchmarks/bench_isa.py [--quick] [--scenes demo,temple_ring,llff_fern]
-        [--targets host,avx2] [--baseline-rev 783ff0e]
+        [--targets host,avx2] [--baseline-rev 783ff0e] [--rounds 2]
 
 Writes benchmarks/results/bench_isa.csv and bench_isa.png; the last printed
 line is the headline.
@@ -50,7 +54,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import numpy as np  # noqa: E402
 
 import harness  # noqa: E402
-from harness import REPO, median_ms  # noqa: E402
+from harness import REPO, median_cpu_ms  # noqa: E402
 
 BASELINE_REV = "783ff0e"  # main when issue 44 was filed
 TARGET_ENV = {"host": {}, "avx2": {"NUMBA_CPU_NAME": "haswell", "ATEN_CPU_CAPABILITY": "avx2"}}
@@ -125,7 +129,7 @@ def worker(scenes: dict[str, str], reps: int, root: str) -> list[dict]:
                 return lambda: kern(tiles, offsets, gids, m2, cn, op, ft, bg, W, H, TILE, out, T, nc,
                                     *sched)
 
-            row(part, median_ms(fwd(R.forward_kernel(dt, offsets)), reps))
+            row(part, median_cpu_ms(fwd(R.forward_kernel(dt, offsets)), reps))
             if dt == np.float64:
                 rng = np.random.default_rng(0)
                 g_out = rng.standard_normal(out.shape)
@@ -136,19 +140,19 @@ def worker(scenes: dict[str, str], reps: int, root: str) -> list[dict]:
                     _, T2, nc2 = R.rasterize_forward(m2c, cnc, opc, ftc, np.zeros(4, cdt), W, H, offsets,
                                                       gids, TILE, compute_dtype=cdt)
                     if cdt == np.float32:
-                        row("fwd_f32g", median_ms(lambda: R.rasterize_forward(
+                        row("fwd_f32g", median_cpu_ms(lambda: R.rasterize_forward(
                             m2c, cnc, opc, ftc, np.zeros(4, cdt), W, H, offsets, gids, TILE,
                             compute_dtype=cdt), reps))
 
-                    row(bpart, median_ms(lambda: R.rasterize_backward(
+                    row(bpart, median_cpu_ms(lambda: R.rasterize_backward(
                         m2c, cnc, opc, ftc, W, H, offsets, gids, T2, nc2, g_out, g_T, TILE,
                         compute_dtype=cdt), reps))
         vm = fr._viewmat(c2w)
-        row("project", median_ms(lambda: fr._project(vm, None), reps))
-        row("bin", median_ms(lambda: R.bin_gaussians(fr.means2d, fr.depths, fr.radii, W, H, TILE,
+        row("project", median_cpu_ms(lambda: fr._project(vm, None), reps))
+        row("bin", median_cpu_ms(lambda: R.bin_gaussians(fr.means2d, fr.depths, fr.radii, W, H, TILE,
                                                       fr.opac), reps))
         lum = np.empty((H, W), np.float32)
-        row("event_sample", median_ms(lambda: image_luminance(fr.render(c2w), lum), reps))
+        row("event_sample", median_cpu_ms(lambda: image_luminance(fr.render(c2w), lum), reps))
 
         # one training step as gs2e train runs it at full size (float64 passes)
         p = {k: v.clone() for k, v in params.items()}
@@ -160,18 +164,22 @@ def worker(scenes: dict[str, str], reps: int, root: str) -> list[dict]:
         for part, dtype in (("train_step", "float64"), ("train_step_f32", "float32"),
                             ("train_step_auto", training_dtype("auto", (W, H)))):
             opt = Adam({k: 1e-4 for k in PARAMS})
-            row(part, median_ms(lambda: train_step(p, opt, cam, target, bg3, int(info["sh_degree"]),
+            row(part, median_cpu_ms(lambda: train_step(p, opt, cam, target, bg3, int(info["sh_degree"]),
                                                    "cpu", dtype, 0.2), reps))
         # a frame's SSIM in float64, as the benchmark tasks score every method's frame
         a64, b64 = target.double(), (target * 0.8 + 0.1).double()
-        row("ssim_f64", median_ms(lambda: ssim(a64, b64), reps))
+        row("ssim_f64", median_cpu_ms(lambda: ssim(a64, b64), reps))
     return rows
 
 
-def run_target(target: str, scenes: dict[str, Path], reps: int, root: Path = REPO) -> list[dict]:
-    """A worker for ``target`` in a fresh process with its own numba cache,
-    running the gs2e of ``root`` (this checkout, or the baseline's)."""
-    cache = Path(tempfile.mkdtemp(prefix=f"bench_isa_{target}_"))
+def run_target(target: str, scenes: dict[str, Path], reps: int, root: Path = REPO,
+               caches: dict[str, Path] | None = None) -> list[dict]:
+    """A worker for ``target`` in a fresh process with its own numba cache
+    (``caches[target]``, made on first use: later rounds load the kernels
+    compiled by the first), running the gs2e of ``root`` (this checkout, or
+    the baseline's)."""
+    caches = {} if caches is None else caches
+    cache = caches.setdefault(target, Path(tempfile.mkdtemp(prefix=f"bench_isa_{target}_")))
     env = harness.gs2e_env(root, NUMBA_CACHE_DIR=str(cache), **TARGET_ENV[target.split("-")[0]])
     cmd = [sys.executable, __file__, "--worker", json.dumps({k: str(v) for k, v in scenes.items()}),
            "--reps", str(reps), "--root", str(root)]
@@ -182,6 +190,24 @@ def run_target(target: str, scenes: dict[str, Path], reps: int, root: Path = REP
     rows = json.loads(res.stdout.strip().splitlines()[-1])
     print(f"  {target}: {len(rows)} timings in {t.wall_s:.0f} s (compiles included)", flush=True)
     return [{"target": target, **r} for r in rows]
+
+
+def _median_over_rounds(raw: list[dict]) -> tuple[list[dict], list[dict]]:
+    """One row per (target, scene, part): the median over rounds of the
+    workers' medians; today's rows and the baseline's."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in raw:
+        groups.setdefault((r["target"], r["scene"], r["part"]), []).append(r)
+    rows = []
+    for g in groups.values():
+        row = {k: v for k, v in g[0].items() if k != "round"}
+        ms = float(np.median([r["ms"] for r in g]))
+        scale = ms / g[0]["ms"]
+        row.update(ms=ms, ns_per_px=g[0]["ns_per_px"] * scale, ns_per_pair=g[0]["ns_per_pair"] * scale,
+                   rounds=len(g), ms_spread=float(max(r["ms"] for r in g) / min(r["ms"] for r in g)))
+        rows.append(row)
+    return ([r for r in rows if "-baseline" not in r["target"]],
+            [r for r in rows if "-baseline" in r["target"]])
 
 
 def plot(rows: list[dict], targets: list[str]) -> Path:
@@ -202,7 +228,7 @@ def plot(rows: list[dict], targets: list[str]) -> Path:
                      and r["target"] == targets[0]), np.nan) for p in parts]
         ax.bar(x + len(targets) * w, bms, w, label=f"baseline, {targets[0]}", color="0.6")
         ax.set_xticks(x + 0.4 - w / 2, parts, rotation=60, ha="right")
-        ax.set(ylabel="ms per call (2 threads)", title=sc, yscale="log")
+        ax.set(ylabel="CPU ms per call (2 threads)", title=sc, yscale="log")
     axes[0][0].legend(fontsize=8)
     return harness.save_plot(fig, "bench_isa", dpi=110)
 
@@ -213,6 +239,8 @@ def main() -> int:
     ap.add_argument("--scenes", default="demo,temple_ring,llff_fern")
     ap.add_argument("--targets", default=None, help="host,avx2 (default: both where the host has AVX-512)")
     ap.add_argument("--reps", type=int, default=9)
+    ap.add_argument("--rounds", type=int, default=2,
+                    help="times every worker runs, sides alternating (medians over rounds)")
     ap.add_argument("--worker", help=argparse.SUPPRESS)
     ap.add_argument("--root", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -229,9 +257,15 @@ def main() -> int:
     print(f"host: {os.cpu_count()} CPUs, flags {' '.join(flags)}; targets {', '.join(targets)}"
           + ("" if avx512 else " (no AVX-512 here: host code is AVX2 code)"), flush=True)
     scenes = build_scenes(names)
+    rounds = 1 if args.quick else args.rounds
+    caches: dict[str, Path] = {}
+    raw: list[dict] = []
     with harness.baseline_checkout(args.baseline_rev) as checkout:
-        rows = [r for t in targets for r in run_target(t, scenes, reps)]
-        base_rows = [r for t in targets for r in run_target(f"{t}-baseline", scenes, reps, checkout)]
+        runs = [(t, REPO) for t in targets] + [(f"{t}-baseline", checkout) for t in targets]
+        for k in range(rounds):  # every side once per round, in turned order: drift falls on all
+            order = runs if k % 2 == 0 else runs[::-1]
+            raw += [dict(r, round=k) for t, root in order for r in run_target(t, scenes, reps, root, caches)]
+    rows, base_rows = _median_over_rounds(raw)
     base = {(r["scene"], r["part"], r["target"].split("-")[0]): r["ms"] for r in base_rows}
     host = {(r["scene"], r["part"]): r for r in rows if r["target"] == "host"}
     for r in rows:

@@ -40,8 +40,9 @@ BASELINE_REV = "783ff0e"  # main when issue 44 was filed
 COST_RUNS = RESULTS / "cost_davis346" / "results"
 
 
-def worker(scene: str, steps: int, root: str) -> dict:
-    """Median CPU ms of a training step of ``scene`` with the gs2e of ``root``."""
+def worker(scene: str, steps: int, root: str, runs: Path = COST_RUNS) -> dict:
+    """Median CPU ms of a training step of ``scene`` (a results folder under
+    ``runs``) with the gs2e of ``root``."""
     import numba
     import torch
 
@@ -51,7 +52,7 @@ def worker(scene: str, steps: int, root: str) -> dict:
     numba.set_num_threads(2)
     torch.set_num_threads(2)
     train_step = harness.train_step_function()
-    params, sh, cams, targets, (W, H), dtype = harness.cost_model_step_inputs(COST_RUNS / scene)
+    params, sh, cams, targets, (W, H), dtype = harness.cost_model_step_inputs(runs / scene)
     p = {k: v.clone() for k, v in params.items()}
     opt = Adam({k: 1e-4 for k in PARAMS})
     bg, i = torch.zeros(3), [0]
@@ -67,26 +68,21 @@ def worker(scene: str, steps: int, root: str) -> dict:
             "step_cpu_ms": harness.median_cpu_ms(step, steps)}
 
 
-def measure(side: str, root: Path, scene: str, steps: int, cache: Path) -> dict:
+def measure(side: str, root: Path, scene: str, steps: int, cache: Path, runs: Path) -> dict:
     env = harness.gs2e_env(root, NUMBA_CACHE_DIR=str(cache / side))
     r = harness.run_child([sys.executable, str(Path(__file__).resolve()), "--worker", scene,
-                           "--steps", str(steps), "--root", str(root)], env=env, cwd=root)
+                           "--steps", str(steps), "--root", str(root), "--runs", str(runs)],
+                          env=env, cwd=root)
     if r.returncode != 0:
         raise SystemExit(f"{side} on {scene} failed:\n{r.output[-2000:]}")
     return {"side": side, **json.loads(r.output.strip().splitlines()[-1])}
 
 
 def plot(summary: list[dict]) -> Path:
-    plt = harness.pyplot()
-    fig, ax = plt.subplots(figsize=(6, 3.2))
-    x = np.arange(len(summary))
-    for k, (key, color) in enumerate((("baseline_ms", "tab:gray"), ("today_ms", "tab:blue"))):
-        ax.bar(x + 0.4 * k, [s[key] for s in summary], width=0.4, color=color,
-               label=("baseline" if k == 0 else "today"))
-    ax.set_xticks(x + 0.2, [f"{s['scene']}\n{s['ratio']:.2f}x" for s in summary])
-    ax.set(ylabel="CPU ms per training step", title="DAVIS346 training step (median, 2 threads)")
-    ax.legend()
-    return harness.save_plot(fig, "bench_train_step")
+    return harness.plot_against_baseline(
+        "bench_train_step", [f"{s['scene']}\n{s['ratio']:.2f}x" for s in summary],
+        [s["baseline_ms"] for s in summary], [s["today_ms"] for s in summary],
+        "CPU ms per training step", "DAVIS346 training step (median, 2 threads)")
 
 
 def main() -> int:
@@ -95,17 +91,22 @@ def main() -> int:
     ap.add_argument("--scenes", default="temple_ring,llff_fern")
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--steps", type=int, default=48)
+    ap.add_argument("--runs", type=Path, default=COST_RUNS,
+                    help="results folder holding the scenes' models (default: the DAVIS346 cost "
+                         "model's; benchmarks/results/bench_event_sampling_cache/results holds "
+                         "bench_event_sampling.py's 320 px models)")
     ap.add_argument("--worker", help=argparse.SUPPRESS)
     ap.add_argument("--root", help=argparse.SUPPRESS)
     a = ap.parse_args()
+    a.runs = a.runs.resolve()  # workers run in their own checkout
     if a.worker:
-        print(json.dumps(worker(a.worker, a.steps, a.root)), flush=True)
+        print(json.dumps(worker(a.worker, a.steps, a.root, a.runs)), flush=True)
         return 0
     scenes = ["temple_ring"] if a.quick else a.scenes.split(",")
     rounds, steps = (1, 16) if a.quick else (a.rounds, a.steps)
-    missing = [s for s in scenes if not (COST_RUNS / s / "splat" / "train_stats.json").exists()]
+    missing = [s for s in scenes if not (a.runs / s / "splat" / "train_stats.json").exists()]
     if missing:
-        raise SystemExit(f"no DAVIS346 cost-model model of {', '.join(missing)} under {COST_RUNS}: run "
+        raise SystemExit(f"no trained model of {', '.join(missing)} under {a.runs}: run "
                          f"python benchmarks/bench_cost_model.py --run {' '.join(missing)} --sensor davis346")
     rows = []
     with harness.baseline_checkout(a.baseline_rev) as base, tempfile.TemporaryDirectory() as tmp:
@@ -113,7 +114,7 @@ def main() -> int:
         for r in range(rounds):
             for scene in scenes:
                 for side, root in (sides if r % 2 == 0 else sides[::-1]):
-                    row = {"round": r, **measure(side, root, scene, steps, Path(tmp))}
+                    row = {"round": r, **measure(side, root, scene, steps, Path(tmp), a.runs)}
                     rows.append(row)
                     print(f"  round {r} {scene} {side}: {row['step_cpu_ms']:.1f} ms", flush=True)
     summary = []

@@ -304,6 +304,21 @@ def save_plot(fig, name: str, dpi: int = 120) -> Path:
     return path
 
 
+def plot_against_baseline(name: str, labels: list[str], baseline: list[float], today: list[float],
+                          ylabel: str, title: str) -> Path:
+    """Bars of the baseline (grey) and today (blue) side by side per label, as
+    benchmarks/results/<name>.png; returns the path."""
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(6.4, 3.4))
+    x = list(range(len(labels)))
+    ax.bar([i - 0.2 for i in x], baseline, 0.4, color="tab:gray", label="baseline")
+    ax.bar([i + 0.2 for i in x], today, 0.4, color="tab:blue", label="today")
+    ax.set_xticks(x, labels)
+    ax.set(ylabel=ylabel, title=title)
+    ax.legend()
+    return save_plot(fig, name)
+
+
 def report(table, headline: str, files: list[Path] | tuple = ()) -> None:
     """Print ``table`` (text or a DataFrame), the files written, then the
     headline as the last line, with the machine it was measured on."""

@@ -205,6 +205,164 @@ def _every_row(n: int) -> np.ndarray:
 _CHUNK = 256  # Gaussians per parallel work item of the backward
 
 
+@njit(cache=True, fastmath=False)
+def _project_backward_chunk(g_lo, g_hi, means, quats, logscales, V, t0, t1, t2, fx, fy,
+                            lim_xp, lim_xn, lim_yp, lim_yn, radii, g_means2d, g_conics,
+                            g_depths, g_means, g_quats, g_logscales):
+    """:func:`project_backward_kernel` for Gaussians g_lo .. g_hi - 1 (one
+    thread's chunk; its own function so that the parallel loop around it
+    stays small: numba's parfor passes on this body cost ~10 s of compile)."""
+    Rq = np.empty((3, 3))
+    M = np.empty((3, 3))
+    S3 = np.empty((3, 3))
+    Sc = np.empty((3, 3))
+    q = np.empty(4)
+    ls = np.empty(3)
+    J = np.zeros((2, 3))
+    S2 = np.empty((2, 2))
+    Q = np.empty((2, 2))
+    Gq = np.empty((2, 2))
+    T2 = np.empty((2, 2))
+    GS2 = np.empty((2, 2))
+    GSc = np.empty((3, 3))
+    JSc = np.empty((2, 3))
+    GJ = np.empty((2, 3))
+    tmp = np.empty((3, 3))
+    GS3 = np.empty((3, 3))
+    GM = np.empty((3, 3))
+    GR = np.empty((3, 3))
+    for g in range(g_lo, g_hi):
+        for k in range(3):
+            g_means[g, k] = 0.0
+            g_logscales[g, k] = 0.0
+        for k in range(4):
+            g_quats[g, k] = 0.0
+        if radii[g] <= 0:
+            continue
+        for k in range(4):
+            q[k] = quats[g, k]
+        for k in range(3):
+            ls[k] = logscales[g, k]
+        mx, my, mz = float(means[g, 0]), float(means[g, 1]), float(means[g, 2])
+        x = V[0, 0] * mx + V[0, 1] * my + V[0, 2] * mz + t0
+        y = V[1, 0] * mx + V[1, 1] * my + V[1, 2] * mz + t1
+        z = V[2, 0] * mx + V[2, 1] * my + V[2, 2] * mz + t2
+        _cov_cam(q, ls, V, Rq, M, S3, Sc)
+        rz = 1.0 / z
+        xr = x * rz
+        yr = y * rz
+        cl_x = xr < -lim_xn or xr > lim_xp
+        cl_y = yr < -lim_yn or yr > lim_yp
+        tx = z * min(lim_xp, max(-lim_xn, xr))
+        ty = z * min(lim_yp, max(-lim_yn, yr))
+        J[0, 0] = fx * rz
+        J[0, 2] = -fx * tx * rz * rz
+        J[1, 1] = fy * rz
+        J[1, 2] = -fy * ty * rz * rz
+        # cov2d and conic
+        for i in range(2):
+            for j in range(2):
+                acc = 0.0
+                for k in range(3):
+                    for l in range(3):
+                        acc += J[i, k] * Sc[k, l] * J[j, l]
+                S2[i, j] = acc
+        S2[0, 0] += LOWPASS_PX2
+        S2[1, 1] += LOWPASS_PX2
+        det = S2[0, 0] * S2[1, 1] - S2[0, 1] * S2[1, 0]
+        Q[0, 0] = S2[1, 1] / det
+        Q[0, 1] = -S2[0, 1] / det
+        Q[1, 0] = Q[0, 1]
+        Q[1, 1] = S2[0, 0] / det
+        # conic (A, B, C) with B the off-diagonal entry, used once in the
+        # symmetric matrix form -> dL/dQ has B-gradient split in half
+        Gq[0, 0] = g_conics[g, 0]
+        Gq[0, 1] = 0.5 * g_conics[g, 1]
+        Gq[1, 0] = Gq[0, 1]
+        Gq[1, 1] = g_conics[g, 2]
+        # dL/dS2 = -Q Gq Q
+        for i in range(2):
+            for j in range(2):
+                T2[i, j] = Q[i, 0] * Gq[0, j] + Q[i, 1] * Gq[1, j]
+        for i in range(2):
+            for j in range(2):
+                GS2[i, j] = -(T2[i, 0] * Q[0, j] + T2[i, 1] * Q[1, j])
+        # S2 = J Sc J^T: dL/dSc = J^T GS2 J ; dL/dJ = 2 GS2 J Sc
+        for k in range(3):
+            for l in range(3):
+                acc = 0.0
+                for i in range(2):
+                    for j in range(2):
+                        acc += J[i, k] * GS2[i, j] * J[j, l]
+                GSc[k, l] = acc
+        for i in range(2):
+            for l in range(3):
+                acc = 0.0
+                for k in range(3):
+                    acc += J[i, k] * Sc[k, l]
+                JSc[i, l] = acc
+        for i in range(2):
+            for l in range(3):
+                GJ[i, l] = 2.0 * (GS2[i, 0] * JSc[0, l] + GS2[i, 1] * JSc[1, l])
+        # camera-space position gradient
+        gx = 0.0
+        gy = 0.0
+        gz = float(g_depths[g])
+        gu = float(g_means2d[g, 0])
+        gv = float(g_means2d[g, 1])
+        gx += gu * fx * rz
+        gz += -gu * fx * x * rz * rz
+        gy += gv * fy * rz
+        gz += -gv * fy * y * rz * rz
+        gz += -GJ[0, 0] * fx * rz * rz - GJ[1, 1] * fy * rz * rz
+        gz += GJ[0, 2] * 2.0 * fx * tx * rz * rz * rz + GJ[1, 2] * 2.0 * fy * ty * rz * rz * rz
+        gtx = -GJ[0, 2] * fx * rz * rz
+        gty = -GJ[1, 2] * fy * rz * rz
+        if cl_x:
+            gz += gtx * (tx * rz)
+        else:
+            gx += gtx
+        if cl_y:
+            gz += gty * (ty * rz)
+        else:
+            gy += gty
+        # world position: p = V m + t
+        for k in range(3):
+            g_means[g, k] = V[0, k] * gx + V[1, k] * gy + V[2, k] * gz
+        # Sc = V S3 V^T -> GS3 = V^T GSc V
+        _mul3(V, GSc, tmp, True, False)
+        _mul3(tmp, V, GS3, False, False)
+        # S3 = M M^T -> GM = (GS3 + GS3^T) M
+        for i in range(3):
+            for j in range(3):
+                acc = 0.0
+                for k in range(3):
+                    acc += (GS3[i, k] + GS3[k, i]) * M[k, j]
+                GM[i, j] = acc
+        # M = Rq diag(s)
+        for j in range(3):
+            s = math.exp(ls[j])
+            acc = 0.0
+            for i in range(3):
+                GR[i, j] = GM[i, j] * s
+                acc += GM[i, j] * Rq[i, j]
+            g_logscales[g, j] = acc * s
+        nq, w, qx, qy, qz = _quat_to_rot(q[0], q[1], q[2], q[3], Rq)
+        gw = 2.0 * (-qz * GR[0, 1] + qy * GR[0, 2] + qz * GR[1, 0] - qx * GR[1, 2]
+                    - qy * GR[2, 0] + qx * GR[2, 1])
+        gqx = 2.0 * (qy * GR[0, 1] + qz * GR[0, 2] + qy * GR[1, 0] - 2.0 * qx * GR[1, 1]
+                     - w * GR[1, 2] + qz * GR[2, 0] + w * GR[2, 1] - 2.0 * qx * GR[2, 2])
+        gqy = 2.0 * (-2.0 * qy * GR[0, 0] + qx * GR[0, 1] + w * GR[0, 2] + qx * GR[1, 0]
+                     + qz * GR[1, 2] - w * GR[2, 0] + qz * GR[2, 1] - 2.0 * qy * GR[2, 2])
+        gqz = 2.0 * (-2.0 * qz * GR[0, 0] - w * GR[0, 1] + qx * GR[0, 2] + w * GR[1, 0]
+                     - 2.0 * qz * GR[1, 1] + qy * GR[1, 2] + qx * GR[2, 0] + qy * GR[2, 1])
+        dot = gw * w + gqx * qx + gqy * qy + gqz * qz
+        g_quats[g, 0] = (gw - w * dot) / nq
+        g_quats[g, 1] = (gqx - qx * dot) / nq
+        g_quats[g, 2] = (gqy - qy * dot) / nq
+        g_quats[g, 3] = (gqz - qz * dot) / nq
+
+
 @njit(parallel=True, cache=True, fastmath=False)
 def project_backward_kernel(means, quats, logscales, viewmat, fx, fy, cx, cy,
                             width, height, radii, g_means2d, g_conics, g_depths,
@@ -229,155 +387,9 @@ def project_backward_kernel(means, quats, logscales, viewmat, fx, fy, cx, cy,
     # are never overwritten.
     n_chunks = (n + _CHUNK - 1) // _CHUNK
     for ci in prange(n_chunks):
-        Rq = np.empty((3, 3))
-        M = np.empty((3, 3))
-        S3 = np.empty((3, 3))
-        Sc = np.empty((3, 3))
-        q = np.empty(4)
-        ls = np.empty(3)
-        J = np.zeros((2, 3))
-        S2 = np.empty((2, 2))
-        Q = np.empty((2, 2))
-        Gq = np.empty((2, 2))
-        T2 = np.empty((2, 2))
-        GS2 = np.empty((2, 2))
-        GSc = np.empty((3, 3))
-        JSc = np.empty((2, 3))
-        GJ = np.empty((2, 3))
-        tmp = np.empty((3, 3))
-        GS3 = np.empty((3, 3))
-        GM = np.empty((3, 3))
-        GR = np.empty((3, 3))
-        for g in range(ci * _CHUNK, min(n, (ci + 1) * _CHUNK)):
-                for k in range(3):
-                    g_means[g, k] = 0.0
-                    g_logscales[g, k] = 0.0
-                for k in range(4):
-                    g_quats[g, k] = 0.0
-                if radii[g] <= 0:
-                    continue
-                for k in range(4):
-                    q[k] = quats[g, k]
-                for k in range(3):
-                    ls[k] = logscales[g, k]
-                mx, my, mz = float(means[g, 0]), float(means[g, 1]), float(means[g, 2])
-                x = V[0, 0] * mx + V[0, 1] * my + V[0, 2] * mz + t0
-                y = V[1, 0] * mx + V[1, 1] * my + V[1, 2] * mz + t1
-                z = V[2, 0] * mx + V[2, 1] * my + V[2, 2] * mz + t2
-                _cov_cam(q, ls, V, Rq, M, S3, Sc)
-                rz = 1.0 / z
-                xr = x * rz
-                yr = y * rz
-                cl_x = xr < -lim_xn or xr > lim_xp
-                cl_y = yr < -lim_yn or yr > lim_yp
-                tx = z * min(lim_xp, max(-lim_xn, xr))
-                ty = z * min(lim_yp, max(-lim_yn, yr))
-                J[0, 0] = fx * rz
-                J[0, 2] = -fx * tx * rz * rz
-                J[1, 1] = fy * rz
-                J[1, 2] = -fy * ty * rz * rz
-                # cov2d and conic
-                for i in range(2):
-                    for j in range(2):
-                        acc = 0.0
-                        for k in range(3):
-                            for l in range(3):
-                                acc += J[i, k] * Sc[k, l] * J[j, l]
-                        S2[i, j] = acc
-                S2[0, 0] += LOWPASS_PX2
-                S2[1, 1] += LOWPASS_PX2
-                det = S2[0, 0] * S2[1, 1] - S2[0, 1] * S2[1, 0]
-                Q[0, 0] = S2[1, 1] / det
-                Q[0, 1] = -S2[0, 1] / det
-                Q[1, 0] = Q[0, 1]
-                Q[1, 1] = S2[0, 0] / det
-                # conic (A, B, C) with B the off-diagonal entry, used once in the
-                # symmetric matrix form -> dL/dQ has B-gradient split in half
-                Gq[0, 0] = g_conics[g, 0]
-                Gq[0, 1] = 0.5 * g_conics[g, 1]
-                Gq[1, 0] = Gq[0, 1]
-                Gq[1, 1] = g_conics[g, 2]
-                # dL/dS2 = -Q Gq Q
-                for i in range(2):
-                    for j in range(2):
-                        T2[i, j] = Q[i, 0] * Gq[0, j] + Q[i, 1] * Gq[1, j]
-                for i in range(2):
-                    for j in range(2):
-                        GS2[i, j] = -(T2[i, 0] * Q[0, j] + T2[i, 1] * Q[1, j])
-                # S2 = J Sc J^T: dL/dSc = J^T GS2 J ; dL/dJ = 2 GS2 J Sc
-                for k in range(3):
-                    for l in range(3):
-                        acc = 0.0
-                        for i in range(2):
-                            for j in range(2):
-                                acc += J[i, k] * GS2[i, j] * J[j, l]
-                        GSc[k, l] = acc
-                for i in range(2):
-                    for l in range(3):
-                        acc = 0.0
-                        for k in range(3):
-                            acc += J[i, k] * Sc[k, l]
-                        JSc[i, l] = acc
-                for i in range(2):
-                    for l in range(3):
-                        GJ[i, l] = 2.0 * (GS2[i, 0] * JSc[0, l] + GS2[i, 1] * JSc[1, l])
-                # camera-space position gradient
-                gx = 0.0
-                gy = 0.0
-                gz = float(g_depths[g])
-                gu = float(g_means2d[g, 0])
-                gv = float(g_means2d[g, 1])
-                gx += gu * fx * rz
-                gz += -gu * fx * x * rz * rz
-                gy += gv * fy * rz
-                gz += -gv * fy * y * rz * rz
-                gz += -GJ[0, 0] * fx * rz * rz - GJ[1, 1] * fy * rz * rz
-                gz += GJ[0, 2] * 2.0 * fx * tx * rz * rz * rz + GJ[1, 2] * 2.0 * fy * ty * rz * rz * rz
-                gtx = -GJ[0, 2] * fx * rz * rz
-                gty = -GJ[1, 2] * fy * rz * rz
-                if cl_x:
-                    gz += gtx * (tx * rz)
-                else:
-                    gx += gtx
-                if cl_y:
-                    gz += gty * (ty * rz)
-                else:
-                    gy += gty
-                # world position: p = V m + t
-                for k in range(3):
-                    g_means[g, k] = V[0, k] * gx + V[1, k] * gy + V[2, k] * gz
-                # Sc = V S3 V^T -> GS3 = V^T GSc V
-                _mul3(V, GSc, tmp, True, False)
-                _mul3(tmp, V, GS3, False, False)
-                # S3 = M M^T -> GM = (GS3 + GS3^T) M
-                for i in range(3):
-                    for j in range(3):
-                        acc = 0.0
-                        for k in range(3):
-                            acc += (GS3[i, k] + GS3[k, i]) * M[k, j]
-                        GM[i, j] = acc
-                # M = Rq diag(s)
-                for j in range(3):
-                    s = math.exp(ls[j])
-                    acc = 0.0
-                    for i in range(3):
-                        GR[i, j] = GM[i, j] * s
-                        acc += GM[i, j] * Rq[i, j]
-                    g_logscales[g, j] = acc * s
-                nq, w, qx, qy, qz = _quat_to_rot(q[0], q[1], q[2], q[3], Rq)
-                gw = 2.0 * (-qz * GR[0, 1] + qy * GR[0, 2] + qz * GR[1, 0] - qx * GR[1, 2]
-                            - qy * GR[2, 0] + qx * GR[2, 1])
-                gqx = 2.0 * (qy * GR[0, 1] + qz * GR[0, 2] + qy * GR[1, 0] - 2.0 * qx * GR[1, 1]
-                             - w * GR[1, 2] + qz * GR[2, 0] + w * GR[2, 1] - 2.0 * qx * GR[2, 2])
-                gqy = 2.0 * (-2.0 * qy * GR[0, 0] + qx * GR[0, 1] + w * GR[0, 2] + qx * GR[1, 0]
-                             + qz * GR[1, 2] - w * GR[2, 0] + qz * GR[2, 1] - 2.0 * qy * GR[2, 2])
-                gqz = 2.0 * (-2.0 * qz * GR[0, 0] - w * GR[0, 1] + qx * GR[0, 2] + w * GR[1, 0]
-                             - 2.0 * qz * GR[1, 1] + qy * GR[1, 2] + qx * GR[2, 0] + qy * GR[2, 1])
-                dot = gw * w + gqx * qx + gqy * qy + gqz * qz
-                g_quats[g, 0] = (gw - w * dot) / nq
-                g_quats[g, 1] = (gqx - qx * dot) / nq
-                g_quats[g, 2] = (gqy - qy * dot) / nq
-                g_quats[g, 3] = (gqz - qz * dot) / nq
+        _project_backward_chunk(ci * _CHUNK, min(n, (ci + 1) * _CHUNK), means, quats, logscales,
+                                V, t0, t1, t2, fx, fy, lim_xp, lim_xn, lim_yp, lim_yn, radii,
+                                g_means2d, g_conics, g_depths, g_means, g_quats, g_logscales)
 
 
 def project(means, quats, logscales, viewmat, fx, fy, cx, cy, width, height,
