@@ -27,7 +27,6 @@ is the headline (compile CPU-s per command, baseline -> today).
 
 from __future__ import annotations
 
-import argparse
 import json
 import shutil
 import sys
@@ -40,7 +39,6 @@ import harness
 from event_runs import build_scenes
 
 BASELINE_REV = "e9dcfef"  # main before the kernels' compile units were split (issue 44)
-TARGET_ENV = {"host": {}, "avx2": {"NUMBA_CPU_NAME": "haswell", "ATEN_CPU_CAPABILITY": "avx2"}}
 
 
 def commands(scene: Path, out: Path, iterations: int, span_ms: float) -> dict[str, list[str]]:
@@ -59,7 +57,7 @@ def measure(side: str, root: Path, target: str, name: str, cmd: list[str], out: 
     """Cold then warm run of ``cmd`` with the gs2e of ``root`` on one empty
     numba cache; CPU seconds of each."""
     with tempfile.TemporaryDirectory(prefix="bench_compile_") as cache:
-        env = harness.gs2e_env(root, NUMBA_CACHE_DIR=cache, **TARGET_ENV[target])
+        env = harness.gs2e_env(root, NUMBA_CACHE_DIR=cache, **harness.ISA_TARGET_ENV[target])
         runs = []
         for _ in ("cold", "warm"):
             shutil.rmtree(out, ignore_errors=True)  # the same work cold and warm: no outputs kept
@@ -89,9 +87,7 @@ def main() -> int:
     ap.add_argument("--iterations", type=int, default=300)
     ap.add_argument("--span-ms", type=float, default=50.0)
     a = ap.parse_args()
-    avx512 = "avx512f" in Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else False
-    targets = (a.targets.split(",") if a.targets else ["host"] if a.quick or not avx512
-               else ["host", "avx2"])
+    targets = ["host"] if a.quick and not a.targets else harness.isa_targets(a.targets)
     names = ["events"] if a.quick else ["train", "events"]
     rounds = 1 if a.quick else a.rounds
     scene = build_scenes(["demo"])["demo"]

@@ -57,15 +57,11 @@ import harness  # noqa: E402
 from harness import REPO, median_cpu_ms  # noqa: E402
 
 BASELINE_REV = "783ff0e"  # main when issue 44 was filed
-TARGET_ENV = {"host": {}, "avx2": {"NUMBA_CPU_NAME": "haswell", "ATEN_CPU_CAPABILITY": "avx2"}}
 
 
 def host_flags() -> list[str]:
     """The vector extensions of this CPU that matter here."""
-    try:
-        flags = set(Path("/proc/cpuinfo").read_text().split("flags")[1].split("\n")[0].split())
-    except (OSError, IndexError):
-        return []
+    flags = harness.cpu_flags()
     return [f for f in ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512vl", "avx512bw") if f in flags]
 
 
@@ -180,7 +176,7 @@ def run_target(target: str, scenes: dict[str, Path], reps: int, root: Path = REP
     the baseline's)."""
     caches = {} if caches is None else caches
     cache = caches.setdefault(target, Path(tempfile.mkdtemp(prefix=f"bench_isa_{target}_")))
-    env = harness.gs2e_env(root, NUMBA_CACHE_DIR=str(cache), **TARGET_ENV[target.split("-")[0]])
+    env = harness.gs2e_env(root, NUMBA_CACHE_DIR=str(cache), **harness.ISA_TARGET_ENV[target.split("-")[0]])
     cmd = [sys.executable, __file__, "--worker", json.dumps({k: str(v) for k, v in scenes.items()}),
            "--reps", str(reps), "--root", str(root)]
     with harness.clock() as t:
@@ -251,7 +247,7 @@ def main() -> int:
 
     flags = host_flags()
     avx512 = "avx512f" in flags
-    targets = (args.targets.split(",") if args.targets else ["host", "avx2"] if avx512 else ["host"])
+    targets = harness.isa_targets(args.targets)
     names = ["demo"] if args.quick else args.scenes.split(",")
     reps = 3 if args.quick else args.reps
     print(f"host: {os.cpu_count()} CPUs, flags {' '.join(flags)}; targets {', '.join(targets)}"

@@ -151,17 +151,41 @@ def best_s(fn: Callable[[], object], reps: int) -> float:
     return best
 
 
+def cpu_flags() -> set[str]:
+    """This CPU's feature flags (/proc/cpuinfo; empty where there is none)."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("flags") and ":" in line:
+                return set(line.split(":", 1)[1].split())
+    except OSError:
+        pass
+    return set()
+
+
+# Code generated for an instruction set, by target: the host's own choice, and
+# AVX2 + FMA without AVX-512 (Haswell for numba, torch's AVX2 kernels).
+ISA_TARGET_ENV = {"host": {}, "avx2": {"NUMBA_CPU_NAME": "haswell", "ATEN_CPU_CAPABILITY": "avx2"}}
+
+
+def isa_targets(spec: str | None) -> list[str]:
+    """Targets of :data:`ISA_TARGET_ENV` to measure: ``spec`` (comma-separated)
+    if given, else host and avx2 where the host has AVX-512 (elsewhere host
+    code is AVX2 code, or older)."""
+    if spec:
+        return spec.split(",")
+    return ["host", "avx2"] if "avx512f" in cpu_flags() else ["host"]
+
+
 def machine() -> str:
     """The CPU, the CPUs this process may use and the instruction set the
     kernels are compiled for, e.g. ``AMD EPYC 7B13, 2 CPUs, AVX2+FMA (no
     AVX-512)``: every figure names it."""
-    model, flags = platform.processor() or platform.machine(), set()
+    model, flags = platform.processor() or platform.machine(), cpu_flags()
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
             if line.startswith("model name") and ":" in line:
                 model = line.split(":", 1)[1].strip()
-            elif line.startswith("flags") and ":" in line:
-                flags = set(line.split(":", 1)[1].split())
+                break
     except OSError:
         pass
     if "avx512f" in flags:

@@ -211,7 +211,8 @@ def _project_backward_chunk(g_lo, g_hi, means, quats, logscales, V, t0, t1, t2, 
                             g_depths, g_means, g_quats, g_logscales):
     """:func:`project_backward_kernel` for Gaussians g_lo .. g_hi - 1 (one
     thread's chunk; its own function so that the parallel loop around it
-    stays small: numba's parfor passes on this body cost ~10 s of compile)."""
+    stays small: numba's parfor passes over this body made the cold compile
+    12 instead of 4.7 CPU-s)."""
     Rq = np.empty((3, 3))
     M = np.empty((3, 3))
     S3 = np.empty((3, 3))
