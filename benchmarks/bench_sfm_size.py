@@ -22,6 +22,7 @@ A configuration is ``size:extractor:bundle_adjustment`` (size in px, ``auto``
 or ``native``). ``--seeds``: the mapper's seeds for mouse_colmap (a view at
 the edge of registering registers under some seeds only). ``--quick``:
 mouse_colmap's first 16 views at native and the default only.
+``--mouse-side 1440``: mouse_colmap shrunk to a 1080p-class capture first.
 Writes benchmarks/results/bench_sfm_size.csv and .png; the last printed line
 is the headline (mouse_colmap: CPU of the default against the baseline,
 views registered).
@@ -41,8 +42,26 @@ import pycolmap
 from gs2e.config import load_config
 from gs2e.io.ingest import ingest_scene
 from gs2e.sfm import colmap_sfm
-from gs2e.sfm.colmap_sfm import run_sfm, sift_image_size
+from gs2e.io.scene import read_scene
+from gs2e.sfm.colmap_sfm import run_sfm, sift_max_side_px
 from harness import SHARED_SCENES
+
+
+def _shrunk(src: Path, side_px: int, tmp: Path) -> Path:
+    """mouse_colmap's registered photos shrunk (area filter) to a longer side
+    of ``side_px``, as a folder scene (no poses): a 1080p-class capture."""
+    import cv2
+
+    names = {im.name for im in pycolmap.Reconstruction(str(src / "sparse" / "0")).images.values()}
+    out = tmp / f"shrunk_{src.name}_{side_px}"
+    out.mkdir(parents=True, exist_ok=True)
+    for f in sorted((src / "images").iterdir()):
+        if f.name in names:
+            img = cv2.imread(str(f), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
+            h, w = img.shape[:2]
+            size = (round(w * side_px / max(h, w)), round(h * side_px / max(h, w)))
+            cv2.imwrite(str(out / f"{f.stem}.png"), cv2.resize(img, size, interpolation=cv2.INTER_AREA))
+    return out
 
 
 def _subset(src: Path, layout: str, n_views: int | None, tmp: Path) -> Path:
@@ -57,15 +76,20 @@ def _subset(src: Path, layout: str, n_views: int | None, tmp: Path) -> Path:
     return out
 
 
-BASELINE = "native:colmap:colmap"  # gs2e sfm at 783ff0e (which also used COLMAP's undistorter)
+# gs2e sfm at 783ff0e: the photos' own size, doubled before SIFT's first octave,
+# COLMAP's bundle adjustment schedule and undistorter (its photos are now
+# decoded by OpenCV instead of COLMAP's reader: the same SIFT, slightly
+# different grey levels)
+BASELINE = "native:colmap:colmap:-1"
 DEFAULT = "auto:colmap:fast"  # today's defaults
 
 
 def parse_config(text: str) -> dict:
-    """``size:extractor:bundle_adjustment`` -> sfm config overrides."""
-    size, extractor, ba = text.split(":")
+    """``size:extractor:bundle_adjustment[:first_octave]`` -> sfm config overrides."""
+    size, extractor, ba, *octave = text.split(":")
     max_image_size = None if size == "native" else "auto" if size == "auto" else int(size)
-    return {"max_image_size": max_image_size, "extractor": extractor, "bundle_adjustment": ba}
+    return {"max_image_size": max_image_size, "extractor": extractor, "bundle_adjustment": ba,
+            "sift_first_octave": int(octave[0]) if octave and octave[0] != "auto" else "auto"}
 
 
 def run_one(scene: str, scene_dir: Path, config: str, seed: int, tmp: Path, threads: int) -> dict:
@@ -104,7 +128,7 @@ def run_one(scene: str, scene_dir: Path, config: str, seed: int, tmp: Path, thre
             colmap_sfm._undistort = ours
     baseline = config == BASELINE
     shutil.rmtree(out, ignore_errors=True)
-    return {"scene": scene, "config": config, "seed": seed, "sift_px": sift_image_size(cfg),
+    return {"scene": scene, "config": config, "seed": seed, "sift_px": sift_max_side_px(cfg, read_scene(scene_dir)),
             "extractor": cfg["extractor"], "bundle_adjustment": cfg["bundle_adjustment"],
             "n_views": st.get("n_views"), "n_registered": st.get("n_registered"), "n_points": st.get("n_points"),
             "reproj_px": st.get("mean_reproj_error_px"),
@@ -115,7 +139,7 @@ def run_one(scene: str, scene_dir: Path, config: str, seed: int, tmp: Path, thre
             "wall_s": t.wall_s, "cpu_s": t.cpu_s - (0.0 if baseline else cpu["colmap"]), "error": err}
 
 
-def plot(rows: list[dict]) -> Path:
+def plot(rows: list[dict], name: str = "bench_sfm_size") -> Path:
     """CPU seconds (by step) and views registered per configuration on
     mouse_colmap, as benchmarks/results/bench_sfm_size.png; returns the path."""
     import numpy as np
@@ -142,15 +166,19 @@ def plot(rows: list[dict]) -> Path:
     n_views = rs[0]["n_views"] if rs else 1
     ax[1].set(ylabel="views registered (each seed)", title=f"registration of {n_views} views",
               ylim=(n_views - 4.5, n_views + 0.5))
-    return harness.save_plot(fig, "bench_sfm_size", dpi=110)
+    return harness.save_plot(fig, name, dpi=110)
 
 
 def main() -> int:
     ap = harness.parser(__doc__, quick="mouse_colmap's first 16 views, baseline and default (a few minutes)")
-    ap.add_argument("--configs", default=f"{BASELINE},auto:colmap:colmap,{DEFAULT},auto:opencv:fast",
-                    help="comma-separated size:extractor:bundle_adjustment for mouse_colmap")
+    ap.add_argument("--configs", default=f"{BASELINE},1024:colmap:fast:-1,{DEFAULT},auto:opencv:fast",
+                    help="comma-separated size:extractor:bundle_adjustment[:first_octave] for mouse_colmap")
     ap.add_argument("--seeds", default="0,1,2", help="mapper seeds for mouse_colmap")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--mouse-side", type=int, default=None,
+                    help="shrink mouse_colmap's photos to this longer side first (e.g. 1440: a 1080p-class "
+                         "capture; folder layout, so no camera errors)")
+    ap.add_argument("--no-small", action="store_true", help="skip temple_ring and llff_fern")
     args = ap.parse_args()
     os.environ.setdefault("GS2E_PROGRESS", "0")
     if not SHARED_SCENES["mouse_colmap"][1].is_dir():
@@ -159,7 +187,7 @@ def main() -> int:
     configs = [BASELINE, DEFAULT] if args.quick else args.configs.split(",")
     seeds = [0] if args.quick else [int(x) for x in args.seeds.split(",")]
     plan = [("mouse_colmap", c, seed) for c in configs for seed in (seeds if c != BASELINE else seeds[:1])]
-    if not args.quick:
+    if not args.quick and not args.no_small:
         plan += [(scene, c, 0) for scene in ("temple_ring", "llff_fern") for c in (BASELINE, DEFAULT)]
     tmp = Path(tempfile.mkdtemp(prefix="bench_sfm_size_"))
     rows = []
@@ -170,6 +198,8 @@ def main() -> int:
                 layout, src = SHARED_SCENES[scene]
                 src = _subset(src, layout, 16 if args.quick else None, tmp)
                 layout = "folder" if args.quick else layout
+                if scene == "mouse_colmap" and args.mouse_side:
+                    src, layout = _shrunk(src, args.mouse_side, tmp), "folder"
                 ingested[scene] = tmp / f"ingest_{scene}"
                 ingest_scene(src, layout, ingested[scene], load_config({})["ingest"])
             r = run_one(scene, ingested[scene], config, seed, tmp, args.threads)
@@ -179,7 +209,8 @@ def main() -> int:
                   f"{r['cpu_s']:.1f} CPU-s {r['error']}", flush=True)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    files = [harness.write_csv("bench_sfm_size", rows), plot(rows)]
+    name = f"bench_sfm_size_{args.mouse_side}px" if args.mouse_side else "bench_sfm_size"
+    files = [harness.write_csv(name, rows), plot(rows, name)]
     hdr = ("scene", "config", "seed", "sift_px", "n_registered", "n_views", "n_points", "reproj_px",
            "gt_rot_deg", "gt_center_pct", "extraction_s", "matching_s", "mapping_s", "undistortion_cpu_s",
            "colmap_undistortion_cpu_s", "cpu_s")

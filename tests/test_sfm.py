@@ -150,16 +150,44 @@ def _same_files(a: Path, b: Path) -> list[str]:
     return [str(rel) for rel in files if rel not in timing and (a / rel).read_bytes() != (b / rel).read_bytes()]
 
 
-def test_opencv_extraction_and_undistortion_give_the_same_bytes_at_any_thread_count(tmp_path):
-    """OpenCV's SIFT runs a view per thread and the views are undistorted a view
-    per thread: one thread or three, the output is the same bytes."""
+@pytest.mark.parametrize("extractor", ["colmap", "opencv"])
+def test_extraction_and_undistortion_give_the_same_bytes_at_any_thread_count(tmp_path, extractor):
+    """SIFT (either extractor) runs a view per thread and the views are
+    undistorted a view per thread: one thread or three, the output is the
+    same bytes."""
     scene_dir = _temple_subset_with_poses(tmp_path, n=12)
-    cfg = sfm_cfg(min_registered_fraction=0.5, extractor="opencv")
+    cfg = sfm_cfg(min_registered_fraction=0.5, extractor=extractor)
     stats = run_sfm(scene_dir, tmp_path / "one", cfg, seed=3, threads=1)
     run_sfm(scene_dir, tmp_path / "three", cfg, seed=3, threads=3)
     assert stats["n_registered"] >= 6  # (7 of these 12 views register with either extractor)
     differ = _same_files(tmp_path / "one", tmp_path / "three")
     assert differ == [], f"{len(differ)} files differ, e.g. {differ[:5]}"
+
+
+def test_point_colours_are_colmaps_taken_while_undistorting(tmp_path):
+    """The mapper leaves the points black and the undistortion pass colours
+    them from the photos it decodes: the same colours as COLMAP's own
+    extraction (mean of bilinear samples over the views that see a point),
+    level for level."""
+    import pycolmap
+
+    from gs2e.sfm import colmap_sfm
+
+    scene_dir = _temple_subset_with_poses(tmp_path, n=12)
+    cfg = sfm_cfg(min_registered_fraction=0.5)
+    run = colmap_sfm._Run(read_scene(scene_dir), scene_dir, cfg, 0, 2, 1, tmp_path / "work")
+    run.work.mkdir()
+    run.model_dir.mkdir()
+    rec = colmap_sfm._reconstruct_incremental(run, "exhaustive")
+    assert rec.num_points3D() > 500 and not any(np.any(p.color) for p in rec.points3D.values())
+    ref = pycolmap.Reconstruction(str(run.model_dir))
+    ref.extract_colors_for_all_images(str(run.image_dir))
+    colmap_sfm._undistort(run.model_dir, run.image_dir, tmp_path / "undist", 2)
+    got = pycolmap.Reconstruction(str(tmp_path / "undist" / "sparse"))
+    ids = sorted(ref.points3D)
+    want = np.array([ref.points3D[i].color for i in ids])
+    assert np.array_equal(np.array([got.points3D[i].color for i in ids]), want)
+    assert want.any()
 
 
 def test_unregistrable_scene_fails_cleanly(tmp_path):

@@ -8,8 +8,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gs2e.sfm.features import root_sift_bytes, sift_features
-from gs2e.sfm.undistort import opencv_camera, undistort_image, undistortion_maps
+from gs2e.sfm.features import (colmap_sift_features, root_sift_bytes, sift_features, sift_first_octave,
+                               sift_side_px)
+from gs2e.sfm.undistort import bilinear_colors, opencv_camera, undistort_image, undistortion_maps
 
 
 def test_root_sift_bytes_is_colmaps_l1_root_scaling():
@@ -68,6 +69,47 @@ def test_sift_features_are_the_same_bytes_on_every_call():
     assert len(a[0]) > 50 and np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
 
 
+def test_sift_side_follows_the_photo_size_at_auto():
+    """auto: real pixels up to 2048 px for photos of at least 1920 px, else up
+    to 1024 px (doubled); an int caps every photo, None only at COLMAP's 3200."""
+    assert [sift_side_px("auto", s) for s in (640, 1024, 1440, 1919)] == [640, 1024, 1024, 1024]
+    assert [sift_side_px("auto", s) for s in (1920, 2048, 4032)] == [1920, 2048, 2048]
+    assert [sift_side_px(1600, s) for s in (640, 1920)] == [640, 1600]
+    assert [sift_side_px(None, s) for s in (1920, 5000)] == [1920, 3200]
+    # the first octave: doubled up to 1024 px, so auto never doubles past 2048
+    assert [sift_first_octave("auto", s) for s in (640, 1024, 1025, 2048)] == [-1, -1, 0, 0]
+    assert sift_first_octave(0, 640) == 0 and sift_first_octave(-1, 2048) == -1
+
+
+@pytest.mark.parametrize("max_image_size,first_octave", [(4000, 0), (1000, -1), ("auto", "auto"), (640, "auto")])
+def test_colmap_sift_keypoints_are_in_the_photos_pixels(max_image_size, first_octave):
+    """COLMAP's SIFT on the image gs2e shrinks: blobs of a 2000x1500 photo are
+    found within a quarter pixel of their centres in COLMAP's convention,
+    whether SIFT sees the photo whole (doubled or not) or shrunk 2x to 3.1x,
+    with the affine shape scaled back to the photo's pixels too."""
+    centres = [(401.25, 333.0), (1500.0, 1000.5), (987.0, 205.75)]
+    img = _blob_image(2000, 1500, centres, sigma=12.0)
+    kp, desc = colmap_sift_features(img, max_image_size, 8192, first_octave)
+    assert kp.dtype == np.float32 and kp.shape[1] == 6 and desc.shape == (len(kp), 128)
+    assert desc.dtype == np.uint8
+    for cx, cy in centres:
+        d = np.hypot(kp[:, 0] - (cx + 0.5), kp[:, 1] - (cy + 0.5))
+        assert d.min() < 0.25, (max_image_size, cx, cy, d.min())
+        a11, a12, a21, a22 = kp[np.argmin(d), 2:]
+        scale_px = np.sqrt(abs(a11 * a22 - a12 * a21))  # the shape's scale, photo pixels
+        assert 4.0 < scale_px < 40.0
+
+
+def test_colmap_sift_of_a_flat_image_is_empty_and_repeats_bytes():
+    kp, desc = colmap_sift_features(np.full((300, 400), 128, np.uint8), "auto", 8192)
+    assert kp.shape == (0, 6) and desc.shape == (0, 128)
+    img = _blob_image(800, 600, [(200.0, 150.0), (600.0, 420.0)], sigma=6.0)
+    rng = np.random.default_rng(1)
+    img = np.clip(img.astype(int) + rng.integers(-20, 20, img.shape), 0, 255).astype(np.uint8)
+    a, b = colmap_sift_features(img, 640, 500), colmap_sift_features(img, 640, 500)
+    assert 50 < len(a[0]) <= 500 and np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
+
+
 @pytest.mark.parametrize("model,params", [
     ("SIMPLE_RADIAL", [700.0, 321.0, 239.5, -0.12]),
     ("RADIAL", [650.0, 318.5, 242.0, 0.08, -0.02]),
@@ -100,3 +142,18 @@ def test_opencv_camera_moves_the_principal_point_half_a_pixel():
     assert np.allclose(dist, [0.1, 0, 0, 0, 0, 0, 0, 0])
     with pytest.raises(KeyError):
         opencv_camera("OPENCV_FISHEYE", [500.0, 500.0, 320.0, 240.0, 0, 0, 0, 0])
+
+
+def test_bilinear_colors_use_colmaps_pixel_centres_and_skip_the_border():
+    """A ramp photo: the colour at (x, y) in COLMAP's convention (pixel centres
+    at +0.5) is the ramp's value at (x - 0.5, y - 0.5), exactly; points whose
+    2x2 neighbourhood leaves the photo are not valid (COLMAP skips them)."""
+    h, w = 6, 8
+    yy, xx = np.mgrid[0:h, 0:w]
+    rgb = np.stack([10 * xx, 20 * yy, 5 * xx + 7 * yy], axis=-1).astype(np.uint8)
+    xy = np.array([[0.5, 0.5], [3.75, 2.25], [7.49, 5.49], [0.4, 3.0], [7.6, 3.0], [4.0, 5.6]])
+    colors, valid = bilinear_colors(rgb, xy)
+    assert valid.tolist() == [True, True, True, False, False, False]
+    x, y = xy[valid, 0] - 0.5, xy[valid, 1] - 0.5
+    assert np.allclose(colors[valid], np.stack([10 * x, 20 * y, 5 * x + 7 * y], axis=-1), atol=1e-9)
+    assert not colors[~valid].any()

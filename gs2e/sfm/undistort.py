@@ -61,3 +61,33 @@ def undistort_image(rgb: np.ndarray, maps) -> np.ndarray:
     import cv2
 
     return cv2.remap(rgb, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+
+def bilinear_colors(rgb: np.ndarray, xy_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Colours of a photo at sub-pixel points, as COLMAP samples them for its
+    3D points (bilinear, in COLMAP's pixel convention: the centre of the
+    top-left pixel at (0.5, 0.5)).
+
+    Parameters
+    ----------
+    rgb : (H, W, 3) uint8 photo.
+    xy_px : (N, 2) points (px).
+
+    Returns
+    -------
+    colors : (N, 3) float64, 0 where not valid.
+    valid : (N,) bool, False where the 2x2 neighbourhood leaves the photo
+        (COLMAP skips those observations).
+    """
+    h, w = rgb.shape[:2]
+    xy = np.asarray(xy_px, np.float64).reshape(-1, 2) - 0.5
+    x0, y0 = np.floor(xy[:, 0]), np.floor(xy[:, 1])
+    valid = (x0 >= 0) & (y0 >= 0) & (x0 + 1 < w) & (y0 + 1 < h)
+    xi, yi = x0[valid].astype(np.int64), y0[valid].astype(np.int64)
+    fx, fy = (xy[valid, 0] - x0[valid])[:, None], (xy[valid, 1] - y0[valid])[:, None]
+    px = lambda yy, xx: rgb[yy, xx].astype(np.float64)  # noqa: E731
+    top = px(yi, xi) * (1 - fx) + px(yi, xi + 1) * fx
+    bottom = px(yi + 1, xi) * (1 - fx) + px(yi + 1, xi + 1) * fx
+    colors = np.zeros((len(xy), 3))
+    colors[valid] = top * (1 - fy) + bottom * fy
+    return colors, valid
