@@ -109,11 +109,13 @@ def colmap_sift_features(gray: np.ndarray, max_image_size, max_num_features: int
     import pycolmap
 
     img, sx, sy = shrink_for_sift(gray, max_image_size)
+    device = pycolmap.Device.cpu if device is None else device
     opts = pycolmap.FeatureExtractionOptions()
     opts.num_threads = 1
+    opts.use_gpu = device == pycolmap.Device.cuda
     opts.sift.max_num_features = int(max_num_features)
     opts.sift.first_octave = sift_first_octave(first_octave, max(img.shape))
-    extractor = pycolmap.FeatureExtractor.create(opts, pycolmap.Device.cpu if device is None else device)
+    extractor = pycolmap.FeatureExtractor.create(opts, device)
     kps, desc = extractor.extract_from_uint8_array(np.ascontiguousarray(img))
     keypoints = np.array([(k.x, k.y, k.a11, k.a12, k.a21, k.a22) for k in kps], np.float32).reshape(-1, 6)
     # COLMAP's FeatureKeypoint::Rescale: x and the shape's first column by sx, y and its second by sy
