@@ -85,9 +85,10 @@ def bilinear_colors(rgb: np.ndarray, xy_px: np.ndarray) -> tuple[np.ndarray, np.
     valid = (x0 >= 0) & (y0 >= 0) & (x0 + 1 < w) & (y0 + 1 < h)
     xi, yi = x0[valid].astype(np.int64), y0[valid].astype(np.int64)
     fx, fy = (xy[valid, 0] - x0[valid])[:, None], (xy[valid, 1] - y0[valid])[:, None]
-    px = lambda yy, xx: rgb[yy, xx].astype(np.float64)  # noqa: E731
-    top = px(yi, xi) * (1 - fx) + px(yi, xi + 1) * fx
-    bottom = px(yi + 1, xi) * (1 - fx) + px(yi + 1, xi + 1) * fx
+    # the 2x2 neighbours of each point: top-left, top-right, bottom-left, bottom-right
+    c = rgb[np.stack([yi, yi, yi + 1, yi + 1], 1), np.stack([xi, xi + 1, xi, xi + 1], 1)].astype(np.float64)
+    top = c[:, 0] * (1 - fx) + c[:, 1] * fx
+    bottom = c[:, 2] * (1 - fx) + c[:, 3] * fx
     colors = np.zeros((len(xy), 3))
     colors[valid] = top * (1 - fy) + bottom * fy
     return colors, valid
