@@ -3,13 +3,14 @@ bundle adjustment schedule against views registered, camera error and CPU.
 
 On the real captures of ../shared/data, ``gs2e sfm`` (incremental mapping,
 deterministic: COLMAP on one thread) in several configurations
-(``sfm.max_image_size``, ``sfm.extractor``, ``sfm.bundle_adjustment``): views
+(``sfm.max_image_size``, ``sfm.extractor``, ``sfm.bundle_adjustment``,
+``sfm.sift_first_octave``, ``sfm.descriptor_matcher``): views
 registered, points, mean reprojection error, camera error against the
 capture's own poses where it has them (mouse_colmap: its COLMAP project;
 temple_ring: Middlebury's calibration), CPU seconds of extraction, matching,
 mapping, undistortion and the whole run. The baseline, in the same run, is
-what ``gs2e sfm`` did at 783ff0e: the photos' own size, COLMAP's SIFT and
-bundle adjustment schedule and COLMAP's undistorter. Each run also times
+what ``gs2e sfm`` did at 783ff0e: the photos' own size, COLMAP's SIFT,
+matcher and bundle adjustment schedule and COLMAP's undistorter. Each run also times
 COLMAP's undistorter on the same model (``colmap_undistortion_s``) beside
 the OpenCV resampling ``gs2e sfm`` now uses (``undistortion_s``). Photos
 already smaller than a size are unchanged by it, so temple_ring (640 px) and
@@ -18,12 +19,16 @@ llff_fern (706 px) run at ``auto`` only, to show registration is kept.
     python benchmarks/bench_sfm_size.py [--quick] [--configs native:colmap:colmap,auto:colmap:fast,...]
         [--seeds 0,1,2]
 
-A configuration is ``size:extractor:bundle_adjustment`` (size in px, ``auto``
-or ``native``). ``--seeds``: the mapper's seeds for mouse_colmap (a view at
-the edge of registering registers under some seeds only). ``--quick``:
+A configuration is ``size:extractor:bundle_adjustment[:first_octave[:matcher]]``
+(size in px, ``auto`` or ``native``; first octave ``auto``, -1 or 0; matcher
+``colmap`` or ``gemm``: ``sfm.descriptor_matcher``). ``--seeds``: the
+mapper's seeds for mouse_colmap (a view at the edge of registering registers
+under some seeds only). ``--quick``:
 mouse_colmap's first 16 views at native and the default only.
-``--mouse-side 1440``: mouse_colmap shrunk to a 1080p-class capture first.
-Writes benchmarks/results/bench_sfm_size.csv and .png; the last printed line
+``--mouse-side 1440``: mouse_colmap shrunk to a 1080p-class capture first;
+``--mouse-16-9 --mouse-views 50``: its first 50 views cropped to 16:9, a
+50-view 1080p capture (1920x1080 and 1080x1920 photos).
+Writes benchmarks/results/bench_sfm_size[_<variant>].csv and .png; the last printed line
 is the headline (mouse_colmap: CPU of the default against the baseline,
 views registered).
 """
@@ -47,20 +52,32 @@ from gs2e.sfm.colmap_sfm import run_sfm, sift_max_side_px
 from harness import SHARED_SCENES
 
 
-def _shrunk(src: Path, side_px: int, tmp: Path) -> Path:
-    """mouse_colmap's registered photos shrunk (area filter) to a longer side
-    of ``side_px``, as a folder scene (no poses): a 1080p-class capture."""
+def _derived(src: Path, tmp: Path, side_px: int | None = None, crop_16_9: bool = False,
+             n_views: int | None = None) -> Path:
+    """mouse_colmap's registered photos (the first ``n_views`` by name), cropped
+    about their centre to 16:9 (1920x1440 -> 1920x1080: what a phone's 16:9
+    mode keeps of its 4:3 sensor) and/or shrunk (area filter) to a longer side
+    of ``side_px``, as a folder scene (no poses)."""
     import cv2
 
-    names = {im.name for im in pycolmap.Reconstruction(str(src / "sparse" / "0")).images.values()}
-    out = tmp / f"shrunk_{src.name}_{side_px}"
+    names = sorted(im.name for im in pycolmap.Reconstruction(str(src / "sparse" / "0")).images.values())
+    names = set(names[:n_views])
+    out = tmp / f"derived_{src.name}_{side_px}_{'16x9' if crop_16_9 else 'full'}_{n_views}"
     out.mkdir(parents=True, exist_ok=True)
     for f in sorted((src / "images").iterdir()):
         if f.name in names:
             img = cv2.imread(str(f), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
             h, w = img.shape[:2]
-            size = (round(w * side_px / max(h, w)), round(h * side_px / max(h, w)))
-            cv2.imwrite(str(out / f"{f.stem}.png"), cv2.resize(img, size, interpolation=cv2.INTER_AREA))
+            if crop_16_9:
+                long_px, short_px = max(h, w), round(max(h, w) * 9 / 16)
+                ch, cw = (short_px, long_px) if w >= h else (long_px, short_px)
+                y0, x0 = (h - ch) // 2, (w - cw) // 2
+                img = img[y0:y0 + ch, x0:x0 + cw]
+                h, w = img.shape[:2]
+            if side_px:
+                img = cv2.resize(img, (round(w * side_px / max(h, w)), round(h * side_px / max(h, w))),
+                                 interpolation=cv2.INTER_AREA)
+            cv2.imwrite(str(out / f"{f.stem}.png"), img)
     return out
 
 
@@ -80,16 +97,17 @@ def _subset(src: Path, layout: str, n_views: int | None, tmp: Path) -> Path:
 # COLMAP's bundle adjustment schedule and undistorter (its photos are now
 # decoded by OpenCV instead of COLMAP's reader: the same SIFT, slightly
 # different grey levels)
-BASELINE = "native:colmap:colmap:-1"
+BASELINE = "native:colmap:colmap:-1:colmap"
 DEFAULT = "auto:colmap:fast"  # today's defaults
 
 
 def parse_config(text: str) -> dict:
-    """``size:extractor:bundle_adjustment[:first_octave]`` -> sfm config overrides."""
-    size, extractor, ba, *octave = text.split(":")
+    """``size:extractor:bundle_adjustment[:first_octave[:descriptor_matcher]]`` -> sfm config overrides."""
+    size, extractor, ba, *rest = text.split(":")
+    octave, matcher = (rest + ["auto", "colmap"][len(rest):])[:2]
     max_image_size = None if size == "native" else "auto" if size == "auto" else int(size)
     return {"max_image_size": max_image_size, "extractor": extractor, "bundle_adjustment": ba,
-            "sift_first_octave": int(octave[0]) if octave and octave[0] != "auto" else "auto"}
+            "sift_first_octave": int(octave) if octave != "auto" else "auto", "descriptor_matcher": matcher}
 
 
 def run_one(scene: str, scene_dir: Path, config: str, seed: int, tmp: Path, threads: int) -> dict:
@@ -134,6 +152,7 @@ def run_one(scene: str, scene_dir: Path, config: str, seed: int, tmp: Path, thre
             "reproj_px": st.get("mean_reproj_error_px"),
             "gt_rot_deg": st.get("gt_rot_median_deg"), "gt_center_pct": st.get("gt_center_rmse_pct_extent"),
             "extraction_s": st.get("time_extraction_s"), "matching_s": st.get("time_matching_s"),
+            "descriptor_matching_s": st.get("time_descriptor_matching_s"), "verification_s": st.get("time_verification_s"),
             "mapping_s": st.get("time_mapping_s"),
             "undistortion_cpu_s": cpu["colmap"] if baseline else cpu["ours"], "colmap_undistortion_cpu_s": cpu["colmap"],
             "wall_s": t.wall_s, "cpu_s": t.cpu_s - (0.0 if baseline else cpu["colmap"]), "error": err}
@@ -171,13 +190,18 @@ def plot(rows: list[dict], name: str = "bench_sfm_size") -> Path:
 
 def main() -> int:
     ap = harness.parser(__doc__, quick="mouse_colmap's first 16 views, baseline and default (a few minutes)")
-    ap.add_argument("--configs", default=f"{BASELINE},1024:colmap:fast:-1,{DEFAULT},auto:opencv:fast",
-                    help="comma-separated size:extractor:bundle_adjustment[:first_octave] for mouse_colmap")
+    ap.add_argument("--configs", default=f"{BASELINE},{DEFAULT},auto:colmap:fast:auto:gemm",
+                    help="comma-separated size:extractor:bundle_adjustment[:first_octave[:matcher]] for mouse_colmap")
     ap.add_argument("--seeds", default="0,1,2", help="mapper seeds for mouse_colmap")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--mouse-side", type=int, default=None,
                     help="shrink mouse_colmap's photos to this longer side first (e.g. 1440: a 1080p-class "
                          "capture; folder layout, so no camera errors)")
+    ap.add_argument("--mouse-16-9", action="store_true",
+                    help="crop mouse_colmap's photos about their centre to 16:9 first (1920x1080 and 1080x1920: "
+                         "a phone's 16:9 mode; folder layout)")
+    ap.add_argument("--mouse-views", type=int, default=None,
+                    help="mouse_colmap's first this many registered views only (folder layout)")
     ap.add_argument("--no-small", action="store_true", help="skip temple_ring and llff_fern")
     args = ap.parse_args()
     os.environ.setdefault("GS2E_PROGRESS", "0")
@@ -198,8 +222,8 @@ def main() -> int:
                 layout, src = SHARED_SCENES[scene]
                 src = _subset(src, layout, 16 if args.quick else None, tmp)
                 layout = "folder" if args.quick else layout
-                if scene == "mouse_colmap" and args.mouse_side:
-                    src, layout = _shrunk(src, args.mouse_side, tmp), "folder"
+                if scene == "mouse_colmap" and (args.mouse_side or args.mouse_16_9 or args.mouse_views):
+                    src, layout = _derived(src, tmp, args.mouse_side, args.mouse_16_9, args.mouse_views), "folder"
                 ingested[scene] = tmp / f"ingest_{scene}"
                 ingest_scene(src, layout, ingested[scene], load_config({})["ingest"])
             r = run_one(scene, ingested[scene], config, seed, tmp, args.threads)
@@ -209,7 +233,8 @@ def main() -> int:
                   f"{r['cpu_s']:.1f} CPU-s {r['error']}", flush=True)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    name = f"bench_sfm_size_{args.mouse_side}px" if args.mouse_side else "bench_sfm_size"
+    name = "bench_sfm_size" + (f"_{args.mouse_side}px" if args.mouse_side else "") + \
+        ("_16x9" if args.mouse_16_9 else "") + (f"_{args.mouse_views}views" if args.mouse_views else "")
     files = [harness.write_csv(name, rows), plot(rows, name)]
     hdr = ("scene", "config", "seed", "sift_px", "n_registered", "n_views", "n_points", "reproj_px",
            "gt_rot_deg", "gt_center_pct", "extraction_s", "matching_s", "mapping_s", "undistortion_cpu_s",

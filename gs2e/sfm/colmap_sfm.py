@@ -1,7 +1,8 @@
 """COLMAP structure-from-motion through pycolmap.
 
 Steps: SIFT extraction (COLMAP's, or OpenCV's: gs2e.sfm.features) -> matching
-(exhaustive or sequential) -> incremental mapping (or, when the scene has poses
+(exhaustive or sequential pairs; descriptors matched by COLMAP's index or by
+gs2e's GEMMs, gs2e.sfm.matching; verified by COLMAP) -> incremental mapping (or, when the scene has poses
 and ``reuse_poses`` is set, triangulation with the given poses) -> undistortion
 to PINHOLE (COLMAP's cameras, views resampled by OpenCV: gs2e.sfm.undistort). The output folder is an
 internal-layout scene (undistorted ``images/``, ``scene.json``,
@@ -48,7 +49,7 @@ def sift_max_side_px(cfg: dict, scene: Scene) -> int:
     (gs2e.sfm.features.sift_side_px for ``sfm.max_image_size``)."""
     from gs2e.sfm.features import sift_side_px
 
-    return max(sift_side_px(cfg["max_image_size"], max(scene.frame_size(i)))
+    return max(sift_side_px(cfg["max_image_size"], scene.frame_size(i))
                for i in range(len(scene.frames)))
 
 
@@ -113,26 +114,74 @@ def _extract(db: Path, image_dir: Path, names: list[str], cfg: dict, threads: in
         database.close()
 
 
-def _match(db: Path, matcher: str, cfg: dict, threads: int, seed: int) -> None:
+def _verification_options(seed: int):
+    import pycolmap
+
+    # Geometric verification's RANSAC draws from a time-seeded PRNG unless
+    # given a seed: unseeded, two runs keep different inlier matches.
+    vopts = pycolmap.TwoViewGeometryOptions()
+    vopts.ransac.random_seed = int(seed)
+    return vopts
+
+
+def _pairing_options(cfg: dict, threads: int):
+    import pycolmap
+
+    popts = pycolmap.SequentialPairingOptions()
+    popts.overlap = int(cfg["sequential_overlap"])
+    popts.loop_detection = bool(cfg["sequential_loop_detection"])
+    popts.num_threads = threads
+    return popts
+
+
+def _match_colmap(db: Path, matcher: str, cfg: dict, threads: int, seed: int) -> None:
+    """COLMAP's own matching and verification (its faiss index on the CPU, SiftGPU with ``sfm.gpu``)."""
     import pycolmap
 
     mopts = pycolmap.FeatureMatchingOptions()
     mopts.num_threads = threads
     mopts.use_gpu = bool(cfg.get("gpu"))
-    # Geometric verification's RANSAC draws from a time-seeded PRNG unless
-    # given a seed: unseeded, two runs keep different inlier matches.
-    vopts = pycolmap.TwoViewGeometryOptions()
-    vopts.ransac.random_seed = int(seed)
     if matcher == "exhaustive":
-        pycolmap.match_exhaustive(db, matching_options=mopts, verification_options=vopts,
+        pycolmap.match_exhaustive(db, matching_options=mopts, verification_options=_verification_options(seed),
                                   device=_device(cfg))
     else:
-        popts = pycolmap.SequentialPairingOptions()
-        popts.overlap = int(cfg["sequential_overlap"])
-        popts.loop_detection = bool(cfg["sequential_loop_detection"])
-        popts.num_threads = threads
-        pycolmap.match_sequential(db, matching_options=mopts, pairing_options=popts,
-                                  verification_options=vopts, device=_device(cfg))
+        pycolmap.match_sequential(db, matching_options=mopts, pairing_options=_pairing_options(cfg, threads),
+                                  verification_options=_verification_options(seed), device=_device(cfg))
+
+
+def _match_gemm(db: Path, matcher: str, cfg: dict, threads: int, colmap_threads: int, seed: int,
+                timings: dict[str, float]) -> None:
+    """The view pairs COLMAP's pairing chooses, matched by gs2e (COLMAP's
+    brute-force rule as GEMMs, gs2e.sfm.matching: ``threads`` views at a
+    time, the same matches on any thread count) and verified by COLMAP's
+    own matcher, which skips pairs that already have matches."""
+    import pycolmap
+
+    from gs2e.sfm.matching import match_views
+
+    vopts = _verification_options(seed)
+    database = pycolmap.Database.open(str(db))
+    try:
+        with timed("descriptor_matching", log, timings):
+            generator = (pycolmap.ExhaustivePairGenerator(pycolmap.ExhaustivePairingOptions(), database)
+                         if matcher == "exhaustive" else
+                         pycolmap.SequentialPairGenerator(_pairing_options(cfg, colmap_threads), database))
+            pairs = generator.all_pairs()
+            ids = sorted({i for pair in pairs for i in pair})
+            view = {image_id: v for v, image_id in enumerate(ids)}
+            sift = pycolmap.SiftMatchingOptions()
+            matches = match_views([np.asarray(database.read_descriptors(i).data, np.uint8) for i in ids],
+                                  np.array([(view[a], view[b]) for a, b in pairs], np.int64).reshape(-1, 2),
+                                  sift.max_ratio, sift.max_distance, sift.cross_check, threads)
+            for (a, b), m in zip(pairs, matches):
+                # as COLMAP's matcher: fewer matches than verification needs are stored as none
+                database.write_matches(a, b, m if len(m) >= vopts.min_num_inliers else m[:0])
+    finally:
+        database.close()
+    with timed("verification", log, timings):
+        # COLMAP's matcher on pairs that have matches only verifies them: the
+        # database ends as its brute-force matcher leaves it, byte for byte
+        _match_colmap(db, matcher, cfg, colmap_threads, seed)
 
 
 # sfm.bundle_adjustment: fast = the schedule of COLMAP's automatic reconstructor
@@ -219,7 +268,10 @@ class _Run:
         with timed("extraction", log, self.timings):
             _extract(self.db, self.image_dir, self.names, self.cfg, self.threads, camera_mode, camera_model)
         with timed("matching", log, self.timings):
-            _match(self.db, matcher, self.cfg, self.colmap_threads, self.seed)
+            if self.cfg.get("gpu") or self.cfg["descriptor_matcher"] == "colmap":
+                _match_colmap(self.db, matcher, self.cfg, self.colmap_threads, self.seed)
+            else:
+                _match_gemm(self.db, matcher, self.cfg, self.threads, self.colmap_threads, self.seed, self.timings)
 
 
 def _reconstruct_given(run: _Run):

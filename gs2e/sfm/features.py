@@ -34,30 +34,32 @@ CONTRAST_THRESHOLD = 0.02
 
 
 # sfm.max_image_size and sfm.sift_first_octave at auto (benchmarks/bench_sfm_size.py,
-# mouse_colmap at its own 1920 px and shrunk to 1440 px, three mapper seeds):
-# SIFT on a 1024 px image doubled before its first octave (COLMAP's
-# first_octave -1) registered 54-56 of the 56 views at 1920 px and 55 at 1440;
-# on real pixels up to 2048 px, not doubled, all 56 at 1920 px in 0.79x the
-# CPU, but only 53-54 at 1440 px. So a photo at least SIFT_REAL_PIXELS_MIN_PX
-# long is seen at up to SIFT_REAL_PIXELS_MAX_PX without doubling; a smaller one
-# at up to SIFT_DOUBLED_MAX_PX, doubled.
+# mouse_colmap's photos as they are, shrunk and cropped, three mapper seeds each):
+#   photo        1024 px doubled (first_octave -1)   real pixels up to 2048 px, not doubled
+#   1920x1440    54-56 of 56 views, 107-128 CPU-s    56, 56, 56 in 88-96
+#   1920x1080    49, 49, 50 of 50 in 72-75            49, 47, 46 in 80-87 (16:9 crop)
+#   1440x1080    55, 55, 55 of 56                     53, 53, 54 (shrunk)
+# So a photo of at least SIFT_REAL_PIXELS_MIN_MPX (between 2.07 and 2.76 Mpx,
+# the two sizes measured each side) is seen at up to SIFT_REAL_PIXELS_MAX_PX
+# without doubling; a smaller one at up to SIFT_DOUBLED_MAX_PX, doubled.
 SIFT_DOUBLED_MAX_PX = 1024
-SIFT_REAL_PIXELS_MIN_PX = 1920
+SIFT_REAL_PIXELS_MIN_MPX = 2.5
 SIFT_REAL_PIXELS_MAX_PX = 2048
 SIFT_NATIVE_LIMIT_PX = 3200  # COLMAP's own cap on the image SIFT sees
 
 
-def sift_side_px(max_image_size, photo_side_px: int) -> int:
-    """Longer side (px) of the image SIFT sees of a photo whose longer side
-    is ``photo_side_px``: at most ``max_image_size`` (an int; None: the
-    photo's own size up to COLMAP's 3200 px; ``"auto"``: up to 2048 px for a
-    photo of at least 1920 px, else up to 1024 px)."""
+def sift_side_px(max_image_size, photo_hw: tuple[int, int]) -> int:
+    """Longer side (px) of the image SIFT sees of a photo of ``photo_hw``
+    (height, width; either order) pixels: at most ``max_image_size`` (an int;
+    None: the photo's own size up to COLMAP's 3200 px; ``"auto"``: up to 2048
+    px for a photo of at least 2.5 Mpx, else up to 1024 px)."""
+    h, w = (int(v) for v in photo_hw)
     if max_image_size == "auto":
-        limit = (SIFT_REAL_PIXELS_MAX_PX if photo_side_px >= SIFT_REAL_PIXELS_MIN_PX
+        limit = (SIFT_REAL_PIXELS_MAX_PX if h * w >= SIFT_REAL_PIXELS_MIN_MPX * 1e6
                  else SIFT_DOUBLED_MAX_PX)
     else:
         limit = SIFT_NATIVE_LIMIT_PX if max_image_size is None else int(max_image_size)
-    return min(int(photo_side_px), limit)
+    return min(max(h, w), limit)
 
 
 def sift_first_octave(setting, side_px: int) -> int:
@@ -77,7 +79,7 @@ def shrink_for_sift(gray: np.ndarray, max_image_size) -> tuple[np.ndarray, float
     import cv2
 
     h, w = gray.shape
-    f = sift_side_px(max_image_size, max(h, w)) / max(h, w)
+    f = sift_side_px(max_image_size, (h, w)) / max(h, w)
     img = gray if f == 1.0 else cv2.resize(gray, (max(1, round(w * f)), max(1, round(h * f))),
                                            interpolation=cv2.INTER_AREA)
     return img, w / img.shape[1], h / img.shape[0]
