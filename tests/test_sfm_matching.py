@@ -112,9 +112,9 @@ def test_matches_do_not_depend_on_threads_or_block_size():
     assert sum(len(m) for m in one) > 100
 
 
-def test_gemm_matching_leaves_the_database_colmaps_brute_force_matcher_leaves(tmp_path):
-    """Real features of four llff_fern photos: matches and verified two-view
-    geometries equal those of COLMAP's own brute-force matcher."""
+@pytest.fixture(scope="module")
+def fern_features(tmp_path_factory):
+    """A COLMAP database with gs2e's SIFT features of four llff_fern photos."""
     import pycolmap
 
     from gs2e.config import load_config
@@ -122,33 +122,54 @@ def test_gemm_matching_leaves_the_database_colmaps_brute_force_matcher_leaves(tm
 
     src = shared_data("llff_fern", "images")
     names = sorted(p.name for p in src.iterdir())[:4]
-    cfg = load_config({})["sfm"]
-    db = tmp_path / "features.db"
-    colmap_sfm._extract(db, src, names, cfg, 2, pycolmap.CameraMode.SINGLE, "SIMPLE_RADIAL")
+    db = tmp_path_factory.mktemp("fern") / "features.db"
+    colmap_sfm._extract(db, src, names, load_config({})["sfm"], 2, pycolmap.CameraMode.SINGLE, "SIMPLE_RADIAL")
+    return db
+
+
+@pytest.mark.parametrize("matcher", ["exhaustive", "sequential"])
+def test_gemm_matching_leaves_the_database_colmaps_brute_force_matcher_leaves(fern_features, tmp_path, matcher):
+    """Real features of four llff_fern photos: matches and verified two-view
+    geometries equal those of COLMAP's own brute-force matcher, for both pairings."""
+    import pycolmap
+
+    from gs2e.config import load_config
+    from gs2e.sfm import colmap_sfm
+
+    cfg = load_config({"sfm": {"sequential_overlap": 1}})["sfm"]  # sequential: not every pair
     theirs, ours = tmp_path / "colmap.db", tmp_path / "gs2e.db"
-    shutil.copy(db, theirs)
-    shutil.copy(db, ours)
+    shutil.copy(fern_features, theirs)
+    shutil.copy(fern_features, ours)
     mopts = pycolmap.FeatureMatchingOptions()
     mopts.num_threads = 1
     mopts.sift.cpu_brute_force_matcher = True
     vopts = pycolmap.TwoViewGeometryOptions()
     vopts.ransac.random_seed = 3
-    pycolmap.match_exhaustive(theirs, matching_options=mopts, verification_options=vopts,
-                              device=pycolmap.Device.cpu)
+    if matcher == "exhaustive":
+        pycolmap.match_exhaustive(theirs, matching_options=mopts, verification_options=vopts,
+                                  device=pycolmap.Device.cpu)
+    else:
+        pycolmap.match_sequential(theirs, matching_options=mopts, verification_options=vopts,
+                                  pairing_options=colmap_sfm._pairing_options(cfg, 1), device=pycolmap.Device.cpu)
     timings = {}
-    colmap_sfm._match_gemm(ours, "exhaustive", cfg, 2, 1, 3, timings)
+    colmap_sfm._match_gemm(ours, matcher, cfg, 2, 1, 3, timings)
     assert set(timings) == {"descriptor_matching", "verification"}
     a, b = pycolmap.Database.open(str(theirs)), pycolmap.Database.open(str(ours))
     try:
         ids = sorted(im.image_id for im in a.read_all_images())
-        n_inliers = 0
+        n_inliers, n_pairs = 0, 0
         for k, i in enumerate(ids):
             for j in ids[k + 1:]:
+                assert a.exists_matches(i, j) == b.exists_matches(i, j)
+                if not a.exists_matches(i, j):
+                    continue
+                n_pairs += 1
                 np.testing.assert_array_equal(np.asarray(b.read_matches(i, j)), np.asarray(a.read_matches(i, j)))
                 ga, gb = a.read_two_view_geometry(i, j), b.read_two_view_geometry(i, j)
                 assert ga.config == gb.config
                 np.testing.assert_array_equal(np.asarray(gb.inlier_matches), np.asarray(ga.inlier_matches))
                 n_inliers += len(ga.inlier_matches)
+        assert n_pairs == (6 if matcher == "exhaustive" else 3)
         assert n_inliers > 100  # the photos overlap: real matches were compared
     finally:
         a.close()
