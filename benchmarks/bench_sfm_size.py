@@ -104,6 +104,8 @@ DEFAULT = "auto:colmap:fast"  # today's defaults
 def parse_config(text: str) -> dict:
     """``size:extractor:bundle_adjustment[:first_octave[:descriptor_matcher]]`` -> sfm config overrides."""
     size, extractor, ba, *rest = text.split(":")
+    if len(rest) > 2:
+        raise SystemExit(f"configuration {text!r}: at most size:extractor:bundle_adjustment:first_octave:matcher")
     octave, matcher = (rest + ["auto", "colmap"][len(rest):])[:2]
     max_image_size = None if size == "native" else "auto" if size == "auto" else int(size)
     return {"max_image_size": max_image_size, "extractor": extractor, "bundle_adjustment": ba,
@@ -205,6 +207,8 @@ def main() -> int:
     ap.add_argument("--no-small", action="store_true", help="skip temple_ring and llff_fern")
     args = ap.parse_args()
     os.environ.setdefault("GS2E_PROGRESS", "0")
+    if args.quick and (args.mouse_side or args.mouse_16_9 or args.mouse_views):
+        ap.error("--quick takes mouse_colmap's first 16 photos as they are: no --mouse-side, --mouse-16-9, --mouse-views")
     if not SHARED_SCENES["mouse_colmap"][1].is_dir():
         print(f"no real data under {SHARED_SCENES['mouse_colmap'][1].parent}; nothing to benchmark")
         return 0

@@ -149,12 +149,25 @@ def _match_colmap(db: Path, matcher: str, cfg: dict, threads: int, seed: int) ->
                                   verification_options=_verification_options(seed), device=_device(cfg))
 
 
+def unique_pairs(pairs) -> list[tuple[int, int]]:
+    """Image-id pairs as COLMAP's matcher takes them: each pair once in the
+    orientation it first comes in (the stored matches' order follows it), no
+    view with itself (loop detection repeats pairs; the database takes a pair
+    once)."""
+    first: dict[tuple[int, int], tuple[int, int]] = {}
+    for a, b in pairs:
+        if a != b:
+            first.setdefault((min(a, b), max(a, b)), (int(a), int(b)))
+    return list(first.values())
+
+
 def _match_gemm(db: Path, matcher: str, cfg: dict, threads: int, colmap_threads: int, seed: int,
                 timings: dict[str, float]) -> None:
     """The view pairs COLMAP's pairing chooses, matched by gs2e (COLMAP's
     brute-force rule as GEMMs, gs2e.sfm.matching: ``threads`` views at a
     time, the same matches on any thread count) and verified by COLMAP's
-    own matcher, which skips pairs that already have matches."""
+    own matcher, which does not match again pairs that have matches but
+    verifies them."""
     import pycolmap
 
     from gs2e.sfm.matching import match_views
@@ -166,7 +179,7 @@ def _match_gemm(db: Path, matcher: str, cfg: dict, threads: int, colmap_threads:
             generator = (pycolmap.ExhaustivePairGenerator(pycolmap.ExhaustivePairingOptions(), database)
                          if matcher == "exhaustive" else
                          pycolmap.SequentialPairGenerator(_pairing_options(cfg, colmap_threads), database))
-            pairs = generator.all_pairs()
+            pairs = unique_pairs(generator.all_pairs())
             ids = sorted({i for pair in pairs for i in pair})
             view = {image_id: v for v, image_id in enumerate(ids)}
             sift = pycolmap.SiftMatchingOptions()
@@ -174,7 +187,7 @@ def _match_gemm(db: Path, matcher: str, cfg: dict, threads: int, colmap_threads:
                                   np.array([(view[a], view[b]) for a, b in pairs], np.int64).reshape(-1, 2),
                                   sift.max_ratio, sift.max_distance, sift.cross_check, threads)
             for (a, b), m in zip(pairs, matches):
-                # as COLMAP's matcher: fewer matches than verification needs are stored as none
+                # stored as COLMAP's matcher stores them: fewer than verification needs as none
                 database.write_matches(a, b, m if len(m) >= vopts.min_num_inliers else m[:0])
     finally:
         database.close()

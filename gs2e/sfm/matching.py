@@ -22,13 +22,18 @@ equal those of ``SiftMatchingOptions.cpu_brute_force_matcher`` (tests/test_sfm_m
 - a feature's best partner is the largest dot product (the first on ties),
   its second the next largest value (equal to the best on a tie), both at
   least 0;
-- the angles ``acos(dot / 512^2)`` of best and second (float32) must satisfy
-  ``best <= max_distance`` and ``best < max_ratio * second``;
+- the angles ``acos(dot / 512^2)`` (rad) of best and second, in float32 by
+  libm's ``acosf`` as COLMAP's ``std::acos`` on a float (numpy's float32
+  arccos differs from it in the last bit for a third of the dot products),
+  must satisfy ``best <= max_distance`` and ``best < max_ratio * second``;
 - with ``cross_check`` a match is kept only when each feature is the other's
   best partner.
 """
 
 from __future__ import annotations
+
+import functools
+import math
 
 import numpy as np
 from numba import njit
@@ -55,7 +60,8 @@ def best_two(dots, row_best, row_second, row_idx, col_best, col_second, col_idx)
 
     Each row is read twice: once into ``_LANES`` independent running maxima
     (vectorised), merged in column order at the end, once into the columns'
-    running top two (fused into one loop, neither vectorises: 4x slower).
+    running top two (two loops: fused into one, neither vectorises and the
+    kernel is 4x slower).
     About 0.7 ns per dot product on one core, as fast in code for AVX2 as for
     AVX-512. Releases the GIL.
     """
@@ -112,18 +118,52 @@ def best_two(dots, row_best, row_second, row_idx, col_best, col_second, col_idx)
             row_idx[k, r] = idx
 
 
-def passes(best_dot: np.ndarray, second_dot: np.ndarray, max_ratio: float, max_distance: float) -> np.ndarray:
-    """COLMAP's distance and ratio tests on the best and second dot products
-    (float32, COLMAP's uint8 descriptor scale): bool array."""
-    one = np.float32(1.0)
+_DOT_ONE = int(SQ_DESCRIPTOR_NORM)  # dot products from here on have angle 0
+
+
+@njit(cache=True)
+def _angles(n: int) -> np.ndarray:
+    """(n,) float32: acos(min(d / 512^2, 1)) for the integers d = 0 .. n - 1,
+    in float32 arithmetic (numba's math.acos of a float32 is libm's acosf)."""
+    out = np.empty(n, np.float32)
     inv = np.float32(1.0 / SQ_DESCRIPTOR_NORM)
-    best = np.arccos(np.minimum(inv * best_dot.astype(np.float32), one))
-    second = np.arccos(np.minimum(inv * second_dot.astype(np.float32), one))
+    for d in range(n):
+        out[d] = math.acos(min(inv * np.float32(d), np.float32(1.0)))
+    return out
+
+
+@functools.lru_cache(maxsize=1)
+def angle_table() -> np.ndarray:
+    """(2^18 + 1,) float32: the angle (rad) of every dot product 0 .. 512^2
+    (larger ones have angle 0), as COLMAP computes it."""
+    return _angles(_DOT_ONE + 1)
+
+
+def passes(best_dot: np.ndarray, second_dot: np.ndarray, max_ratio: float, max_distance: float) -> np.ndarray:
+    """COLMAP's distance and ratio tests.
+
+    Parameters
+    ----------
+    best_dot, second_dot : (N,) float32, each feature's largest and second
+        largest dot product (integers >= 0, COLMAP's uint8 descriptor scale).
+    max_ratio : the ratio test's bound on best / second angle.
+    max_distance : the best angle's bound (rad).
+
+    Returns
+    -------
+    (N,) bool: the feature's best partner is a match candidate.
+    """
+    table = angle_table()
+    best = table[np.minimum(best_dot, _DOT_ONE).astype(np.int64)]
+    second = table[np.minimum(second_dot, _DOT_ONE).astype(np.int64)]
     return (best_dot > 0) & (best <= np.float32(max_distance)) & (best < np.float32(max_ratio) * second)
 
 
 def _matches(rb, rs, ri, cb, cs, ci, n2: int, max_ratio: float, max_distance: float, cross_check: bool) -> np.ndarray:
-    """(M, 2) uint32 matches of one block from its rows' and columns' top two."""
+    """Matches with one partner of a block, from :func:`best_two`'s outputs for
+    it: ``rb``, ``rs``, ``ri`` (N1,) of the view's features, ``cb``, ``cs``,
+    ``ci`` (M,) of the partner's, padded; ``n2`` the partner's real feature
+    count. Returns (K, 2) uint32 feature indices (view, partner)."""
     rows = np.flatnonzero(passes(rb, rs, max_ratio, max_distance))
     cols = ri[rows]
     if cross_check:
