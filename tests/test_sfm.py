@@ -133,11 +133,12 @@ def test_reuse_poses_keeps_given_cameras(tmp_path):
         assert np.isclose(a.camera.fx, b.camera.fx)
 
 
-@pytest.mark.parametrize("extractor", ["colmap", "opencv"])
-def test_mapping_with_gt_poses_reports_camera_error(tmp_path, extractor):
+@pytest.mark.parametrize("extractor, matcher", [("colmap", "colmap"), ("opencv", "colmap"), ("colmap", "gemm")])
+def test_mapping_with_gt_poses_reports_camera_error(tmp_path, extractor, matcher):
     scene_dir = _temple_subset_with_poses(tmp_path, n=12)
-    stats = run_sfm(scene_dir, tmp_path / "sfm", sfm_cfg(min_registered_fraction=0.5, extractor=extractor),
-                    threads=2)
+    stats = run_sfm(scene_dir, tmp_path / "sfm", sfm_cfg(min_registered_fraction=0.5, extractor=extractor,
+                                                         descriptor_matcher=matcher), threads=2)
+    assert ("time_descriptor_matching_s" in stats) == (matcher == "gemm")
     assert stats["mode"] == "incremental"
     assert stats["gt_center_rmse_pct_extent"] < 2.0
 
@@ -150,13 +151,13 @@ def _same_files(a: Path, b: Path) -> list[str]:
     return [str(rel) for rel in files if rel not in timing and (a / rel).read_bytes() != (b / rel).read_bytes()]
 
 
-@pytest.mark.parametrize("extractor", ["colmap", "opencv"])
-def test_extraction_and_undistortion_give_the_same_bytes_at_any_thread_count(tmp_path, extractor):
-    """SIFT (either extractor) runs a view per thread and the views are
-    undistorted a view per thread: one thread or three, the output is the
-    same bytes."""
+@pytest.mark.parametrize("extractor, matcher", [("colmap", "colmap"), ("opencv", "colmap"), ("colmap", "gemm")])
+def test_extraction_and_undistortion_give_the_same_bytes_at_any_thread_count(tmp_path, extractor, matcher):
+    """SIFT (either extractor) runs a view per thread, gs2e's matcher a view
+    per thread and the views are undistorted a view per thread: one thread or
+    three, the output is the same bytes."""
     scene_dir = _temple_subset_with_poses(tmp_path, n=12)
-    cfg = sfm_cfg(min_registered_fraction=0.5, extractor=extractor)
+    cfg = sfm_cfg(min_registered_fraction=0.5, extractor=extractor, descriptor_matcher=matcher)
     stats = run_sfm(scene_dir, tmp_path / "one", cfg, seed=3, threads=1)
     run_sfm(scene_dir, tmp_path / "three", cfg, seed=3, threads=3)
     assert stats["n_registered"] >= 6  # (7 of these 12 views register with either extractor)
