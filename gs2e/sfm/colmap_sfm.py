@@ -141,12 +141,12 @@ def _match_colmap(db: Path, matcher: str, cfg: dict, threads: int, seed: int) ->
     mopts = pycolmap.FeatureMatchingOptions()
     mopts.num_threads = threads
     mopts.use_gpu = bool(cfg.get("gpu"))
+    vopts = _verification_options(seed)
     if matcher == "exhaustive":
-        pycolmap.match_exhaustive(db, matching_options=mopts, verification_options=_verification_options(seed),
-                                  device=_device(cfg))
+        pycolmap.match_exhaustive(db, matching_options=mopts, verification_options=vopts, device=_device(cfg))
     else:
         pycolmap.match_sequential(db, matching_options=mopts, pairing_options=_pairing_options(cfg, threads),
-                                  verification_options=_verification_options(seed), device=_device(cfg))
+                                  verification_options=vopts, device=_device(cfg))
 
 
 def unique_pairs(pairs) -> list[tuple[int, int]]:

@@ -159,15 +159,16 @@ def passes(best_dot: np.ndarray, second_dot: np.ndarray, max_ratio: float, max_d
     return (best_dot > 0) & (best <= np.float32(max_distance)) & (best < np.float32(max_ratio) * second)
 
 
-def _matches(rb, rs, ri, cb, cs, ci, n2: int, max_ratio: float, max_distance: float, cross_check: bool) -> np.ndarray:
+def _matches(rb, rs, ri, cb, cs, ci, max_ratio: float, max_distance: float, cross_check: bool) -> np.ndarray:
     """Matches with one partner of a block, from :func:`best_two`'s outputs for
     it: ``rb``, ``rs``, ``ri`` (N1,) of the view's features, ``cb``, ``cs``,
-    ``ci`` (M,) of the partner's, padded; ``n2`` the partner's real feature
-    count. Returns (K, 2) uint32 feature indices (view, partner)."""
+    ``ci`` (M,) of the partner's (padded; a candidate's best partner is never
+    a padding column, whose dot products are 0). Returns (K, 2) uint32
+    feature indices (view, partner)."""
     rows = np.flatnonzero(passes(rb, rs, max_ratio, max_distance))
     cols = ri[rows]
     if cross_check:
-        keep = passes(cb[:n2], cs[:n2], max_ratio, max_distance)[cols] & (ci[cols] == rows)
+        keep = passes(cb[cols], cs[cols], max_ratio, max_distance) & (ci[cols] == rows)
         rows, cols = rows[keep], cols[keep]
     return np.column_stack([rows, cols]).astype(np.uint32)
 
@@ -195,8 +196,7 @@ def _match_one_view(a: np.ndarray, partners: list[np.ndarray], max_ratio: float,
         cb, cs, ci = np.empty((k, m), np.float32), np.empty((k, m), np.float32), np.empty((k, m), np.int32)
         best_two(dots, rb, rs, ri, cb, cs, ci)
         for c, q in enumerate(chunk):
-            out[q] = _matches(rb[c], rs[c], ri[c], cb[c], cs[c], ci[c], len(partners[q]),
-                              max_ratio, max_distance, cross_check)
+            out[q] = _matches(rb[c], rs[c], ri[c], cb[c], cs[c], ci[c], max_ratio, max_distance, cross_check)
     return out
 
 
