@@ -70,12 +70,10 @@ def test_sift_features_are_the_same_bytes_on_every_call():
 
 
 def test_sift_side_follows_the_photo_size_at_auto():
-    """auto: real pixels up to 2048 px for photos of at least 2.5 Mpx, else up
-    to 1024 px (doubled); an int caps every photo, None only at COLMAP's 3200."""
-    small = [(480, 640), (768, 1024), (1080, 1440), (1080, 1920), (1920, 1080), (1440, 1440)]
-    assert [sift_side_px("auto", hw) for hw in small] == [640, 1024, 1024, 1024, 1024, 1024]
-    large = [(1440, 1920), (1920, 1440), (1536, 2048), (3024, 4032), (1302, 1921)]
-    assert [sift_side_px("auto", hw) for hw in large] == [1920, 1920, 2048, 2048, 1921]
+    """auto: every photo seen at up to 800 px (doubled); an int caps every
+    photo, None only at COLMAP's 3200."""
+    photos = [(480, 640), (520, 779), (768, 1024), (1080, 1920), (1920, 1080), (1440, 1920), (3024, 4032)]
+    assert [sift_side_px("auto", hw) for hw in photos] == [640, 779, 800, 800, 800, 800, 800]
     assert [sift_side_px(1600, hw) for hw in ((480, 640), (1080, 1920))] == [640, 1600]
     assert [sift_side_px(None, hw) for hw in ((1080, 1920), (3000, 5000))] == [1920, 3200]
     # the first octave: doubled up to 1024 px, so auto never doubles past 2048

@@ -56,12 +56,20 @@ def sift_max_side_px(cfg: dict, scene: Scene) -> int:
 def _import_images(db: Path, image_dir: Path, names: list[str], camera_mode, camera_model: str) -> None:
     """Images and cameras into a new database, one by one in name order: the
     extractor's threads would otherwise number them in the order they finish,
-    and the mapper's result depends on the image ids."""
+    and the mapper's result depends on the image ids.
+
+    ``camera_mode`` is a ``pycolmap.CameraMode`` or a list of name groups, one
+    camera per group (the groups' images numbered group after group)."""
     import pycolmap
 
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = camera_model
     pycolmap.Database.open(str(db)).close()  # creates the (empty) database
+    if isinstance(camera_mode, list):
+        for group in camera_mode:
+            pycolmap.import_images(db, image_dir, camera_mode=pycolmap.CameraMode.SINGLE,
+                                   image_names=group, options=reader)
+        return
     pycolmap.import_images(db, image_dir, camera_mode=camera_mode, image_names=names, options=reader)
 
 
@@ -321,9 +329,12 @@ def _reconstruct_incremental(run: _Run, matcher: str):
     mode = pycolmap.CameraMode.PER_IMAGE
     if cfg["single_camera"]:
         # one camera per view size: a phone's portrait and landscape views
-        # share a lens but not a pixel grid (AUTO groups by size; PNGs carry no EXIF)
-        mixed = len({run.scene.frame_size(i) for i in range(len(run.scene.frames))}) > 1
-        mode = pycolmap.CameraMode.AUTO if mixed else pycolmap.CameraMode.SINGLE
+        # share a lens but not a pixel grid. (COLMAP's AUTO mode gave each
+        # view of a photo folder its own camera: PNGs carry no EXIF to group by.)
+        groups: dict[tuple[int, int], list[str]] = {}
+        for i, name in enumerate(run.names):
+            groups.setdefault(run.scene.frame_size(i), []).append(name)
+        mode = list(groups.values()) if len(groups) > 1 else pycolmap.CameraMode.SINGLE
     run.features(mode, cfg["camera_model"], matcher)
     with timed("mapping", log, run.timings):
         recs = pycolmap.incremental_mapping(run.db, run.image_dir, run.work / "sparse",

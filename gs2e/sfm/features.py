@@ -34,29 +34,30 @@ CONTRAST_THRESHOLD = 0.02
 
 
 # sfm.max_image_size and sfm.sift_first_octave at auto (benchmarks/bench_sfm_size.py,
-# mouse_colmap's photos as they are, shrunk and cropped, three mapper seeds each):
-#   photo        1024 px doubled (first_octave -1)   real pixels up to 2048 px, not doubled
-#   1920x1440    54-56 of 56 views, 107-128 CPU-s    56, 56, 56 in 88-96
-#   1920x1080    49, 49, 50 of 50 in 72-75            49, 47, 46 in 80-87 (16:9 crop)
-#   1440x1080    55, 55, 55 of 56                     53, 53, 54 (shrunk)
-# So a photo of at least SIFT_REAL_PIXELS_MIN_MPX (between 2.07 and 2.76 Mpx,
-# the two sizes measured each side) is seen at up to SIFT_REAL_PIXELS_MAX_PX
-# without doubling; a smaller one at up to SIFT_DOUBLED_MAX_PX, doubled.
-SIFT_DOUBLED_MAX_PX = 1024
-SIFT_REAL_PIXELS_MIN_MPX = 2.5
-SIFT_REAL_PIXELS_MAX_PX = 2048
+# mouse_colmap's photos as they are, shrunk and cropped, three mapper seeds each,
+# one camera per view size; views registered, CPU-s of the whole gs2e sfm):
+#   photo        800 px doubled          1024 px doubled     up to 2048 px, not doubled
+#   1920x1440    56, 56, 56 of 56, 59-65                     56, 56, 56, 87-90
+#   1920x1080    50, 50, 50 of 50, 57-64  50, 50, 50, 84-106
+#   1440x1080    56, 56, 56 of 56, 63-73  56, 56, 56, 94-107
+# (1920x1440: the same camera errors, 0.48-0.58 deg and 5.4 % of the extent,
+# against 0.45-0.51 deg and 5.4-5.6 % undoubled.) So every photo is seen at up
+# to SIFT_AUTO_MAX_PX, doubled.
+SIFT_AUTO_MAX_PX = 800
+# sfm.sift_first_octave at auto doubles an image SIFT sees of up to this size
+# (so an explicit sfm.max_image_size of 1024 px is doubled, 1600 px is not)
+SIFT_DOUBLE_UP_TO_PX = 1024
 SIFT_NATIVE_LIMIT_PX = 3200  # COLMAP's own cap on the image SIFT sees
 
 
 def sift_side_px(max_image_size, photo_hw: tuple[int, int]) -> int:
     """Longer side (px) of the image SIFT sees of a photo of ``photo_hw``
     (height, width; either order) pixels: at most ``max_image_size`` (an int;
-    None: the photo's own size up to COLMAP's 3200 px; ``"auto"``: up to 2048
-    px for a photo of at least 2.5 Mpx, else up to 1024 px)."""
+    None: the photo's own size up to COLMAP's 3200 px; ``"auto"``: up to
+    :data:`SIFT_AUTO_MAX_PX`)."""
     h, w = (int(v) for v in photo_hw)
     if max_image_size == "auto":
-        limit = (SIFT_REAL_PIXELS_MAX_PX if h * w >= SIFT_REAL_PIXELS_MIN_MPX * 1e6
-                 else SIFT_DOUBLED_MAX_PX)
+        limit = SIFT_AUTO_MAX_PX
     else:
         limit = SIFT_NATIVE_LIMIT_PX if max_image_size is None else int(max_image_size)
     return min(max(h, w), limit)
@@ -65,9 +66,9 @@ def sift_side_px(max_image_size, photo_hw: tuple[int, int]) -> int:
 def sift_first_octave(setting, side_px: int) -> int:
     """COLMAP's ``first_octave`` for an image whose longer side SIFT sees is
     ``side_px``: ``setting`` itself (-1 doubles the image, 0 does not), or for
-    ``"auto"`` -1 up to :data:`SIFT_DOUBLED_MAX_PX` px and 0 beyond."""
+    ``"auto"`` -1 up to :data:`SIFT_DOUBLE_UP_TO_PX` px and 0 beyond."""
     if setting == "auto":
-        return -1 if side_px <= SIFT_DOUBLED_MAX_PX else 0
+        return -1 if side_px <= SIFT_DOUBLE_UP_TO_PX else 0
     return int(setting)
 
 
