@@ -287,11 +287,12 @@ def test_mixed_orientation_capture_gets_one_camera_per_view_size(tmp_path):
     of the output has the same intrinsics, every portrait view too. (COLMAP's
     AUTO mode gave each view its own camera: a focal length per view to
     recover, and a texture-poor view of a 50-view 1080p capture failed to
-    register under two of three mapper seeds.)"""
+    register under two of three mapper seeds.) The pairs are verified with a
+    camera per view first (COLMAP's shared-focal verification costs 7x)."""
     import pycolmap
 
     from gs2e.io.ingest import ingest_scene
-    from gs2e.sfm.colmap_sfm import _import_images
+    from gs2e.sfm.colmap_sfm import _import_images, _one_camera_per_size
 
     import shutil
 
@@ -310,17 +311,22 @@ def test_mixed_orientation_capture_gets_one_camera_per_view_size(tmp_path):
         c = f.camera
         cams.setdefault(out.frame_size(i), set()).add((c.fx, c.fy))
     assert len(cams) == 2 and all(len(v) == 1 for v in cams.values()), cams
-    # the database: one camera per size, each view on the camera of its size
+    # the database: verified with a camera per view, then one camera (and rig) per size,
+    # each view and its frame on the camera of its size
     db_path = tmp_path / "db.db"
     names = [f.name for f in scene.frames]
-    groups: dict[tuple[int, int], list[str]] = {}
-    for name, size in zip(names, sizes):
-        groups.setdefault(size, []).append(name)
-    _import_images(db_path, tmp_path / "ingest" / "images", names, list(groups.values()), "SIMPLE_RADIAL")
+    _import_images(db_path, tmp_path / "ingest" / "images", names, pycolmap.CameraMode.PER_IMAGE, "SIMPLE_RADIAL")
+    _one_camera_per_size(db_path)
     db = pycolmap.Database.open(str(db_path))
     cameras = {c.camera_id: (c.width, c.height) for c in db.read_all_cameras()}
     images = db.read_all_images()
+    rigs = {r.rig_id: r.ref_sensor_id.id for r in db.read_all_rigs()}
+    frames = db.read_all_frames()
     db.close()
-    assert len(cameras) == 2 and len(images) == len(names)
+    assert len(cameras) == 2 and len(rigs) == 2 and len(images) == len(frames) == len(names)
     size_of = dict(zip(names, sizes))
     assert all(cameras[im.camera_id] == size_of[im.name] for im in images)
+    camera_of = {im.image_id: im.camera_id for im in images}
+    for f in frames:
+        ((sensor, image_id),) = [(d.sensor_id.id, d.id) for d in f.data_ids]
+        assert sensor == camera_of[image_id] == rigs[f.rig_id]

@@ -37,12 +37,13 @@ CONTRAST_THRESHOLD = 0.02
 # mouse_colmap's photos as they are, shrunk and cropped, three mapper seeds each,
 # one camera per view size; views registered, CPU-s of the whole gs2e sfm):
 #   photo        800 px doubled          1024 px doubled     up to 2048 px, not doubled
-#   1920x1440    56, 56, 56 of 56, 59-65                     56, 56, 56, 87-90
-#   1920x1080    50, 50, 50 of 50, 57-64  50, 50, 50, 84-106
-#   1440x1080    56, 56, 56 of 56, 63-73  56, 56, 56, 94-107
-# (1920x1440: the same camera errors, 0.48-0.58 deg and 5.4 % of the extent,
-# against 0.45-0.51 deg and 5.4-5.6 % undoubled.) So every photo is seen at up
-# to SIFT_AUTO_MAX_PX, doubled.
+#   1920x1440    56, 56, 56 of 56, 54-62                     56, 56, 56, 87-90
+#   1920x1080    50, 50, 50 of 50, 44-53  50, 50, 50, 84-106
+#   1440x1080    56, 56, 56 of 56, 50-54  56, 56, 56, 94-107
+# (the last two columns verified with shared cameras, about 10 CPU-s more;
+# 1920x1440: camera errors 0.38-0.51 deg and 5.3-5.4 % of the extent at 800 px,
+# 0.45-0.51 deg and 5.4-5.6 % undoubled.) So every photo is seen at up to
+# SIFT_AUTO_MAX_PX, doubled.
 SIFT_AUTO_MAX_PX = 800
 # sfm.sift_first_octave at auto doubles an image SIFT sees of up to this size
 # (so an explicit sfm.max_image_size of 1024 px is doubled, 1600 px is not)
