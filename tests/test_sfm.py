@@ -289,12 +289,12 @@ def test_mixed_orientation_capture_gets_one_camera_per_view_size(tmp_path):
     recover, and a texture-poor view of a 50-view 1080p capture failed to
     register under two of three mapper seeds.) The pairs are verified with a
     camera per view first (COLMAP's shared-focal verification costs 7x)."""
+    import shutil
+
     import pycolmap
 
     from gs2e.io.ingest import ingest_scene
     from gs2e.sfm.colmap_sfm import _import_images, _one_camera_per_size
-
-    import shutil
 
     photos = tmp_path / "photos"  # the capture's first 16 photos by name: neighbours in time
     photos.mkdir()

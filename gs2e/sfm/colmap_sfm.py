@@ -84,12 +84,11 @@ def _one_camera_per_size(db: Path) -> None:
         rigs = {r.ref_sensor_id.id: r for r in database.read_all_rigs()}
         images = sorted(database.read_all_images(), key=lambda im: im.image_id)
         frames = sorted(database.read_all_frames(), key=lambda f: f.frame_id)
+        size = {cid: (c.model.name, c.width, c.height) for cid, c in cams.items()}
         first: dict[tuple, int] = {}
         for im in images:
-            c = cams[im.camera_id]
-            first.setdefault((c.model.name, c.width, c.height), im.camera_id)
-        target = {im.image_id: first[(cams[im.camera_id].model.name, cams[im.camera_id].width,
-                                      cams[im.camera_id].height)] for im in images}
+            first.setdefault(size[im.camera_id], im.camera_id)
+        target = {im.image_id: first[size[im.camera_id]] for im in images}
         database.clear_frames()
         database.clear_rigs()
         for cid in sorted(set(first.values())):

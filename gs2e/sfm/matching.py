@@ -11,10 +11,10 @@ products of every row and column. The products are integers below
 the matches do not depend on the BLAS, the instruction set or the thread count.
 
 ``sfm.descriptor_matcher: gemm`` (not the default): on mouse_colmap's 1,540
-view pairs it takes about half the CPU of COLMAP's index (5.3-6.8 against
-10.4 CPU-s, AVX-512), but its exact matches, a few per cent more, made the
-mapper slower and registered 54-55 of 56 views over three seeds where the
-index's registered all 56 (docs/sfm.md).
+view pairs it takes about half the descriptor-matching CPU of COLMAP's index
+(5.3-6.8 against 10.4 CPU-s, AVX-512). With one camera per view size it
+registers the same views as the index on five captures, at 0.8-1.03x the CPU
+of the whole SfM: too little to change the default (docs/sfm.md).
 
 The rule is COLMAP's brute force (``FindBestMatchesBruteForce``), so the matches
 equal those of ``SiftMatchingOptions.cpu_brute_force_matcher`` (tests/test_sfm_matching.py):
