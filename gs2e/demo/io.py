@@ -11,16 +11,10 @@ import numpy as np
 from gs2e.common import atomic_dir, progress, timed
 from gs2e.demo.world import (TARGET, WOBBLE_PERIODS, build_world, check_orbit, intrinsics,
                              orbit_c2w, render_view, sample_points, wall_size)
+from gs2e.io.images import write_png
 from gs2e.io.scene import IMAGES_DIR, Camera, Frame, Scene, write_scene_json
 
 log = logging.getLogger("gs2e.demo")
-
-
-def write_png(path: Path, img: np.ndarray) -> None:
-    """8-bit RGB PNG with no metadata (identical pixels give identical bytes)."""
-    from PIL import Image
-
-    Image.fromarray(np.ascontiguousarray(img, np.uint8)).save(path, format="PNG", compress_level=6)
 
 
 def generate_demo_scene(out: str | Path, cfg: dict) -> dict:
