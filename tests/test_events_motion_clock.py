@@ -2,7 +2,8 @@
 occluder crossing a textured background, a semi-transparent edge, pure
 rotation, a camera moving toward a surface, a Gaussian next to the near
 plane; each against a dense reference (samples 0.02 px apart) with the ideal
-model. And the measure it runs on (gs2e.splat.forward.image_motion_px)."""
+model. And the measure it runs on (gs2e.splat.forward.image_motion_px),
+which the fixed clock reports per sample."""
 
 from __future__ import annotations
 
@@ -197,3 +198,43 @@ def test_rendered_source_in_motion_mode_renders_at_its_clock(tmp_path):
     assert runs[1.0] < 0.5 * runs[0.25]
     with pytest.raises(ConfigError, match="events.sampling.max_motion_px"):
         check_config(load_config({"events": {"sampling": {"mode": "motion"}}}))
+
+
+def test_fixed_clock_reports_how_far_the_image_moves_per_sample(tmp_path, caplog):
+    """mode: fixed measures the image motion between its samples: on a camera
+    panning over a plane of sub-pixel Gaussians every centre moves
+    F |dx| / Z per step; stats.json carries the median and largest, and a
+    clock coarse enough to move the image over STEP_MOTION_WARN_PX per
+    sample logs a warning naming the setting that bounds it."""
+    import json
+    import logging
+
+    from gs2e.config import check_config, load_config
+    from gs2e.events.rendered import STEP_MOTION_WARN_PX, RenderedSource
+    from gs2e.events.simulate import simulate_to_folder
+    from gs2e.testing import PLANE_DEPTH, PLANE_F, plane_model, straight_trajectory
+
+    model, traj = plane_model(tmp_path), straight_trajectory(tmp_path, 0.2)
+    for fps, span_s in ((2400.0, 0.2), (2.0, None)):  # the path pans ~3 px/s
+        cfg = check_config(load_config({"events": {
+            "model": "ideal", "preview": False, "max_duration_s": span_s,
+            "sampling": {"mode": "fixed", "fixed_fps": fps}}}))
+        src = RenderedSource(model, traj, cfg["events"])
+        step_us = int(round(1e6 / fps))
+        t_mid = (src.t0_us + src.t1_us - step_us) // 2
+        dx = src.pose_at(t_mid + step_us)[0, 3] - src.pose_at(t_mid)[0, 3]
+        expected = PLANE_F * abs(dx) / PLANE_DEPTH
+        caplog.clear()
+        with caplog.at_level(logging.INFO, logger="gs2e.events"):
+            stats = simulate_to_folder(src, cfg["events"], tmp_path / f"ev{int(fps)}", seed=0)
+        on_disk = json.loads((tmp_path / f"ev{int(fps)}" / "stats.json").read_text())["stats"]
+        p50, mx = on_disk["sampling_step_motion_px_p50"], on_disk["sampling_step_motion_px_max"]
+        assert (p50, mx) == (stats["sampling_step_motion_px_p50"], stats["sampling_step_motion_px_max"])
+        # constant speed in the middle of the path: the median is the analytic step
+        assert p50 == pytest.approx(expected, rel=1e-3)
+        assert p50 <= mx <= 1.05 * expected
+        warned = [r for r in caplog.records if r.levelno == logging.WARNING and "bunch" in r.message]
+        assert bool(warned) == (mx > STEP_MOTION_WARN_PX)
+        if warned:
+            assert "events.sampling" in warned[0].getMessage()
+    assert mx > STEP_MOTION_WARN_PX, "the coarse clock moves the image more than the warning's bound"

@@ -15,6 +15,7 @@ What changes pixels comes from the render stage (``background``, ``scale``,
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import Iterator
 
@@ -33,6 +34,14 @@ from gs2e.splat.forward import ForwardRenderer, image_motion_px
 from gs2e.splat.model import load_model, render
 from gs2e.splat.rasterize import SplatCamera
 from gs2e.trajectory import fixed_times_us, load_trajectory
+
+log = logging.getLogger("gs2e.events")
+
+# fixed mode: steps measured for the motion they carry (RenderedSource.step_motion_px)
+STEP_MOTION_PROBES = 64
+# image motion per step (px) above which a fixed clock's events bunch on its
+# sample times (docs/events.md: fixed 2400 fps at strong, 1.1-4.8 px per step)
+STEP_MOTION_WARN_PX = 1.0
 
 
 def bound_log(settings: EventSettings | dict) -> float:
@@ -181,6 +190,8 @@ class RenderedSource:
             self._first_batch = first
             self.luminance[:] = self._sampler.lum0
             return self.t0_us, self._sampler.lum0.copy()
+        if self.sc.mode == "fixed":
+            self._report_step_motion()
         f0 = self.frame(self.t0_us)
         self.stats.accepted += 1
         self.luminance[:] = f0
@@ -216,6 +227,33 @@ class RenderedSource:
         if ts:
             self.luminance[:] = buf[len(ts) - 1]
             yield np.array(ts, np.int64), buf[:len(ts)]
+
+    def step_motion_px(self, step_us: int, n: int = STEP_MOTION_PROBES) -> np.ndarray:
+        """Image motion (px, :func:`gs2e.splat.forward.image_motion_px`: the
+        largest displacement of a drawn Gaussian's centre, in units of its
+        projected scale where that exceeds 1 px) over steps of ``step_us``
+        starting at ``n`` times evenly spread over the span: (n,) float64,
+        fewer for a span shorter than n steps. Projections only, no render."""
+        step_us = int(min(step_us, self.duration_us))
+        starts = np.unique(np.linspace(self.t0_us, self.t1_us - step_us, n).round().astype(np.int64))
+        r = self.renderer
+        return np.array([image_motion_px(r.centres(self.pose_at(int(t))),
+                                         r.centres(self.pose_at(int(t) + step_us))) for t in starts])
+
+    def _report_step_motion(self) -> None:
+        """Fixed mode: how far the image moves between samples, into the stats
+        and the log; a warning where that exceeds STEP_MOTION_WARN_PX."""
+        sc = self.sc
+        m = self.step_motion_px(int(round(1e6 / sc.fixed_fps)))
+        p50, mx = float(np.median(m)), float(m.max())
+        self.stats.step_motion_px_p50, self.stats.step_motion_px_max = p50, mx
+        log.info("events %s: fixed %g fps moves the image %.3f px per sample (median of %d steps; "
+                 "largest %.3f px)", self.name, sc.fixed_fps, p50, len(m), mx)
+        if mx > STEP_MOTION_WARN_PX:
+            log.warning("events %s: at fixed %g fps the image moves up to %.2f px between samples, "
+                        "so events bunch on the sample times; events.sampling: {mode: motion, "
+                        "max_motion_px: 0.5} bounds the motion per sample (docs/events.md)",
+                        self.name, sc.fixed_fps, mx)
 
     def _first_step_us(self) -> int:
         """First step of the adaptive and motion clocks: the fixed_fps period,

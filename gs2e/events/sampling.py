@@ -78,6 +78,10 @@ class SamplerStats:
     min_step_us: int = 0
     max_step_us: int = 0
     windows: int = 0          # candidate windows built (tile mode)
+    # fixed mode, rendered: image motion (px, image_motion_px) over one step at
+    # evenly spread times (None where not measured)
+    step_motion_px_p50: float | None = None
+    step_motion_px_max: float | None = None
 
     def step(self, step_us: int) -> None:
         self.min_step_us = step_us if self.min_step_us == 0 else min(self.min_step_us, step_us)
