@@ -279,6 +279,10 @@ def test_workflow_builds_report_and_snakemake_report(tiny_pipeline, tmp_path):
     assert "Scene tiny" in doc.h2 and len(doc.img_src) >= 5 and not doc.links
     # trajectory.plot=false in the tiny run: shown as missing, not faked
     assert any("trajectories.png" in m for m in doc.missing)
+    # fixed sampling records how far the image moved per sample; the overview shows it
+    summ = pd.read_parquet(wd / "results" / "summary.parquet")
+    assert (summ["events_sampling_step_motion_px_max"] > 0).all()
+    assert "events_sampling_step_motion_px_max" in report.read_text()
     assert (wd / "results" / "benchmarks" / "report.tsv").exists()
     out = tmp_path / "sm_report.html"
     proc = run_snakemake(*args, "--report", str(out))

@@ -24,7 +24,7 @@ OVERVIEW_COLUMNS = (
     "train_n_gaussians", "train_iterations", "train_train_time_s", "train_test_psnr",
     "train_test_ssim", "trajectory_duration_us", "render_n_frames", "render_frames_per_s",
     "events_n_events", "events_duration_s", "events_rate_meps", "events_on_fraction",
-    "events_iei_median_ms",
+    "events_iei_median_ms", "events_sampling_step_motion_px_max",
 )
 
 
