@@ -46,9 +46,9 @@ from pathlib import Path
 import numpy as np
 
 import harness
-from event_runs import build_scenes, count_error, events_cfg, matched_dt_us, plane_scene, run
+from event_runs import (build_scenes, count_error, events_cfg, matched_dt_us, motion_rate_px_per_us,
+                        plane_scene, reference_run, reference_span, run)
 
-REF_MOTION_PX = 0.05
 BASELINE = "fixed 2400"
 METHODS = {  # name -> (mode, fps, sampling overrides)
     "fixed 2400": ("fixed", 2400.0, {}),
@@ -59,16 +59,6 @@ METHODS = {  # name -> (mode, fps, sampling overrides)
     "motion 1": ("motion", 2400.0, {"max_motion_px": 1.0}),
     "tile": ("tile", 2400.0, {}),
 }
-
-
-def motion_rate_px_per_us(src, t_us: int) -> float:
-    """Image motion of a ``RenderedSource`` (px per us,
-    :func:`gs2e.splat.forward.image_motion_px`) at ``t_us``, over 200 us."""
-    from gs2e.splat.forward import image_motion_px
-
-    t1 = min(t_us + 200, src.t1_us)
-    r = src.renderer
-    return image_motion_px(r.centres(src.pose_at(t_us)), r.centres(src.pose_at(t1))) / max(1, t1 - t_us)
 
 
 def ideal_metrics(ev, ref, shape, times_us) -> dict:
@@ -97,13 +87,9 @@ def case(model_dir, traj, sensor_name: str | None, methods: list[str], ref_rende
 
     sensor = {"sensor": sensor_name} if sensor_name else {}
     probe = RenderedSource(model_dir, traj, events_cfg("ideal", "fixed", extra=sensor))
-    t_mid = (probe.t0_us + probe.t1_us) // 2
-    rate = motion_rate_px_per_us(probe, t_mid)
-    span_us = int(min(max_span_us, probe.t1_us - t_mid,
-                      ref_renders * REF_MOTION_PX / max(rate, 1e-12)))
-    span = (t_mid, t_mid + max(span_us, 100))
-    ref = run(model_dir, traj, span, "motion", seeds=(0, 1), extra={
-        **sensor, "sampling": {"max_motion_px": REF_MOTION_PX, "dt_min_us": 1}})
+    span = reference_span(probe, ref_renders, max_span_us)
+    rate = motion_rate_px_per_us(probe, span[0])
+    ref = reference_run(model_dir, traj, span, sensor, seeds=(0, 1))
     shape = ref["shape"]
     base = {"span_ms": (span[1] - span[0]) / 1e3, "motion_px_per_ms": rate * 1e3,
             "ref_renders": ref["renders"], "ref_n_ideal": len(ref["events"]["ideal"]),

@@ -25,6 +25,7 @@ from harness import REPO, RESULTS, SHARED_SCENES, clock, gs2e_env, run_child
 CACHE = RESULTS / "bench_event_sampling_cache"
 THETA_IDEAL = 0.2
 PAPER_FPS = 2400.0
+REF_MOTION_PX = 0.05  # image motion between the dense reference's renders
 # name -> (scenes-table layout, input path, overrides): 2000 training steps each
 SCENES = {
     "demo": ("demo", "", "splat.max_iterations=2000"),
@@ -151,6 +152,60 @@ def run(model_dir, traj, span, mode, fps=2400.0, bound=1.0, seeds=(0,),
             "forced": st.forced, "windows": st.windows, "times_us": np.unique(np.concatenate(times)),
             "render_s": whole.wall_s - sum(model_s.values()), "model_s": model_s,
             "wall_s": whole.wall_s, "cpu_s": whole.cpu_s, "duration_us": src.duration_us}
+
+
+def motion_rate_px_per_us(src, t_us: int) -> float:
+    """Image motion of a ``RenderedSource`` (px per us,
+    :func:`gs2e.splat.forward.image_motion_px`) at ``t_us``, over 200 us."""
+    from gs2e.splat.forward import image_motion_px
+
+    t1 = min(t_us + 200, src.t1_us)
+    r = src.renderer
+    return image_motion_px(r.centres(src.pose_at(t_us)), r.centres(src.pose_at(t1))) / max(1, t1 - t_us)
+
+
+def reference_span(src, ref_renders: int, max_span_us: int) -> tuple[int, int]:
+    """(t0, t1) us: a span from the middle of ``src``'s trajectory in full
+    motion, as long as ``ref_renders`` renders :data:`REF_MOTION_PX` apart
+    allow (at most ``max_span_us``, at least 100 us)."""
+    t_mid = (src.t0_us + src.t1_us) // 2
+    rate = motion_rate_px_per_us(src, t_mid)
+    span_us = int(min(max_span_us, src.t1_us - t_mid, ref_renders * REF_MOTION_PX / max(rate, 1e-12)))
+    return t_mid, t_mid + max(span_us, 100)
+
+
+def reference_run(model_dir, traj, span, extra: dict | None = None, seeds=(0,),
+                  sample_for=("ideal", "voltmeter")) -> dict:
+    """:func:`run` of the dense reference: whole renders at most
+    :data:`REF_MOTION_PX` of image motion apart (the ``motion`` clock, steps
+    down to 1 us), whatever rate that takes."""
+    extra = dict(extra or {})
+    return run(model_dir, traj, span, "motion", seeds=seeds, sample_for=sample_for, extra={
+        **extra, "sampling": {**extra.get("sampling", {}), "max_motion_px": REF_MOTION_PX,
+                              "dt_min_us": 1}})
+
+
+# ------------------------------------------------------------------ values between renders
+SLOPE_DT_US = 2.0  # one-sided differences standing in for exact time derivatives
+
+
+def hermite(g0, d0, g1, d1, s):
+    """Cubic Hermite curve through g0, g1 with slopes d0, d1 (per step) at s in [0, 1]."""
+    s2, s3 = s * s, s * s * s
+    return ((2 * s3 - 3 * s2 + 1) * g0 + (s3 - 2 * s2 + s) * d0 + (3 * s2 - 2 * s3) * g1
+            + (s3 - s2) * d1)
+
+
+def exact_slope(G, t, g, h, lo=-np.inf, hi=np.inf):
+    """The time derivative of ``G`` at ``t`` per step ``h`` (``g`` = G(t)):
+    of the one-sided differences over :data:`SLOPE_DT_US` (inside [lo, hi]) the
+    smaller in magnitude, so that a Gaussian crossing the opacity cut-off
+    within them does not count as a slope."""
+    fwd = G(t + SLOPE_DT_US) - g if t + SLOPE_DT_US <= hi else None
+    bwd = g - G(t - SLOPE_DT_US) if t - SLOPE_DT_US >= lo else None
+    d = (bwd if fwd is None else fwd if bwd is None
+         else np.where(np.abs(fwd) < np.abs(bwd), fwd, bwd))
+    return d * (h / SLOPE_DT_US)
 
 
 # ------------------------------------------------------------------ comparing events
