@@ -37,8 +37,9 @@ targets: ideal events (theta = 0.2, no noise) from renders ``ratio`` x fixed
 2400 fps's step apart, with log luminance between renders either linear (the
 renders fed to the model as they are) or on the Hermite curve with exact
 slopes (8 points per step fed in, so that crossings land on the curve, several
-per step where it crosses several thresholds), against the dense reference of
-bench_event_fidelity.py (renders 0.05 px apart) over the same span: event-count
+per step where it crosses several thresholds), against the dense reference
+(``event_runs.reference_run``, renders 0.05 px apart, as in
+bench_event_fidelity.py) over the same span: event-count
 error, per-pixel count L1, timestamp error of matched events (p50, p99). Its
 headline: how much longer a step the Hermite crossings allow while no worse
 than fixed 2400 fps in count error, L1 and timestamp p50.
