@@ -6,8 +6,8 @@ the steps fixed 2400 fps takes. This asks why, by rendering the same model
 with and without the rasteriser's discontinuities. On a crop of each scene
 (``--crop`` px square at the image's centre, the event stage's DAVIS346
 camera), log luminance log(L + eps) is rendered by a dense float64 torch
-compositor (the projection and SH of :mod:`gs2e.splat.reference`) in three
-variants:
+compositor (the projection, colours and window of :mod:`gs2e.splat.reference`)
+in three variants:
 
 * ``rasteriser``: the rasteriser's window, as gs2e renders: alpha cut at 3
   sigma (power below -4.5) and below 1/255, compositing stopped where
@@ -80,7 +80,7 @@ class CropRenderer:
             keep |= (r > 0) & (u + r >= -reach_px) & (u - r <= size + reach_px) & (v + r >= -reach_px) \
                 & (v - r <= size + reach_px)
         self.g = {k: v[keep] for k, v in P.items() if v.shape[0] == n}
-        self.sh = sh[keep][:, :(self.deg + 1) ** 2]
+        self.sh = sh[keep]
         self.n_gaussians = int(keep.sum())
         self.eps = src.log_eps
         self.order = None  # depth order held for smooth_fixed_order
@@ -106,14 +106,12 @@ class CropRenderer:
     def log_luminance(self, t_us: float, variant: str) -> np.ndarray:
         from gs2e.events.sampling import image_luminance
         from gs2e.splat import raster
-        from gs2e.splat.reference import project_reference, sh_basis
+        from gs2e.splat.reference import project_reference, reference_alpha, reference_colors
 
         torch, g, S = self.torch, self.g, self.size
         cam = self.camera(t_us)
         m2, con, z, radii = project_reference(g["means"], g["quats"], g["log_scales"], cam)
-        dirs = g["means"] - torch.as_tensor(cam.campos())
-        dirs = dirs / dirs.norm(dim=1, keepdim=True)
-        col = torch.relu(torch.einsum("nk,nkc->nc", sh_basis(dirs, self.deg), self.sh) + 0.5)
+        col = reference_colors(g["means"], self.sh, torch.as_tensor(cam.campos()), self.deg)
         opac = torch.sigmoid(g["opacity_logits"])
         # drawn and reaching the crop (beyond its box a Gaussian adds nothing in any variant)
         u, v = m2[:, 0] - self.x0, m2[:, 1] - self.y0
@@ -129,17 +127,12 @@ class CropRenderer:
         dx = m2[idx, 0][None] - jj.reshape(-1, 1)
         dy = m2[idx, 1][None] - ii.reshape(-1, 1)
         power = -0.5 * (A * dx * dx + C * dy * dy) - B * dx * dy
-        o = opac[idx][None]
         if variant == "rasteriser":
-            inside = (power <= 0) & (power >= raster.POWER_MIN)
-            alpha = torch.clamp(o * torch.exp(torch.where(inside, power, torch.full_like(power, -100.0))),
-                                max=raster.ALPHA_MAX)
-            alpha = torch.where(inside & (alpha >= raster.ALPHA_MIN), alpha, torch.zeros_like(alpha))
-            alpha = torch.where(torch.cumprod(1 - alpha, 1) < raster.T_MIN, torch.zeros_like(alpha), alpha)
+            alpha = reference_alpha(power, opac[idx])
         else:
             e0 = float(np.exp(raster.POWER_MIN))
             taper = torch.clamp(torch.exp(torch.clamp(power, max=0.0)) - e0, min=0.0) / (1.0 - e0)
-            alpha = torch.clamp(o * taper, max=raster.ALPHA_MAX)
+            alpha = torch.clamp(opac[idx][None] * taper, max=raster.ALPHA_MAX)
         T = torch.cumprod(torch.cat([torch.ones_like(alpha[:, :1]), 1 - alpha[:, :-1]], 1), 1)
         rgb = ((alpha * T) @ col[idx]).reshape(S, S, 3).numpy()
         lum = np.empty((S, S))

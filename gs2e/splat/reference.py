@@ -87,6 +87,33 @@ def project_reference(means, quats, log_scales, cam):
     return torch.stack([u, v], dim=1), conics, p[:, 2], radii
 
 
+def reference_colors(means, sh, campos, sh_degree: int) -> torch.Tensor:
+    """(N, 3) view-dependent colours of Gaussians at ``means`` (N, 3) seen
+    from ``campos`` (3,): SH of degree ``sh_degree`` (``sh`` (N, K, 3)) + 0.5,
+    clamped at 0, as the rasteriser evaluates them."""
+    dirs = means - campos
+    nrm = dirs.norm(dim=1, keepdim=True)
+    dirs = dirs / torch.where(nrm > 0, nrm, torch.ones_like(nrm))
+    nb = (sh_degree + 1) ** 2
+    return torch.relu(torch.einsum("nk,nkc->nc", sh_basis(dirs, sh_degree), sh[:, :nb]) + 0.5)
+
+
+def reference_alpha(power: torch.Tensor, opac: torch.Tensor) -> torch.Tensor:
+    """(P, M) alpha of M depth-ordered Gaussians at P pixels from their
+    Gaussian exponent ``power`` (P, M) and opacities ``opac`` (M,), with the
+    rasteriser's window: cut beyond 3 sigma (POWER_MIN) and below ALPHA_MIN,
+    clamped at ALPHA_MAX, and zero once a pixel's transmittance falls below
+    T_MIN (the early stop). The cuts are not differentiated."""
+    inside = ((power <= 0) & (power >= _r.POWER_MIN)).detach()
+    power = torch.where(inside, power, torch.full_like(power, -100.0))
+    alpha = torch.clamp(opac[None, :] * torch.exp(power), max=_r.ALPHA_MAX)
+    keep = inside & (alpha >= _r.ALPHA_MIN).detach()
+    alpha = torch.where(keep, alpha, torch.zeros_like(alpha))
+    with torch.no_grad():
+        stop = torch.cumprod(1 - alpha, dim=1) < _r.T_MIN
+    return torch.where(stop, torch.zeros_like(alpha), alpha)
+
+
 def render_reference(means, quats, log_scales, opacity_logits, sh, cam,
                      background=None, sh_degree=None):
     """Dense render; same signature and outputs (image, alpha, depth, meta) as
@@ -100,13 +127,7 @@ def render_reference(means, quats, log_scales, opacity_logits, sh, cam,
     means2d, conics, z, radii = project_reference(means, quats, log_scales, cam)
     means2d.retain_grad()
     vis = radii > 0
-    campos = torch.as_tensor(cam.campos(), dtype=dt)
-    dirs = means - campos
-    nrm = dirs.norm(dim=1, keepdim=True)
-    dirs = dirs / torch.where(nrm > 0, nrm, torch.ones_like(nrm))
-    nb = (sh_degree + 1) ** 2
-    col = torch.einsum("nk,nkc->nc", sh_basis(dirs, sh_degree), sh[:, :nb]) + 0.5
-    col = torch.relu(col)
+    col = reference_colors(means, sh, torch.as_tensor(cam.campos(), dtype=dt), sh_degree)
     opac = torch.sigmoid(opacity_logits)
     W, H = int(cam.width), int(cam.height)
     # depth order (stable, ties by index), visible only
@@ -121,14 +142,7 @@ def render_reference(means, quats, log_scales, opacity_logits, sh, cam,
     dx = u[None, :] - px
     dy = v[None, :] - py
     power = -0.5 * (A * dx * dx + Cc * dy * dy) - B * dx * dy
-    inside = ((power <= 0) & (power >= _r.POWER_MIN)).detach()
-    power = torch.where(inside, power, torch.full_like(power, -100.0))
-    alpha = torch.clamp(opac[idx][None, :] * torch.exp(power), max=_r.ALPHA_MAX)
-    keep = inside & (alpha >= _r.ALPHA_MIN).detach()
-    alpha = torch.where(keep, alpha, torch.zeros_like(alpha))
-    with torch.no_grad():
-        stop = torch.cumprod(1 - alpha, dim=1) < _r.T_MIN
-    alpha = torch.where(stop, torch.zeros_like(alpha), alpha)
+    alpha = reference_alpha(power, opac[idx])
     one = torch.ones_like(alpha[:, :1])
     T = torch.cumprod(torch.cat([one, 1 - alpha[:, :-1]], dim=1), dim=1)
     w = alpha * T
