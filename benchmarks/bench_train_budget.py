@@ -26,7 +26,8 @@ the cost model's training, with and without a change. The table then also
 gives, per setting, the CPU-minutes to come within 0.2 dB of the first
 setting's final held-out PSNR (issue 32's bar) and its own final PSNR, and
 replays the plateau stop (the configured rule and each ``--replay-stop
-PATIENCE,DELTA_DB``) on the recorded curves: where each rule would have
+PATIENCE,DELTA_DB``) on the recorded curves, each with its setting's own
+overrides (a later full-size level changes which evaluations count): where each rule would have
 stopped, its PSNR and CPU against patience 3 / 0.1 dB (the rule before
 2026-11-26); written to bench_train_budget_stop_rules_<sensor>.csv.
 
@@ -277,9 +278,11 @@ def main() -> int:
             tuple(float(v) for v in r.split(",")) for r in a.replay_stop]))
         rows = []
         for (scene, name), g in df.groupby(["scene", "setting"], sort=False):
-            ref = replay_stop(g, cfg, 3, 0.1)  # the rule of the runs measured before 2026-11-26
+            # the setting's own schedule: which evaluations count as full resolution
+            own = dict(cfg, **{k: v for k, v in settings.get(name, {}).items() if k in cfg})
+            ref = replay_stop(g, own, 3, 0.1)  # the rule of the runs measured before 2026-11-26
             for pat, dl in rules:
-                r = replay_stop(g, cfg, int(pat), dl)
+                r = replay_stop(g, own, int(pat), dl)
                 rows.append({"scene": scene, "setting": name, "patience": int(pat), "min_delta_db": dl,
                              "stop_iteration": int(r.iteration), "psnr": r.psnr,
                              "psnr_gain_db": r.psnr - ref.psnr, "cpu_min": r.cpu_time_s / 60,
