@@ -75,7 +75,7 @@ def case(model_dir, traj_path, sensor: str, steps_px, trials: int) -> list[dict]
     """Rows (method, step) of one scene and trajectory."""
     from gs2e.events.rendered import RenderedSource
     from gs2e.events.sampling import image_luminance
-    from gs2e.splat.forward import ForwardRenderer, image_motion_px
+    from gs2e.splat.forward import ForwardRenderer
 
     src = RenderedSource(model_dir, traj_path, events_cfg("voltmeter", "fixed", extra={"sensor": sensor}))
     eps = src.log_eps
@@ -89,8 +89,7 @@ def case(model_dir, traj_path, sensor: str, steps_px, trials: int) -> list[dict]
         return np.log(lum + eps)
 
     t_mid = 0.5 * (src.t0_us + src.t1_us)
-    rate = image_motion_px(fr.centres(src.traj.pose_at(np.array([t_mid]))[0]),
-                           fr.centres(src.traj.pose_at(np.array([t_mid + 200.0]))[0])) / 200.0
+    rate = motion_rate_px_per_us(src, t_mid)
     fixed_px = rate * 1e6 / PAPER_FPS
     rows = []
     for step_px in sorted(set(steps_px) | {fixed_px}):

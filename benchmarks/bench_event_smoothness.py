@@ -46,7 +46,7 @@ from __future__ import annotations
 import numpy as np
 
 import harness
-from event_runs import PAPER_FPS, build_scenes, events_cfg, exact_slope, hermite
+from event_runs import PAPER_FPS, build_scenes, events_cfg, exact_slope, hermite, motion_rate_px_per_us
 
 VARIANTS = ("rasteriser", "smooth_window", "smooth_fixed_order")
 FRACTIONS = (0.25, 0.5, 0.75)
@@ -144,7 +144,7 @@ def case(model_dir, traj_path, sensor: str, crop: int, steps_px, trials: int) ->
     """Rows (variant, step) of one scene and trajectory, and the check row."""
     from gs2e.events.rendered import RenderedSource
     from gs2e.events.sampling import image_luminance
-    from gs2e.splat.forward import ForwardRenderer, image_motion_px
+    from gs2e.splat.forward import ForwardRenderer
 
     src = RenderedSource(model_dir, traj_path, events_cfg("voltmeter", "fixed", extra={"sensor": sensor}))
     K, (H, W) = src.K, src.shape
@@ -155,7 +155,7 @@ def case(model_dir, traj_path, sensor: str, crop: int, steps_px, trials: int) ->
     def pose(t):
         return src.traj.pose_at(np.array([t]))[0]
 
-    rate = image_motion_px(whole.centres(pose(t_mid)), whole.centres(pose(t_mid + 200.0))) / 200.0
+    rate = motion_rate_px_per_us(src, t_mid)
     cr = CropRenderer(src, crop, t_mid, rate)
     lum = np.empty((H, W))
     image_luminance(whole.render(pose(t_mid)), lum)
