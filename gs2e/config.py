@@ -392,6 +392,8 @@ def _check_render_trajectories(cfg: dict) -> None:
 def _check_bench_inputs(cfg: dict) -> None:
     # (by name, not through gs2e.bench.tasks: every rule imports this module, and
     # importing the registry would tie every rule's code version to the tasks' code)
+    if "flow" in cfg["bench"]["tasks"] and not cfg["render"]["write_depth"]:
+        raise ConfigError("bench.tasks: 'flow' needs the rendered depth, but render.write_depth is false")
     if "deblur" in cfg["bench"]["tasks"] and not cfg["render"]["write_blur"]:
         raise ConfigError("bench.tasks: 'deblur' needs blurred frames, but render.write_blur is false")
     if ("recon3d" in cfg["bench"]["tasks"] and "event_blur" in cfg["bench"]["recon3d_variants"]
@@ -400,17 +402,51 @@ def _check_bench_inputs(cfg: dict) -> None:
                           "render.write_blur is false")
 
 
+def _check_export(cfg: dict) -> None:
+    x = cfg["export"]
+    T = x["imu_T_cam_imu"]
+    if T is not None:
+        import numpy as np
+
+        T = np.asarray(T, np.float64)
+        R = T[:3, :3]
+        if (not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0
+                or not np.allclose(T[3], [0, 0, 0, 1])):
+            raise ConfigError("export.imu_T_cam_imu: not a rigid transform (a proper rotation, "
+                              "last row 0 0 0 1)")
+    g = x["imu_gravity"]
+    if g != "auto" and not sum(v * v for v in g) > 0:
+        raise ConfigError("export.imu_gravity: a zero vector has no direction (give m/s^2 in world "
+                          "coordinates, or auto)")
+
+
+def _check_export_inputs(cfg: dict) -> None:
+    x, r = cfg["export"], cfg["render"]
+    for name in x["trajectories"] or ():
+        if name not in r["trajectories"]:
+            raise ConfigError(f"export.trajectories: '{name}' is not rendered (render.trajectories: "
+                              f"{', '.join(r['trajectories'])})")
+    if "flow" in x["formats"] and not r["write_depth"]:
+        raise ConfigError("export.formats: 'flow' needs the rendered depth, but render.write_depth is false")
+    bags = [f for f in x["formats"] if f in ("rosbag", "rosbag2")]
+    if bags and x["rosbag_image"] == "blur" and not r["write_blur"]:
+        raise ConfigError(f"export.formats: '{bags[0]}' with export.rosbag_image=blur needs blurred "
+                          "frames, but render.write_blur is false (or set export.rosbag_image: sharp)")
+
+
 CROSS_CHECKS = (
     (("render",), _check_render),
     (("trajectory",), _check_trajectory),
     (("splat",), _check_splat),
     (("events",), _check_events),
     (("metrics",), _check_metrics),
+    (("export",), _check_export),
     (("bench",), _check_bench),
 )
 WORKFLOW_CHECKS = (
     (("render", "trajectory"), _check_render_trajectories),
     (("bench", "render"), _check_bench_inputs),
+    (("export", "render"), _check_export_inputs),
 )
 
 

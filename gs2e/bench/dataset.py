@@ -51,6 +51,17 @@ class Dataset:
             self._cache[key] = img
         return self._cache[key]
 
+    def depth(self, i: int) -> np.ndarray:
+        """(H, W) float32 expected camera z of frame i (render.write_depth)."""
+        with np.load(self.frames_dir / "depth" / f"{int(i):06d}.npz") as z:
+            return z["depth"]
+
+    def alpha(self, i: int) -> np.ndarray:
+        """(H, W) float32 coverage of frame i in [0, 1]."""
+        from gs2e.io.images import read_image
+
+        return read_image(self.frames_dir / "alpha" / str(self.frames["file"].iloc[i]))[..., 0] / np.float32(255)
+
 
 def load_dataset(task: str, frames_dir: str | Path, events_dir: str | Path,
                  windows_path: str | Path, trajectory_path: str | Path | None = None) -> Dataset:
@@ -68,6 +79,9 @@ def load_dataset(task: str, frames_dir: str | Path, events_dir: str | Path,
         frames = read_frames_table(frames_dir)
     except (OSError, KeyError, ValueError) as exc:
         raise InputError(f"{frames_dir / 'frames.parquet'}: cannot read the frames table ({exc})") from exc
+    if spec.needs_depth and not (frames_dir / "depth").is_dir():
+        raise InputError(f"{frames_dir}: no depth maps (render.write_depth was off); the {task} task "
+                         "needs them")
     if spec.needs_blur:
         if not (frames["exposure_us"] > 0).any() or not (frames_dir / "blur").is_dir():
             raise InputError(f"{frames_dir}: no blurred frames (render.write_blur was off); "

@@ -3,7 +3,8 @@
 A method is a callable ``method(inp: BenchInput) -> image``, called once per
 evaluated frame. It returns the frame at ``inp.t_us``: an (H, W, 3) or
 (H, W) float array, sRGB-encoded in [0, 1] like the dataset's PNG frames
-(uint8 is accepted and divided by 255). A user's method is named
+(uint8 is accepted and divided by 255); for the flow task, the displacement
+(H, W, 2) in pixels over [t0_us, t1_us) (+x right, +y down). A user's method is named
 ``package.module:function`` (``gs2e bench --method``, ``bench.methods``); it
 must be importable by the job's interpreter and must not read the sharp frame
 it is scored against (it is not given it). Its input arrays are read-only.
@@ -11,15 +12,16 @@ it is scored against (it is not given it). Its input arrays are read-only.
 What a method receives (:class:`BenchInput`):
 
 ========================  =====================================================
-task                      ``"deblur"`` or ``"video"``
+task                      ``"deblur"``, ``"video"`` or ``"flow"``
 frame, t_us               the frame to reconstruct and its time (int64 us)
 events                    :class:`gs2e.events.models.Events` of the window
                           (absolute int64 us, x, y, p 1 = ON / 0 = OFF):
                           deblur: the blurred frame's exposure [t0_us, t1_us);
-                          video: from the keyframe, t0_us < t <= t1_us = t_us
+                          video: from the keyframe, t0_us < t <= t1_us = t_us;
+                          flow: between two frames, [t0_us, t1_us), t_us = t0_us
 t0_us, t1_us              the window's bounds
 blurred                   deblur: (H, W, 3) float32 blurred frame (sRGB [0, 1]);
-                          video: None
+                          video, flow: None
 blurred_prev/_next        deblur: the neighbouring blurred frames (None at the ends)
 keyframe, keyframe_t_us   video: the sharp keyframe (H, W, 3) and its time;
                           deblur: None

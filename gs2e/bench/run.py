@@ -49,6 +49,7 @@ class BenchConfig:
     crop_px: int
     recon3d: "object" = None  # gs2e.bench.recon3d.Recon3dSettings
     video_learned: tuple[str, ...] = ()  # gs2e.bench.learned.VARIANTS
+    flow_max_pairs: int | None = None
 
 
 def resolve(cfg: dict, seed: int = 0) -> BenchConfig:
@@ -68,7 +69,8 @@ def resolve(cfg: dict, seed: int = 0) -> BenchConfig:
                        M.DeblurSettings(float(cfg["edi_theta_min"]), float(cfg["edi_theta_max"]),
                                         int(cfg["edi_theta_steps"])),
                        int(cfg["video_keyframe"]), float(cfg["video_cf_alpha_rad_s"]),
-                       int(cfg["example_crop_px"]), r3, tuple(cfg["video_learned"]))
+                       int(cfg["example_crop_px"]), r3, tuple(cfg["video_learned"]),
+                       None if cfg["flow_max_pairs"] is None else int(cfg["flow_max_pairs"]))
 
 
 def run_task(task: str, frames_dir, events_dir, windows_path, trajectory_path, cfg: BenchConfig,

@@ -12,7 +12,8 @@ trajectory is shorter), psnr_end (its last scored frame), drift_db_per_s
 psnr is on luminance after the per-image log-affine correction (see
 gs2e.bench.recon3d), psnr_raw the same uncorrected, psnr_rgb uncorrected
 colour, cpu_min the variant's training CPU-minutes, n_gaussians its final
-count.
+count; for flow (psnr and ssim null): aee_px, out_3px, aee_px_events (means
+over the scored frame pairs, gs2e.bench.flow_task).
 """
 
 from __future__ import annotations

@@ -36,8 +36,8 @@ class Task:
         method, frame, t_us, t_rel_s, motion_px, n_events, psnr, ssim, mse,
         theta, time_s; shown: name -> image of the example frame, "sharp"
         included; example: that frame's index).
-    needs_blur, needs_trajectory : what the dataset must hold (checked before
-        any work, with an error naming the folder or flag).
+    needs_blur, needs_trajectory, needs_depth : what the dataset must hold
+        (checked before any work, with an error naming the folder or flag).
     threads, runtime_min : the workflow job's threads and run time (minutes).
     summary : ``summary(group, row)`` or its import path: adds the task's own
         columns to a dataset-table row from the task's rows of one trajectory
@@ -51,6 +51,7 @@ class Task:
     threads: int = 1
     runtime_min: int = 60
     summary: Callable | str | None = None
+    needs_depth: bool = False
 
     def runner(self) -> Callable:
         return _resolve(self.run)
@@ -92,3 +93,4 @@ register(Task("video", "gs2e.bench.video_task:run", summary="gs2e.bench.video_ta
 # recon3d trains three 3DGS models (minutes each, multi-threaded rasterizer)
 register(Task("recon3d", "gs2e.bench.recon3d:run", needs_trajectory=True, threads=2,
               runtime_min=120, summary="gs2e.bench.recon3d:summary"))
+register(Task("flow", "gs2e.bench.flow_task:run", needs_depth=True, summary="gs2e.bench.flow_task:summary"))

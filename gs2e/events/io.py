@@ -41,7 +41,8 @@ POLARITY_DOC = "p: 1 = ON (brightness increase), 0 = OFF (brightness decrease)"
 _CHUNK = 1 << 16
 
 
-def _compression(name: str) -> dict:
+def h5_compression(name: str) -> dict:
+    """h5py dataset keywords of a compression name (gzip, lzf, blosc, none)."""
     if name == "gzip":
         return {"compression": "gzip", "compression_opts": 4, "shuffle": True}
     if name == "lzf":
@@ -68,7 +69,7 @@ class H5EventWriter:
         self.path = Path(path)
         self.width, self.height = int(width), int(height)
         self.t_offset = int(t_offset_us)
-        self.comp = _compression(compression)
+        self.comp = h5_compression(compression)
         self.compression = compression
         self.attrs = dict(attrs or {})
         self.n = 0

@@ -21,17 +21,22 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     e = sub.add_parser(
         "export", help="write a trajectory in the layout of EventNeRF, E2NeRF/E2GS, EvDeblurNeRF, "
-                       "IncEventGS or Event-3DGS",
+                       "IncEventGS or Event-3DGS, or as flow / IMU ground truth and ROS bags",
         description="Export one trajectory of a scene's results folder (frames/, events/, windows/, "
-                    "trajectories/, sfm/) in the exact layout a method's own data loader reads; "
-                    "gs2e_export.json records units, polarity, time origin and any normalisation.")
+                    "trajectories/, sfm/) in the exact layout a method's own data loader reads, or "
+                    "its ground truth (optical flow, IMU) and ROS bags; gs2e_export.json records "
+                    "units, polarity, time origin and any normalisation.")
     e.add_argument("--scene-dir", required=True, help="results/<scene> folder")
     e.add_argument("--trajectory", required=True, help="trajectory name (e.g. base_medium)")
     e.add_argument("--format", required=True, dest="fmt",
-                   choices=["eventnerf", "e2nerf", "evdeblurnerf", "inceventgs", "event3dgs"])
+                   help="a format registered in gs2e.export.formats (config/README.md, export.formats, "
+                        "lists the built-in ones); an unknown name is an error listing them")
     e.add_argument("--out", required=True, help="output folder (replaced atomically)")
     e.add_argument("--windows", help="windows table (default <scene-dir>/windows/<trajectory>.parquet)")
     e.add_argument("--scene-id", default=None)
+    e.add_argument("--seed", type=int, default=0,
+                   help="seed of the formats that draw random numbers (IMU noise); the workflow "
+                        "derives it from the config's seed, the scene and the stage")
     add_config_args(e)
     e.set_defaults(func=run_export)
 
@@ -49,5 +54,5 @@ def run_export(args: argparse.Namespace) -> int:
 
     cfg = load_section("export", args.config_json, args.config)
     export_trajectory(args.scene_dir, args.trajectory, args.fmt, args.out, cfg,
-                      windows_file=args.windows, scene_id=args.scene_id)
+                      windows_file=args.windows, scene_id=args.scene_id, seed=args.seed)
     return 0

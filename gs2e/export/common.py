@@ -44,8 +44,8 @@ class ExportOut:
     def text(self, rel: str, content: str) -> None:
         self.path(rel).write_text(content)
 
-    def png(self, rel: str, rgb: np.ndarray) -> None:
-        write_png(self.path(rel), rgb)
+    def png(self, rel: str, rgb: np.ndarray, params: list[int] | None = None) -> None:
+        write_png(self.path(rel), rgb, params)
 
     def same_as(self, rel: str, written: str) -> None:
         """``rel`` with the content of the already written ``written``: a hard

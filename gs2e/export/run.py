@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Callable
 
 from gs2e.common.atomic import atomic_dir
 from gs2e.common.log import get_logger
@@ -14,38 +13,27 @@ from gs2e.export.source import TrajectorySource
 log = get_logger("gs2e.export")
 
 
-def _exporters() -> dict[str, Callable]:
-    from gs2e.export.e2nerf import export_e2nerf
-    from gs2e.export.event3dgs import export_event3dgs
-    from gs2e.export.eventnerf import export_eventnerf
-    from gs2e.export.evdeblurnerf import export_evdeblurnerf
-    from gs2e.export.inceventgs import export_inceventgs
-
-    return {"eventnerf": export_eventnerf, "e2nerf": export_e2nerf,
-            "evdeblurnerf": export_evdeblurnerf, "inceventgs": export_inceventgs,
-            "event3dgs": export_event3dgs}
-
-
-FORMATS = ("eventnerf", "e2nerf", "evdeblurnerf", "inceventgs", "event3dgs")
-
-
 def export_trajectory(scene_dir: str | Path, traj: str, fmt: str, out_dir: str | Path, cfg: dict,
-                      windows_file: str | Path | None = None, scene_id: str | None = None) -> dict:
+                      windows_file: str | Path | None = None, scene_id: str | None = None,
+                      seed: int = 0) -> dict:
     """Export trajectory ``traj`` of a scene's results folder in format ``fmt``
-    into ``out_dir`` (replaced atomically; nothing is left on error). Returns
-    the manifest (also written as ``gs2e_export.json``)."""
+    (a name of :data:`gs2e.export.formats.FORMATS`) into ``out_dir`` (replaced
+    atomically; nothing is left on error); ``seed`` for the formats that draw
+    random numbers. Returns the manifest (also written as ``gs2e_export.json``)."""
     from gs2e.common.errors import ConfigError
+    from gs2e.export.formats import FORMATS
 
-    fns = _exporters()
-    if fmt not in fns:
+    if fmt not in FORMATS:
         raise ConfigError(f"export format '{fmt}' is not one of {', '.join(FORMATS)}")
+    spec = FORMATS[fmt]
+    run = spec.runner()
     t0 = time.perf_counter()
     src = TrajectorySource(Path(scene_dir), traj, Path(windows_file) if windows_file else None)
     out_dir = Path(out_dir)
     with atomic_dir(out_dir) as tmp:
         out = ExportOut(tmp, fmt, {"scene_id": scene_id, "trajectory": traj,
                                    "width": src.width, "height": src.height}, out_dir.resolve())
-        fns[fmt](src, out, cfg)
+        run(src, out, cfg, seed=seed) if spec.seeded else run(src, out, cfg)
         out.manifest["time_s"] = time.perf_counter() - t0
         out.manifest["bytes"] = sum(p.stat().st_size for p in tmp.rglob("*") if p.is_file())
         out.write_manifest()

@@ -124,21 +124,24 @@ def to_u8(img01: np.ndarray) -> np.ndarray:
     return (np.clip(img01, 0, 1) * 255 + 0.5).astype(np.uint8)
 
 
-def encode_png(rgb: np.ndarray) -> bytes:
-    """PNG bytes of a uint8 RGB (H, W, 3) image (deterministic for given pixels)."""
+def encode_png(rgb: np.ndarray, params: list[int] | None = None) -> bytes:
+    """PNG bytes of a uint8 or uint16 RGB (H, W, 3) image (deterministic for
+    given pixels; uint16 writes a 16-bit PNG, as DSEC's optical flow);
+    ``params``: OpenCV's PNG flags instead of the default level and filter."""
     rgb = np.asarray(rgb)
-    if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
-        raise ValueError(f"expected uint8 (H, W, 3), got {rgb.dtype} {rgb.shape}")
+    if rgb.dtype not in (np.uint8, np.uint16) or rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"expected uint8 or uint16 (H, W, 3), got {rgb.dtype} {rgb.shape}")
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(rgb[:, :, ::-1]),
-                           _PNG_PARAMS)
+                           _PNG_PARAMS if params is None else params)
     if not ok:
         raise RuntimeError("PNG encoding failed")
     return buf.tobytes()
 
 
-def write_png(path: str | os.PathLike, rgb: np.ndarray) -> None:
-    """Write uint8 RGB (H, W, 3) as PNG (callers write into an atomic_dir)."""
-    Path(path).write_bytes(encode_png(rgb))
+def write_png(path: str | os.PathLike, rgb: np.ndarray, params: list[int] | None = None) -> None:
+    """Write uint8 or uint16 RGB (H, W, 3) as PNG (callers write into an
+    atomic_dir); ``params`` as :func:`encode_png`'s."""
+    Path(path).write_bytes(encode_png(rgb, params))
 
 
 def scaled_size(width: int, height: int, downscale: int = 1,

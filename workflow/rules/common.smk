@@ -96,7 +96,7 @@ def sweep_stale_temporaries():
 # Keys that say which jobs exist, not what a job computes: left out of params
 # so that listing one more trajectory does not rerun the others.
 # (bench.real_video*: the dataset-level bench_real job's, not a scene's)
-NOT_PARAMS = {"render": ("trajectories",), "export": ("formats",),
+NOT_PARAMS = {"render": ("trajectories",), "export": ("formats", "trajectories"),
               "bench": ("tasks", "real_video", "real_video_theta", "sim2real", "sim2real_variants",
                         "sim2real_fit", "sim2real_fps", "sim2real_window_ms", "sim2real_warmup_ms",
                         "sim2real_aps_linear")}
@@ -185,9 +185,11 @@ def scene_products(sid):
 
 
 def scene_exports(sid):
-    """The exports export.formats asks for, one per format and trajectory."""
-    return [res(sid, "export", f, t) for f in SCENE_CFG[sid]["export"]["formats"]
-            for t in SCENE_CFG[sid]["render"]["trajectories"]]
+    """The exports export.formats asks for, one per format and exported
+    trajectory (export.trajectories; null: every rendered one)."""
+    x = SCENE_CFG[sid]["export"]
+    return [res(sid, "export", f, t) for f in x["formats"]
+            for t in (x["trajectories"] or SCENE_CFG[sid]["render"]["trajectories"])]
 
 
 def scene_bench(sid):

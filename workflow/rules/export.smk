@@ -38,6 +38,8 @@ rule export:
     params:
         cfg=stage_cfg("export"),
         code=code_version("export"),
+        # one per trajectory, not per format: the imu and rosbag exports carry the same IMU
+        seed=lambda wc: derive_seed(SCENE_CFG[wc.scene]["seed"], f"{wc.scene}/{wc.traj}", "export"),
         scene_dir=lambda wc: res(wc.scene),
     conda:
         ENV
@@ -52,4 +54,4 @@ rule export:
     shell:
         "{GS2E} export --scene-dir {params.scene_dir:q} --trajectory {wildcards.traj}"
         " --format {wildcards.fmt} --out {output:q} --scene-id {wildcards.scene}"
-        " --config-json {params.cfg:q} 2> {log:q}"
+        " --seed {params.seed} --config-json {params.cfg:q} 2> {log:q}"

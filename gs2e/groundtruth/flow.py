@@ -1,0 +1,238 @@
+"""Optical flow of a static scene from depth and camera motion.
+
+Conventions: pixel (column j, row i) has its centre at (j + 0.5, i + 0.5)
+(the renderer's); flow is (dx, dy) in pixels, +x right, +y down; depth is
+camera z (scene units) along the optical axis; poses are camera-to-world,
+OpenCV axes.
+
+- **Displacement flow** between two views (:func:`flow_between`): each pixel's
+  surface point (back-projected with its depth) projected into the other view.
+  Exact wherever the depth is, for any motion.
+- **Instantaneous flow** (:func:`motion_field`, px/s): the motion field of a
+  static point seen by a camera moving with velocity v and angular velocity
+  omega (both in the camera frame): dX/dt = -v - omega x X for the point's
+  camera coordinates X (Longuet-Higgins and Prazdny, Proc. R. Soc. B 208,
+  1980), then the derivative of the pinhole projection.
+- **Validity** (:func:`flow_pair`): the pixel is opaque (alpha >= alpha_min,
+  so its expected depth is a surface's), its point lies in front of the other
+  camera and inside its image, and the forward and backward flows agree
+  (Sundaram, Brox and Keutzer, ECCV 2010: |w_f + w_b|^2 <= rel (|w_f|^2 +
+  |w_b|^2) + abs): a point hidden in the other view (occlusion) or a pixel
+  that only the other view sees (disocclusion) fails that test, because the
+  backward flow there belongs to another surface.
+- **DSEC's 16-bit PNG** (:func:`encode_dsec_png`): R = dx * 128 + 2^15, G =
+  dy * 128 + 2^15, B = valid (0/1); flow 0 where invalid (DSEC's
+  ``check_optical_flow_submission.py`` and E-RAFT's ``flow_16bit_to_float``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+DSEC_SCALE = 128.0     # PNG steps per pixel of flow
+DSEC_OFFSET = 2 ** 15  # PNG value of zero flow
+DSEC_MAX_PX = (2 ** 16 - 1 - DSEC_OFFSET) / DSEC_SCALE  # largest representable |dx|, |dy|
+
+
+def pixel_centres(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """(u, v), each (H, W) float64: pixel centres, x = column + 0.5, y = row + 0.5."""
+    return np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
+
+
+def backproject(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Camera coordinates (H, W, 3) of every pixel centre at its depth (H, W)."""
+    H, W = depth.shape
+    u, v = pixel_centres(W, H)
+    z = np.asarray(depth, np.float64)
+    return np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=-1)
+
+
+def flow_between(depth_a: np.ndarray, K_a: np.ndarray, c2w_a: np.ndarray, c2w_b: np.ndarray,
+                 K_b: np.ndarray | None = None, near: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+    """Displacement of every pixel of view a to where its surface point lands
+    in view b.
+
+    Parameters
+    ----------
+    depth_a : (H, W) camera z of view a (scene units); NaN, inf or <= 0 where
+        unknown.
+    K_a, K_b : (3, 3) intrinsics (K_b defaults to K_a); c2w_a, c2w_b : (4, 4).
+    near : points at z <= near in view b get no flow.
+
+    Returns
+    -------
+    flow (H, W, 2) float64 px (NaN where the depth is unknown or the point is
+    behind camera b), and the point's depth in view b (H, W).
+    """
+    K_b = K_a if K_b is None else K_b
+    X = backproject(depth_a, K_a)
+    R_a, R_b = c2w_a[:3, :3], c2w_b[:3, :3]
+    # X_b = R_b^T (R_a X + C_a - C_b), in one matrix for all pixels
+    Xb = X @ (R_b.T @ R_a).T + R_b.T @ (c2w_a[:3, 3] - c2w_b[:3, 3])
+    z_b = Xb[..., 2]
+    ok = np.isfinite(depth_a) & (depth_a > 0) & (z_b > near)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xb = K_b[0, 0] * Xb[..., 0] / z_b + K_b[0, 2]
+        yb = K_b[1, 1] * Xb[..., 1] / z_b + K_b[1, 2]
+    H, W = depth_a.shape
+    u, v = pixel_centres(W, H)
+    flow = np.stack([xb - u, yb - v], axis=-1)
+    flow[~ok] = np.nan
+    return flow, np.where(ok, z_b, np.nan)
+
+
+def motion_field_at(u: np.ndarray, v: np.ndarray, z: np.ndarray, K: np.ndarray,
+                    velocity_c: np.ndarray, omega_c: np.ndarray) -> np.ndarray:
+    """Instantaneous image velocity (..., 2) px/s of static points seen at
+    pixels (u, v) (pixel coordinates, centres at +0.5) with depth z (camera
+    z, scene units), by a camera moving with velocity_c (scene units/s) and
+    omega_c (rad/s), both in the camera frame and broadcast against u
+    ((3,) or (..., 3)). NaN where z is not a positive finite depth."""
+    z = np.asarray(z, np.float64)
+    x = (np.asarray(u, np.float64) - K[0, 2]) / K[0, 0] * z
+    y = (np.asarray(v, np.float64) - K[1, 2]) / K[1, 1] * z
+    X = np.stack([x, y, z], axis=-1)
+    Xd = -np.asarray(velocity_c, np.float64) - np.cross(np.asarray(omega_c, np.float64), X)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        du = K[0, 0] * (Xd[..., 0] * z - x * Xd[..., 2]) / (z * z)
+        dv = K[1, 1] * (Xd[..., 1] * z - y * Xd[..., 2]) / (z * z)
+    out = np.stack([du, dv], axis=-1)
+    out[~(np.isfinite(z) & (z > 0))] = np.nan
+    return out
+
+
+def motion_field(depth: np.ndarray, K: np.ndarray, velocity_c: np.ndarray,
+                 omega_c: np.ndarray) -> np.ndarray:
+    """Instantaneous optical flow (H, W, 2) px/s of a depth map (H, W) under
+    the camera's velocity and angular velocity (camera frame; see
+    :func:`motion_field_at`)."""
+    H, W = depth.shape
+    u, v = pixel_centres(W, H)
+    return motion_field_at(u, v, depth, K, velocity_c, omega_c)
+
+
+def sample_bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``img`` (H, W, C) at pixel coordinates (x, y) (any shape; centres at
+    +0.5), bilinear between the four nearest centres (the outer half pixel
+    takes the edge's values); NaN outside the image [0, W] x [0, H] or where a
+    neighbour is NaN. float32, by OpenCV's remap, whose bilinear weights are
+    those of the position rounded to 1/32 px (its INTER_BITS = 5)."""
+    import cv2
+
+    img = np.asarray(img, np.float32)
+    H, W, C = img.shape
+    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+    inside = (x >= 0) & (x <= W) & (y >= 0) & (y <= H)
+    n = x.size
+    cols = max(1, min(n, 1024))  # remap's maps: fewer than 2^15 rows and columns
+    rows = -(-n // cols)
+
+    def as_map(a):
+        m = np.zeros(rows * cols, np.float32)
+        m[:n] = a.reshape(-1) - 0.5
+        return m.reshape(rows, cols)
+
+    mx, my = as_map(x), as_map(y)
+    out = np.empty((rows * cols, C), np.float32)
+    for c0 in range(0, C, 4):  # remap takes up to 4 channels
+        c1 = min(C, c0 + 4)
+        r = cv2.remap(np.ascontiguousarray(img[..., c0:c1]), mx, my, cv2.INTER_LINEAR,
+                      borderMode=cv2.BORDER_REPLICATE)
+        out[:, c0:c1] = r.reshape(-1, c1 - c0)
+    out = out[:n].reshape(x.shape + (C,))
+    out[~inside] = np.nan
+    return out
+
+
+def fb_consistent(flow_fw: np.ndarray, flow_bw: np.ndarray, rel: float = 0.01,
+                  abs_px2: float = 0.5) -> np.ndarray:
+    """(H, W) bool: the forward flow's target lies in view b's image and the
+    backward flow sampled there brings the pixel back:
+    |w_f + w_b|^2 <= rel (|w_f|^2 + |w_b|^2) + abs_px2 (Sundaram et al. 2010;
+    their rel 0.01 and abs 0.5 px^2 are the defaults)."""
+    H, W = flow_fw.shape[:2]
+    u, v = pixel_centres(W, H)
+    wb = sample_bilinear(flow_bw, u + flow_fw[..., 0], v + flow_fw[..., 1])
+    with np.errstate(invalid="ignore"):
+        err = np.sum((flow_fw + wb) ** 2, axis=-1)
+        bound = rel * (np.sum(flow_fw ** 2, axis=-1) + np.sum(wb ** 2, axis=-1)) + abs_px2
+        return np.isfinite(err) & (err <= bound)
+
+
+@dataclass(frozen=True)
+class FlowSettings:
+    """How flow is judged valid (the ``export`` section's ``flow_*`` keys).
+
+    alpha_min : a pixel's coverage (alpha) at least this for its expected
+        depth to count as a surface's.
+    fb_rel, fb_abs_px2 : the forward-backward test's relative and absolute
+        (px^2) tolerances (Sundaram et al. 2010).
+    """
+
+    alpha_min: float = 0.5
+    fb_rel: float = 0.01
+    fb_abs_px2: float = 0.5
+
+
+@dataclass(frozen=True)
+class FlowPair:
+    """Flow between two frames a -> b and back: forward (H, W, 2) px, backward
+    (H, W, 2) px (from b to a, on b's pixels), and their validity (H, W) bool.
+    Invalid pixels hold NaN only where no flow exists (unknown depth, behind
+    the camera); occluded ones keep their geometric flow."""
+
+    forward: np.ndarray
+    backward: np.ndarray
+    forward_valid: np.ndarray
+    backward_valid: np.ndarray
+
+
+def surface_depth(depth: np.ndarray, alpha: np.ndarray, alpha_min: float) -> np.ndarray:
+    """Depth (H, W) float64 where the pixel is opaque enough, NaN elsewhere."""
+    d = np.asarray(depth, np.float64)
+    return np.where((np.asarray(alpha) >= alpha_min) & np.isfinite(d) & (d > 0), d, np.nan)
+
+
+def flow_pair(depth_a: np.ndarray, alpha_a: np.ndarray, depth_b: np.ndarray, alpha_b: np.ndarray,
+              K: np.ndarray, c2w_a: np.ndarray, c2w_b: np.ndarray,
+              settings: FlowSettings = FlowSettings()) -> FlowPair:
+    """Forward and backward flow of two rendered frames of one camera and
+    their validity (module docstring).
+
+    depth_* : (H, W) expected camera z; alpha_* : (H, W) coverage in [0, 1];
+    K : (3, 3); c2w_* : (4, 4).
+    """
+    za = surface_depth(depth_a, alpha_a, settings.alpha_min)
+    zb = surface_depth(depth_b, alpha_b, settings.alpha_min)
+    fw, _ = flow_between(za, K, c2w_a, c2w_b)
+    bw, _ = flow_between(zb, K, c2w_b, c2w_a)
+    ok_f = fb_consistent(fw, bw, settings.fb_rel, settings.fb_abs_px2)
+    ok_b = fb_consistent(bw, fw, settings.fb_rel, settings.fb_abs_px2)
+    return FlowPair(fw, bw, ok_f, ok_b)
+
+
+def encode_dsec_png(flow: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """DSEC's 16-bit flow image (H, W, 3) uint16 in RGB order (R = dx, G = dy,
+    B = valid) from flow (H, W, 2) px and validity (H, W). Flow is rounded to
+    1/128 px; a pixel whose flow exceeds DSEC_MAX_PX (about 256 px) or is
+    not finite is written invalid, with zero flow, as DSEC writes invalid
+    pixels. Write with :func:`gs2e.io.images.write_png` (it takes RGB)."""
+    f = np.asarray(flow, np.float64)
+    ok = np.asarray(valid, bool) & np.all(np.isfinite(f), axis=-1) & np.all(np.abs(f) <= DSEC_MAX_PX, axis=-1)
+    q = np.where(ok[..., None], np.rint(np.where(ok[..., None], f, 0.0) * DSEC_SCALE) + DSEC_OFFSET,
+                 DSEC_OFFSET)
+    out = np.empty(f.shape[:2] + (3,), np.uint16)
+    out[..., :2] = np.clip(q, 0, 65535).astype(np.uint16)
+    out[..., 2] = ok
+    return out
+
+
+def decode_dsec_png(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(flow (H, W, 2) float64 px, valid (H, W) bool) of a DSEC 16-bit flow
+    image (H, W, 3) in RGB order (what imageio reads; OpenCV's imread gives
+    BGR: reverse its channels first)."""
+    img = np.asarray(img)
+    flow = (img[..., :2].astype(np.float64) - DSEC_OFFSET) / DSEC_SCALE
+    return flow, img[..., 2] > 0
