@@ -14,9 +14,9 @@ transitively, read from the sources with ``ast``: module-level and
 function-level imports alike (a stage's heavy imports sit inside its
 functions), the packages' ``__init__.py`` on the way (their module level: a
 package's lazy ``__getattr__`` runs only when a name is imported from the
-package itself), and, in modules that import by name with ``importlib``, the
-gs2e modules their string constants name (lazy import tables: ``module`` or
-``module:function``). Not followed:
+package itself), and, in modules that import by name with ``importlib`` or
+through :mod:`gs2e.common.registry`, the gs2e modules their string constants
+name (lazy import tables and registries: ``module`` or ``module:function``). Not followed:
 the dispatcher's list of the other stages' CLI modules, which ``gs2e`` imports only to declare their subcommands'
 arguments. No list is kept by hand, so a new import is covered the moment it is
 written (tests/test_codeversion.py runs each stage and checks that every gs2e
@@ -61,6 +61,8 @@ STAGE_ENTRY: dict[str, str] = {
 COMMAND_ROOTS = ("gs2e.__main__", "gs2e.cli")
 # Its string constants name the stage CLIs it registers: not imports of a stage.
 DISPATCHER = "gs2e.cli"
+# Modules that import it name their registered code by strings (gs2e.common.registry).
+REGISTRY = "gs2e.common.registry"
 # Other packages whose version changes a stage's results beyond rounding (shipped
 # network weights): {import name: distribution}. Their installed version joins the
 # code version of every stage that imports them; numpy, torch and the like do not.
@@ -142,8 +144,9 @@ def _file_imports(f: Path, stamp: tuple[int, int], name: str, function: str) -> 
     file's mtime and size: the workflow asks for every stage's version)."""
     tree = ast.parse(f.read_bytes(), filename=str(f))
     nodes = _entry_nodes(tree, function) if function else [tree]
+    imported = _imported_names(tree, name, False, strings=False)
     by_name = (name != DISPATCHER and function != ON_THE_WAY
-               and "importlib" in _imported_names(tree, name, False, strings=False))
+               and ("importlib" in imported or REGISTRY in imported))
     out: set[str] = set()
     for node in nodes:
         out |= _imported_names(node, name, f.name == "__init__.py", strings=by_name)

@@ -17,12 +17,11 @@ workflow, also add its name to the schema's ``bench.tasks`` enum.
 
 from __future__ import annotations
 
-import importlib
-import re
 from dataclasses import dataclass
 from typing import Callable
 
 from gs2e.common.errors import InputError
+from gs2e.common.registry import add, resolve
 
 
 @dataclass(frozen=True)
@@ -54,28 +53,18 @@ class Task:
     needs_depth: bool = False
 
     def runner(self) -> Callable:
-        return _resolve(self.run)
+        return resolve(self.run)
 
     def summariser(self) -> Callable | None:
-        return None if self.summary is None else _resolve(self.summary)
-
-
-def _resolve(fn: Callable | str) -> Callable:
-    if callable(fn):
-        return fn
-    module, name = fn.split(":")
-    return getattr(importlib.import_module(module), name)
+        return None if self.summary is None else resolve(self.summary)
 
 
 TASKS: dict[str, Task] = {}
 
 
 def register(task: Task) -> Task:
-    """Add ``task`` (its name: letters, digits, underscores) to the registry."""
-    if not re.fullmatch(r"[a-z][a-z0-9_]*", task.name):
-        raise ValueError(f"bench task name {task.name!r}: use lower-case letters, digits, '_'")
-    TASKS[task.name] = task
-    return task
+    """Add ``task`` (its name: lower-case letters, digits, underscores) to the registry."""
+    return add(TASKS, task.name, task, "bench task")
 
 
 def get_task(name: str) -> Task:

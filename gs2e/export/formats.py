@@ -17,10 +17,10 @@ Adding a format: write ``export_mine(src, out, cfg)`` (src a
 
 from __future__ import annotations
 
-import importlib
-import re
 from dataclasses import dataclass
 from typing import Callable
+
+from gs2e.common.registry import add, resolve
 
 
 @dataclass(frozen=True)
@@ -35,18 +35,16 @@ class Format:
     help: str = ""
 
     def runner(self) -> Callable:
-        module, fn = self.run.split(":")
-        return getattr(importlib.import_module(module), fn)
+        return resolve(self.run)
 
 
 FORMATS: dict[str, Format] = {}
 
 
 def register(fmt: Format) -> Format:
-    if not re.fullmatch(r"[a-z][a-z0-9]*", fmt.name):
-        raise ValueError(f"export format name {fmt.name!r}: use lower-case letters and digits")
-    FORMATS[fmt.name] = fmt
-    return fmt
+    """Add ``fmt`` (its name: lower-case letters and digits, the workflow's
+    ``{fmt}`` wildcard) to the registry."""
+    return add(FORMATS, fmt.name, fmt, "export format", r"[a-z][a-z0-9]*")
 
 
 for _f in (

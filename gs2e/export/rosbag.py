@@ -139,10 +139,11 @@ def camera_info(ts, ros: int, seq: int, t_ns: int, K: np.ndarray, width: int, he
 
 
 def image(ts, ros: int, seq: int, t_ns: int, rgb: np.ndarray, encoding: str):
-    from gs2e.bench.dataset import grey
+    from gs2e.common.color import linear_to_srgb, luminance, srgb_to_linear
 
-    if encoding == "mono8":
-        data = np.clip(np.rint(grey(rgb / 255.0)[..., 0] * 255.0), 0, 255).astype(np.uint8)
+    if encoding == "mono8":  # luminance, sRGB-encoded (what the benchmark scores as grey)
+        grey = linear_to_srgb(luminance(srgb_to_linear(rgb / 255.0)))
+        data = np.clip(np.rint(grey * 255.0), 0, 255).astype(np.uint8)
     else:
         data = np.ascontiguousarray(rgb, np.uint8)
     h, w = data.shape[:2]
