@@ -256,3 +256,58 @@ def test_config_checks_the_exports_inputs():
         check({"export": {"imu_gravity": [0, 0, 0]}})
     with pytest.raises(ConfigError, match="bench.tasks: 'flow'"):
         check({"bench": {"tasks": ["flow"]}, "render": {"write_depth": False}})
+
+
+@pytest.fixture(scope="module")
+def silent_scene(scene, tmp_path_factory):
+    """The plane scene with no events at all (thresholds no pan reaches): a
+    valid, unusual input."""
+    sc = tmp_path_factory.mktemp("gt_silent") / "scene"
+    sc.mkdir()
+    for d in ("trajectories", "frames"):
+        (sc / d).symlink_to(scene / d, target_is_directory=True)
+    from gs2e.testing import plane_model
+
+    model = plane_model(sc.parent)
+    events = {"model": "ideal", "theta_on": 50.0, "theta_off": 50.0, "preview": False}
+    assert main(["events", "--model", str(model), "--trajectory", str(sc / "trajectories" / f"{TRAJ}.npz"),
+                 "-o", str(sc / "events" / TRAJ), "--seed", "0", "--threads", "1",
+                 "--config-json", json.dumps(events)]) == 0
+    assert main(["windows", "--frames", str(sc / "frames" / TRAJ), "--events", str(sc / "events" / TRAJ),
+                 "--out", str(sc / "windows" / f"{TRAJ}.parquet")]) == 0
+    return sc
+
+
+@pytest.mark.parametrize("fmt", ["flow", "rosbag", "rosbag2"])
+def test_no_events_is_a_valid_export(silent_scene, tmp_path, fmt):
+    from gs2e.export.rosbag import read_bag
+
+    assert len(TrajectorySource(silent_scene, TRAJ).events()) == 0
+    out, man = _export(silent_scene, tmp_path, fmt, flow_per_event=True)
+    if fmt == "flow":
+        with h5py.File(out / "event_flow.h5") as f:
+            assert f["flow_px_per_s"].shape == (0, 2)
+        assert man["n_events_with_flow"] == 0
+    else:
+        bag = out / (f"{TRAJ}.bag" if fmt == "rosbag" else TRAJ)
+        topics = {t for t, *_ in read_bag(bag)}
+        assert "/dvs/events" not in topics and "/dvs/image_raw" in topics
+        assert man["messages"]["/dvs/events"] == 0
+
+
+def test_one_frame_flow_export(scene, tmp_path):
+    """A trajectory of one frame has no frame pairs: empty displacement flow,
+    instantaneous flow for its frame, per-event flow all invalid."""
+    from gs2e.export.common import ExportOut
+    from gs2e.export.flow import export_flow
+
+    src = TrajectorySource(scene, TRAJ)
+    src.frames = src.frames.iloc[:1]
+    out = ExportOut(tmp_path, "flow")
+    export_flow(src, out, {**load_section("export"), "flow_per_event": True})
+    with h5py.File(tmp_path / "flow.h5") as f:
+        assert f["forward_flow_px"].shape[0] == 0 and f["flow_px_per_s"].shape[0] == 1
+        assert f["flow_px_per_s_valid"][0].mean() > 0.9
+    with h5py.File(tmp_path / "event_flow.h5") as f:
+        assert f["valid"].shape[0] > 0 and not f["valid"][:].any()
+    assert (tmp_path / "forward_timestamps.txt").read_text().count("\n") == 1  # the header alone

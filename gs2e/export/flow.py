@@ -78,7 +78,9 @@ def export_flow(src, out: ExportOut, cfg: dict) -> None:
     valid_frac, opaque_valid = [], []
     with h5py.File(out.path("flow.h5"), "w") as f:
         f.create_dataset("t_us", data=t)
-        ds = {name: f.create_dataset(name, shape, dtype, chunks=(1,) + shape[1:], **comp)
+        # (a trajectory of one frame has no frame pairs: empty datasets, unchunked)
+        ds = {name: f.create_dataset(name, shape, dtype, **(dict(chunks=(1,) + shape[1:], **comp)
+                                                           if shape[0] else {}))
               for name, shape, dtype in (
                   ("forward_flow_px", (max(N - 1, 0), H, W, 2), "f4"),
                   ("forward_valid", (max(N - 1, 0), H, W), "u1"),
@@ -156,10 +158,11 @@ def _event_flow(src, out: ExportOut, cfg: dict, st: FlowSettings, mpu: float, t_
         return depth_cache[i]
 
     with h5py.File(out.path("event_flow.h5"), "w") as f:
-        d_flow = f.create_dataset("flow_px_per_s", (M, 2), "f4", **comp)
-        d_depth = f.create_dataset("depth_m", (M,), "f4", **comp)
-        d_valid = f.create_dataset("valid", (M,), "u1", **comp)
-        f.create_dataset("t_us", data=ev.t, **comp)
+        c = comp if M else {}  # no events: empty datasets, unchunked
+        d_flow = f.create_dataset("flow_px_per_s", (M, 2), "f4", **c)
+        d_depth = f.create_dataset("depth_m", (M,), "f4", **c)
+        d_valid = f.create_dataset("valid", (M,), "u1", **c)
+        f.create_dataset("t_us", data=ev.t, **(comp if M else {}))
         f.attrs.update({"events_file": "events.h5", "n_events": M, "tolerance": tol,
                         "conventions": "row k: the k-th event of events.h5; flow in px/s at the "
                                        "event's time and pixel centre; NaN where not valid"})
@@ -170,7 +173,7 @@ def _event_flow(src, out: ExportOut, cfg: dict, st: FlowSettings, mpu: float, t_
             # the frames around each event: t_frames[k] <= t < t_frames[k + 1]
             k = np.clip(np.searchsorted(t_frames, te, side="right") - 1, 0, len(t_frames) - 2)
             z = np.full(b - a, np.nan)
-            for i in np.unique(k):
+            for i in (np.unique(k) if len(t_frames) > 1 else ()):  # one frame: no depth over time
                 m = k == i
                 z0, z1 = z_of(int(i))[y[m], x[m]], z_of(int(i) + 1)[y[m], x[m]]
                 w = (te[m] - t_frames[i]) / float(t_frames[i + 1] - t_frames[i])
