@@ -196,19 +196,38 @@ class H5EventSlicer:
             g = self.file["events"]
             self._t, self._x, self._y, self._p = g["t"], g["x"], g["y"], g["p"]
             self.n_events = int(self._t.shape[0])
+            lengths = {k: int(d.shape[0]) for k, d in (("t", self._t), ("x", self._x), ("y", self._y),
+                                                        ("p", self._p))}
+            a = self.file.attrs
+            # (width, height) the file declares (gs2e's files; DSEC's own carry none)
+            self.size = ((int(a["width"]), int(a["height"])) if a.get("width") and a.get("height")
+                         else (None, None))
         except (OSError, KeyError) as exc:
             self.file.close()
             raise InputError(f"{self.path}: not a readable DSEC-layout event file ({exc})") from exc
+        if len(set(lengths.values())) > 1:
+            self.file.close()
+            raise InputError(f"{self.path}: events/t, x, y, p differ in length ({lengths}): a truncated "
+                             "or padded file")
 
     def read(self, i0: int, i1: int) -> Events:
+        """Events i0..i1-1, each field checked (:mod:`gs2e.export.conventions`:
+        polarity in any convention, coordinates on the sensor the file's
+        width/height attributes declare)."""
+        from gs2e.export.conventions import coordinates_from_file, polarity_from_file
+
         if not 0 <= i0 <= i1 <= self.n_events:
             raise InputError(f"{self.path}: events[{i0}:{i1}] out of range ({self.n_events} events)")
         try:
-            return Events(self._t[i0:i1].astype(np.int64) + self.t_offset_us,
-                          self._x[i0:i1].astype(np.uint16), self._y[i0:i1].astype(np.uint16),
-                          self._p[i0:i1].astype(np.uint8))
+            t, x, y, p = self._t[i0:i1], self._x[i0:i1], self._y[i0:i1], self._p[i0:i1]
         except OSError as exc:
             raise InputError(f"{self.path}: cannot read events[{i0}:{i1}] ({exc})") from exc
+        if not np.issubdtype(t.dtype, np.integer):
+            raise InputError(f"{self.path}: events/t must be integer microseconds, got {t.dtype}")
+        where = str(self.path)
+        return Events(t.astype(np.int64) + self.t_offset_us,
+                      coordinates_from_file(x, self.size[0], "x", where),
+                      coordinates_from_file(y, self.size[1], "y", where), polarity_from_file(p, where))
 
     def close(self) -> None:
         self.file.close()
@@ -252,7 +271,11 @@ class TextEventWriter:
 
 
 def read_text(path: str | os.PathLike) -> Events:
-    """Read ``t x y p`` lines; polarity -1/0 -> 0, +1 -> 1. Comment lines (#) skipped."""
+    """Read ``t x y p`` lines (t integer microseconds); polarity 0/1 or -1/+1
+    (1, +1 = ON). Comment lines (#) skipped. InputError naming the file for
+    a value that cannot be right (:mod:`gs2e.export.conventions`)."""
+    from gs2e.export.conventions import coordinates_from_file, polarity_from_file
+
     path = Path(path)
     try:
         arr = np.loadtxt(path, dtype=np.int64, comments="#", ndmin=2)
@@ -262,8 +285,9 @@ def read_text(path: str | os.PathLike) -> Events:
         return Events.empty()
     if arr.shape[1] != 4:
         raise InputError(f"{path}: expected 4 columns 't x y p', got {arr.shape[1]}")
-    return Events(arr[:, 0], arr[:, 1].astype(np.uint16), arr[:, 2].astype(np.uint16),
-                  (arr[:, 3] > 0).astype(np.uint8))
+    return Events(arr[:, 0], coordinates_from_file(arr[:, 1], None, "x", str(path)),
+                  coordinates_from_file(arr[:, 2], None, "y", str(path)),
+                  polarity_from_file(arr[:, 3], str(path)))
 
 
 def write_npz(path: str | os.PathLike, ev: Events, width: int, height: int) -> None:
@@ -274,14 +298,22 @@ def write_npz(path: str | os.PathLike, ev: Events, width: int, height: int) -> N
 
 def read_npz(path: str | os.PathLike) -> tuple[Events, tuple[int, int]]:
     """Returns (events, (height, width))."""
+    from gs2e.export.conventions import coordinates_from_file, polarity_from_file
+
+    import zipfile
+
     path = Path(path)
     try:
         with np.load(path) as z:
-            ev = Events(z["t"].astype(np.int64), z["x"].astype(np.uint16),
-                        z["y"].astype(np.uint16), z["p"].astype(np.uint8))
-            return ev, (int(z["height"]), int(z["width"]))
-    except (OSError, KeyError, ValueError) as exc:
+            t, x, y, p = z["t"], z["x"], z["y"], z["p"]
+            H, W = int(z["height"]), int(z["width"])
+    except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise InputError(f"{path}: not a gs2e event npz ({exc})") from exc
+    if not len(t) == len(x) == len(y) == len(p):
+        raise InputError(f"{path}: t, x, y, p differ in length: a truncated or padded file")
+    where = str(path)
+    return Events(t.astype(np.int64), coordinates_from_file(x, W, "x", where),
+                  coordinates_from_file(y, H, "y", where), polarity_from_file(p, where)), (H, W)
 
 
 def read_events(path: str | os.PathLike,
@@ -294,6 +326,12 @@ def read_events(path: str | os.PathLike,
     header), ``.dat`` (Prophesee DAT) through :mod:`gs2e.events.containers`
     (faery); ``.h5``/``.hdf5`` (DSEC layout), ``.npz`` (gs2e), anything else as
     ``t x y p`` text.
+
+    Every field is checked where it enters (:mod:`gs2e.export.conventions`):
+    a polarity of any convention (0/1, -1/+1, bool) is read as such, a value
+    that cannot be right (a polarity of 2, a negative coordinate, an event off
+    the sensor the header or ``size`` declares) is a one-line InputError
+    naming the file, the field and how many.
 
     Returns
     -------
@@ -311,12 +349,23 @@ def read_events(path: str | os.PathLike,
         raise InputError(f"{path}: no such event file")
     fallback = None if size is None else (int(size[1]), int(size[0]))
     if suf in READ_SUFFIXES:
-        return read_container(path, size)
+        return _on_sensor(*read_container(path, size), path)
     if suf in (".h5", ".hdf5"):
         ev, attrs = read_h5(path)
         if attrs.get("width") and attrs.get("height"):
             return ev, (int(attrs["height"]), int(attrs["width"]))
-        return ev, fallback  # DSEC's own files carry no sensor size
+        return _on_sensor(ev, fallback, path)  # DSEC's own files carry no sensor size
     if suf == ".npz":
         return read_npz(path)
-    return read_text(path), fallback
+    return _on_sensor(read_text(path), fallback, path)
+
+
+def _on_sensor(ev: Events, shape: tuple[int, int] | None, path: Path) -> tuple[Events, tuple[int, int] | None]:
+    """(ev, shape) after checking that every event lies on the (height, width)
+    sensor, when one is known (from the header or the user)."""
+    from gs2e.export.conventions import coordinates_from_file
+
+    if shape is not None and len(ev):
+        coordinates_from_file(ev.x, shape[1], "x", str(path))
+        coordinates_from_file(ev.y, shape[0], "y", str(path))
+    return ev, shape
