@@ -178,6 +178,13 @@ def deep_merge(base: dict, over: Mapping) -> dict:
     return out
 
 
+# Scene ids become folder names, and with them file names that gs2e extends by up
+# to about 130 bytes (an atomic write's .<name>.tmp-<pid>-<start>@<host>-<8 hex>);
+# file systems allow 255 bytes a name. (Trajectory, format and task names come
+# from the schema's enums: short.)
+MAX_NAME_BYTES = 120
+
+
 def load_scenes(path: str | Path) -> list[dict]:
     """Read and validate the scenes TSV; returns one dict per row.
 
@@ -200,6 +207,10 @@ def load_scenes(path: str | Path) -> list[dict]:
         row = {k.strip(): (v or "").strip() for k, v in raw.items() if k is not None}
         row = {k: v for k, v in row.items() if not (v == "" and k in ("path", "overrides"))}
         validate(row, SCENES_SCHEMA, f"{path}:{lineno}")
+        if len(row["scene_id"].encode()) > MAX_NAME_BYTES:
+            raise ConfigError(f"{path}:{lineno}: scene_id is {len(row['scene_id'].encode())} bytes long; "
+                              f"at most {MAX_NAME_BYTES} (it names folders and files, whose names the "
+                              "file system limits to 255 bytes with gs2e's temporary suffixes)")
         if row["scene_id"] in seen:
             raise ConfigError(f"{path}:{lineno}: duplicate scene_id '{row['scene_id']}'")
         if row["layout"] != "demo" and not row["path"]:

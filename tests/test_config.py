@@ -74,6 +74,7 @@ def test_scenes_table_and_overrides(tmp_path):
     ("bad id\tfolder\tx\t", "scene_id"),
     ("a\tfolder\t\t", "path is required"),
     ("a\tdemo\t\t\textra", "more cells"),
+    ("s" * 300 + "\tdemo\t\t", "scene_id is 300 bytes long"),
 ])
 def test_scenes_table_errors_name_the_cell(tmp_path, row, needle):
     p = _write_tsv(tmp_path / "s.tsv", [row])
@@ -123,6 +124,23 @@ def test_derive_seed_is_stable_and_distinct():
     assert C.derive_seed(0, "a", "sfm") == C.derive_seed(0, "a", "sfm")
     assert len({C.derive_seed(0, "a", s) for s in ("sfm", "train", "events")}) == 3
     assert C.derive_seed(1, "a", "sfm") != C.derive_seed(0, "a", "sfm")
+
+
+def test_long_names_are_refused_before_any_job(tmp_path):
+    """A 300-character scene id passed validation and the dry run, then the
+    first job failed with "File name too long"; now gs2e config --validate
+    and the dry run refuse it, naming the cell."""
+    tsv = _write_tsv(tmp_path / "s.tsv", ["x" * 300 + "\tdemo\t\t"])
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"scenes: {tsv}\n")
+    proc = run_cli("config", "--validate", str(cfg))
+    assert proc.returncode == 2 and "s.tsv:2: scene_id is 300 bytes long" in proc.stderr
+    from tests.conftest import REPO, run_snakemake
+
+    dry = run_snakemake("-n", "--cores", "1", "--snakefile", str(REPO / "Snakefile"), "--directory",
+                        str(tmp_path), "--config", f"scenes={tsv}")
+    assert dry.returncode != 0 and "scene_id is 300 bytes long" in dry.stdout + dry.stderr
+    assert not (tmp_path / "results").exists()
 
 
 def test_cli_validate_reports_bad_config(tmp_path):

@@ -135,3 +135,29 @@ def test_unparsable_json_names_file(tmp_path):
     p.write_text("{not json")
     with pytest.raises(InputError, match="transforms.json"):
         read_transforms(p)
+
+
+def test_per_frame_intrinsics_of_mixed_orientations_without_sizes(tmp_path):
+    """Per-frame fl_x/cx/cy, no w/h, three landscape and two portrait images:
+    each frame's size comes from its own image (the first one's was applied to
+    every frame: "b0.png is 60x80 but its camera is for 80x60")."""
+    from _io_synth import ring_poses
+
+    from gs2e.io.ingest import ingest_scene
+    from gs2e.io.scene import opencv_to_opengl
+
+    src = tmp_path / "src"
+    (src / "images").mkdir(parents=True)
+    write_images(src / "images", ["a0.png", "a1.png", "a2.png"], 80, 60)
+    write_images(src / "images", ["b0.png", "b1.png"], 60, 80, seed=1)
+    frames = []
+    for i, (name, c2w) in enumerate(zip(["a0", "a1", "a2", "b0", "b1"], ring_poses(5))):
+        w, h = (80, 60) if name[0] == "a" else (60, 80)
+        frames.append({"file_path": f"images/{name}.png", "transform_matrix": opencv_to_opengl(c2w).tolist(),
+                       "fl_x": 70.0 + i, "fl_y": 70.0 + i, "cx": w / 2, "cy": h / 2})
+    (src / "transforms.json").write_text(json.dumps({"frames": frames}))
+    scene = read_transforms(src / "transforms.json")
+    sizes = {f.name: (f.camera.cx * 2, f.camera.cy * 2) for f in scene.frames}
+    assert sizes["images/b0.png"] == (60, 80) and sizes["images/a0.png"] == (80, 60)
+    out = ingest_scene(src, "nerf", tmp_path / "ingest", {"allow_mixed_resolutions": True})
+    assert {(f.camera.cx * 2, f.camera.cy * 2) for f in out.frames} == {(80, 60), (60, 80)}

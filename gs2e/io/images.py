@@ -113,6 +113,24 @@ def check_image_size(path: str | os.PathLike) -> None:
         raise InputError(f"image file {path}: its size {why}")
 
 
+def image_size(path: str | os.PathLike) -> tuple[int, int]:
+    """(width, height) of an image file's stored pixel grid, from its header
+    (Pillow opens lazily; a file Pillow cannot parse is decoded). InputError
+    naming the file when it is missing or unreadable."""
+    from PIL import Image, UnidentifiedImageError
+
+    Image.MAX_IMAGE_PIXELS = None  # gs2e's own limit: check_image_size
+    try:
+        with Image.open(path) as im:
+            return int(im.size[0]), int(im.size[1])
+    except (UnidentifiedImageError, ValueError, SyntaxError):
+        img = read_image(path)
+        return img.shape[1], img.shape[0]
+    except OSError:
+        read_image_bytes(path)  # the one-line error for a missing or unreadable file
+        raise
+
+
 def read_image(path: str | os.PathLike) -> np.ndarray:
     """Read an image file as uint8 RGB (H, W, 3); InputError naming the file on failure."""
     return decode_image(read_image_bytes(path), str(path))

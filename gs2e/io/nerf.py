@@ -33,7 +33,8 @@ import numpy as np
 
 from gs2e.common.atomic import write_json_atomic
 from gs2e.common.errors import InputError
-from gs2e.io.images import IMAGE_EXTS, read_image
+from gs2e.io.images import IMAGE_EXTS
+from gs2e.io.images import image_size as stored_image_size
 from gs2e.io.scene import Camera, Scene, check_pose, opencv_to_opengl, opengl_to_opencv
 from gs2e.io.views import SourceView, natural_key
 
@@ -138,7 +139,9 @@ def views_from_transforms(data: dict, base: Path, where: str,
     """SourceViews (OpenCV c2w in the source's original world) of a parsed transforms.json.
 
     ``base``: folder file_paths are relative to. ``image_size`` (W, H) is used when
-    the json gives no w/h; if None the first frame's image is read for it.
+    the json gives no w/h; if None, each such frame's own image header gives
+    its size (frames of one file may differ: landscape and portrait photos
+    with per-frame intrinsics).
     """
     A = applied_transform_matrix(data, where)
     A_inv = None if A is None else np.linalg.inv(A)
@@ -153,10 +156,7 @@ def views_from_transforms(data: dict, base: Path, where: str,
         path = resolve_file_path(base, fp)
         w, h = _num(merged, "w", fwhere), _num(merged, "h", fwhere)
         if w is None or h is None:
-            if image_size is None:
-                img = read_image(path)
-                image_size = (img.shape[1], img.shape[0])
-            w, h = image_size
+            w, h = image_size if image_size is not None else stored_image_size(path)
         size = (int(round(w)), int(round(h)))
         if size[0] <= 0 or size[1] <= 0:
             raise InputError(f"{fwhere}: invalid image size w={w} h={h}")
