@@ -293,16 +293,18 @@ def cost_model_step_inputs(scene_dir: Path | str, n_views: int = 16):
 
 # ------------------------------------------------------------------- results
 def write_csv(name: str, rows) -> Path:
-    """Write ``rows`` (dicts with the same keys, or a DataFrame) to
-    benchmarks/results/<name>.csv; returns the path."""
+    """Write ``rows`` (dicts, or a DataFrame) to benchmarks/results/<name>.csv;
+    returns the path. Rows may have different fields: the columns are every
+    field in the order first seen, empty where a row lacks one."""
     RESULTS.mkdir(parents=True, exist_ok=True)
     path = RESULTS / f"{name}.csv"
     if hasattr(rows, "to_csv"):
         rows.to_csv(path, index=False)
         return path
     rows = list(rows)
+    fields = list(dict.fromkeys(k for r in rows for k in r))
     with open(path, "w", newline="") as fh:
-        wr = csv.DictWriter(fh, fieldnames=list(rows[0]) if rows else [])
+        wr = csv.DictWriter(fh, fieldnames=fields, restval="")
         wr.writeheader()
         wr.writerows(rows)
     return path

@@ -157,13 +157,7 @@ def build_parser() -> argparse.ArgumentParser:
     _register_config(sub)
     _register_clean(sub)
     for mod_name in STAGE_CLIS:
-        try:
-            mod = importlib.import_module(mod_name)
-        except ModuleNotFoundError as exc:
-            if exc.name == mod_name:
-                continue  # stage not implemented yet
-            raise
-        mod.register(sub)
+        importlib.import_module(mod_name).register(sub)
     return parser
 
 

@@ -146,3 +146,21 @@ def test_a_child_with_another_gs2e_is_stopped(tmp_path):
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
                           timeout=120)
     assert proc.returncode != 0 and f"not the gs2e of {tmp_path}" in proc.stderr
+
+
+def test_csv_rows_may_have_different_fields(tmp_path, monkeypatch):
+    """bench_sim2real --quick stopped with "dict contains fields not in
+    fieldnames": the harness takes rows with different fields."""
+    import csv
+    import importlib
+
+    monkeypatch.setenv("GS2E_BENCH_RESULTS", str(tmp_path))
+    monkeypatch.syspath_prepend(str(BENCH))
+    import harness
+
+    harness = importlib.reload(harness)
+    path = harness.write_csv("mixed", [{"a": 1, "b": 2}, {"a": 3, "c": 4}, {"d": 5}])
+    rows = list(csv.DictReader(open(path)))
+    assert list(rows[0]) == ["a", "b", "c", "d"]
+    assert [(r["a"], r["b"], r["c"], r["d"]) for r in rows] == [("1", "2", "", ""), ("3", "", "4", ""),
+                                                                ("", "", "", "5")]

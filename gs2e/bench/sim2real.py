@@ -43,7 +43,6 @@ The pure functions (:func:`compare_events`, :func:`fit_model`,
 from __future__ import annotations
 
 import copy
-import json
 import logging
 import math
 import time
@@ -558,12 +557,3 @@ def settings_from_config(bench: dict, seed: int = 0) -> Sim2RealSettings:
                             variants=tuple(bench["sim2real_variants"]),
                             fit=tuple(bench["sim2real_fit"]), aps_linear=bool(bench["sim2real_aps_linear"]),
                             seed=int(seed))
-
-
-def read_fit(folder: str | Path) -> dict:
-    """A sim2real folder's fit.json."""
-    p = Path(folder) / "fit.json"
-    try:
-        return json.loads(p.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise InputError(f"cannot read {p}: {exc}") from None

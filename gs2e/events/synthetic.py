@@ -40,15 +40,3 @@ def standard_sequence(n_frames: int = 480, fps: float = 2400.0, width: int = 346
         frame = cv2.warpAffine(img, M, (width, height), flags=cv2.INTER_LINEAR,
                                borderMode=cv2.BORDER_REFLECT)
         yield t0_us + int(round(t * 1e6)), np.clip(frame, 0.0, 1.0)
-
-
-def log_ramp_sequence(shape=(4, 5), n_frames: int = 10, dt_us: int = 1000,
-                      rates_per_s=None, start: float = 0.05, t0_us: int = 0):
-    """Frames whose log luminance grows linearly in time per pixel (rates in
-    1/s, log units), for exactness tests of the ideal model. Returns (ts, frames)."""
-    H, W = shape
-    if rates_per_s is None:
-        rates_per_s = np.linspace(-20, 20, H * W).reshape(H, W)
-    ts = t0_us + dt_us * np.arange(n_frames, dtype=np.int64)
-    frames = [(start * np.exp(rates_per_s * (t - t0_us) * 1e-6)) for t in ts]
-    return ts, frames

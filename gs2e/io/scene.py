@@ -235,10 +235,6 @@ def read_scene(folder: str | Path) -> Scene:
                  data.get("source", ""), xyz, rgb, data.get("extra", {}))
 
 
-def image_paths(folder: str | Path, scene: Scene) -> list[Path]:
-    return [Path(folder) / IMAGES_DIR / f.name for f in scene.frames]
-
-
 def opengl_to_opencv(c2w_gl: np.ndarray) -> np.ndarray:
     """Convert camera-to-world poses from OpenGL/NeRF axes (+y up, +z backward)
     to OpenCV axes (+y down, +z forward): flip the camera's y and z columns.
