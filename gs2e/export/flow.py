@@ -7,7 +7,7 @@
         backward_flow_px (N-1, H, W, 2) f4    frame i+1 -> i, on frame i+1's pixels
         backward_valid (N-1, H, W) u1
         flow_px_per_s (N, H, W, 2) f4         instantaneous flow at the frame time
-        flow_px_per_s_valid (N, H, W) u1      opaque pixels (alpha >= flow_alpha_min)
+        flow_px_per_s_valid (N, H, W) u1      opaque pixels (alpha >= 0.5, gs2e.groundtruth.flow)
         depth_m (N, H, W) f4                  expected camera z in metres (NaN: not opaque)
     <out>/forward/NNNNNN.png       DSEC's 16-bit flow of frame NNNNNN -> the next
     <out>/backward/NNNNNN.png      ... of frame NNNNNN -> the previous (with flow_png)
@@ -45,11 +45,6 @@ def _flow_png_params() -> list[int]:
     return [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_SUB]
 
 
-def flow_settings(cfg: dict) -> FlowSettings:
-    return FlowSettings(float(cfg["flow_alpha_min"]), float(cfg["flow_fb_rel"]),
-                        float(cfg["flow_fb_abs_px2"]))
-
-
 def camera_velocities(src, t_us: np.ndarray):
     """(velocity_c (Q, 3) scene units/s, omega_c (Q, 3) rad/s): the camera's
     velocity and angular velocity in its own frame at times t_us."""
@@ -68,7 +63,7 @@ def export_flow(src, out: ExportOut, cfg: dict) -> None:
 
     comp = h5_compression("blosc")
 
-    st = flow_settings(cfg)
+    st = FlowSettings()
     mpu = float(cfg["metres_per_unit"])
     t = src.frames["t_us"].to_numpy().astype(np.int64)
     N, H, W = len(t), src.height, src.width

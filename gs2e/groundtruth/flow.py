@@ -34,6 +34,11 @@ import numpy as np
 DSEC_SCALE = 128.0     # PNG steps per pixel of flow
 DSEC_OFFSET = 2 ** 15  # PNG value of zero flow
 DSEC_MAX_PX = (2 ** 16 - 1 - DSEC_OFFSET) / DSEC_SCALE  # largest representable |dx|, |dy|
+# A pixel is a surface's where the model covers it at least this much: what
+# "covered" (alpha > 0.5) means elsewhere in gs2e.
+ALPHA_MIN = 0.5
+# The forward-backward test's tolerances (Sundaram, Brox and Keutzer, ECCV 2010).
+FB_REL, FB_ABS_PX2 = 0.01, 0.5
 
 
 def pixel_centres(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
@@ -146,8 +151,8 @@ def sample_bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray
     return out
 
 
-def fb_consistent(flow_fw: np.ndarray, flow_bw: np.ndarray, rel: float = 0.01,
-                  abs_px2: float = 0.5) -> np.ndarray:
+def fb_consistent(flow_fw: np.ndarray, flow_bw: np.ndarray, rel: float = FB_REL,
+                  abs_px2: float = FB_ABS_PX2) -> np.ndarray:
     """(H, W) bool: the forward flow's target lies in view b's image and the
     backward flow sampled there brings the pixel back:
     |w_f + w_b|^2 <= rel (|w_f|^2 + |w_b|^2) + abs_px2 (Sundaram et al. 2010;
@@ -163,17 +168,18 @@ def fb_consistent(flow_fw: np.ndarray, flow_bw: np.ndarray, rel: float = 0.01,
 
 @dataclass(frozen=True)
 class FlowSettings:
-    """How flow is judged valid (the ``export`` section's ``flow_*`` keys).
+    """How flow is judged valid: the export and the benchmark's flow task
+    share these (module constants, one declaration).
 
     alpha_min : a pixel's coverage (alpha) at least this for its expected
         depth to count as a surface's.
     fb_rel, fb_abs_px2 : the forward-backward test's relative and absolute
-        (px^2) tolerances (Sundaram et al. 2010).
+        (px^2) tolerances.
     """
 
-    alpha_min: float = 0.5
-    fb_rel: float = 0.01
-    fb_abs_px2: float = 0.5
+    alpha_min: float = ALPHA_MIN
+    fb_rel: float = FB_REL
+    fb_abs_px2: float = FB_ABS_PX2
 
 
 @dataclass(frozen=True)
