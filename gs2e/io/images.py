@@ -52,7 +52,8 @@ def decode_image(data: bytes, name: str = "image") -> np.ndarray:
 
     16-bit images are rounded to 8 bits (v / 257), float images are taken as
     [0, 1], grayscale is replicated to RGB and an alpha channel is dropped.
-    EXIF orientation is ignored (COLMAP works on the stored pixel grid too).
+    The stored pixel grid is returned: ingest applies EXIF orientation
+    (:func:`exif_orientation`, :func:`apply_orientation`) where it belongs.
     Raises InputError naming ``name`` when the bytes are empty or undecodable.
     """
     if len(data) == 0:
@@ -129,6 +130,39 @@ def image_size(path: str | os.PathLike) -> tuple[int, int]:
     except OSError:
         read_image_bytes(path)  # the one-line error for a missing or unreadable file
         raise
+
+
+EXIF_ORIENTATION_TAG = 0x0112
+
+
+def exif_orientation(path: str | os.PathLike) -> int:
+    """The EXIF Orientation (1-8) of an image file; 1 (as stored) when the
+    file has none or Pillow cannot read it."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            o = im.getexif().get(EXIF_ORIENTATION_TAG, 1)
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError):
+        return 1
+    return int(o) if isinstance(o, int) and 1 <= o <= 8 else 1
+
+
+def apply_orientation(img: np.ndarray, orientation: int) -> np.ndarray:
+    """``img`` (H, W, ...) as a viewer shows it under EXIF Orientation 1-8
+    (the transposes of Pillow's ``ImageOps.exif_transpose``; tested against
+    it): 2 mirror, 3 rotate 180, 4 flip, 5 transpose, 6 rotate 90 clockwise,
+    7 transverse, 8 rotate 90 counter-clockwise."""
+    t = (1, 0) + tuple(range(2, img.ndim))
+    ops = {1: lambda a: a, 2: lambda a: a[:, ::-1], 3: lambda a: a[::-1, ::-1], 4: lambda a: a[::-1],
+           5: lambda a: a.transpose(t), 6: lambda a: np.rot90(a, -1), 7: lambda a: a.transpose(t)[::-1, ::-1],
+           8: lambda a: np.rot90(a, 1)}
+    return np.ascontiguousarray(ops[int(orientation)](img))
+
+
+def upright_size(size: tuple[int, int], orientation: int) -> tuple[int, int]:
+    """(W, H) of a stored (W, H) image once its EXIF orientation is applied."""
+    return (size[1], size[0]) if orientation in (5, 6, 7, 8) else tuple(size)
 
 
 def read_image(path: str | os.PathLike) -> np.ndarray:

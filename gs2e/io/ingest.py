@@ -62,7 +62,8 @@ from gs2e.common.log import timed
 from gs2e.common.progress import progress
 from gs2e.io import colmap as colmap_io
 from gs2e.io import nerf as nerf_io
-from gs2e.io.images import (IMAGE_EXTS, check_image_size, decode_image, is_image_file, list_images, read_image_bytes,
+from gs2e.io.images import (IMAGE_EXTS, apply_orientation, check_image_size, decode_image, exif_orientation,
+                            is_image_file, list_images, read_image_bytes, upright_size,
                             resize_with_camera, scaled_size, write_png)
 from gs2e.io.scene import (IMAGES_DIR, SCENE_JSON, Camera, Frame, Scene, main_size, read_scene,
                            with_frame_sizes, write_scene_json)
@@ -357,6 +358,29 @@ def _validated_cfg(cfg: dict | None) -> dict:
     return validate(copy.deepcopy(dict(cfg or {})), schema, "config ingest")
 
 
+def _upright(img: np.ndarray, view: SourceView, exif: dict[str, list[str]]) -> np.ndarray:
+    """The view's image as it is meant to be seen (its EXIF orientation
+    applied, the same in every layout), unless a camera came with it for the
+    stored pixel grid (poses made by a tool that ignored EXIF, as COLMAP did
+    before 2026): that view is kept as stored. ``exif`` collects the names."""
+    o = exif_orientation(view.path)
+    if o == 1:
+        return img
+    stored = (img.shape[1], img.shape[0])
+    up = upright_size(stored, o)
+    if view.camera is not None and view.size is not None:
+        declared = tuple(view.size)
+        ratio = lambda s: s[0] / s[1]  # noqa: E731
+        if up == stored:  # a flip or half turn, or a square view: the size cannot tell
+            exif["ambiguous"].append(view.name)
+            return img
+        if abs(ratio(declared) - ratio(stored)) <= abs(ratio(declared) - ratio(up)):
+            exif["kept_stored"].append(view.name)
+            return img
+    exif["applied"].append(view.name)
+    return apply_orientation(img, o)
+
+
 def _declared_to_actual(view: SourceView, actual: tuple[int, int]) -> tuple[Camera | None, tuple[float, float]]:
     """Scale the view's camera from its declared size to the image's actual size."""
     if view.camera is None or view.size is None or tuple(view.size) == tuple(actual):
@@ -430,10 +454,12 @@ def ingest_scene(src: str | os.PathLike, layout: str, out_dir: str | os.PathLike
     frames: list[Frame] = []
     seen: dict[bytes, int] = {}
     src_sizes, out_sizes, scales, cam_scales = [], [], [], []
+    exif = {"applied": [], "kept_stored": [], "ambiguous": []}  # view names by what EXIF did
     with timed(f"ingest {len(views)} images -> {out_dir}", log), atomic_dir(out_dir) as tmp:
         (tmp / IMAGES_DIR).mkdir()
         for i, v in enumerate(progress(views, desc="ingest images")):
             img = decode_image(read_image_bytes(v.path), str(v.path))
+            img = _upright(img, v, exif)
             h, w = img.shape[:2]
             digest = hashlib.sha256(np.asarray(img.shape).tobytes() + img.tobytes()).digest()
             if digest in seen:
@@ -470,10 +496,23 @@ def ingest_scene(src: str | os.PathLike, layout: str, out_dir: str | os.PathLike
             "output_size": list(out_size),
             "main_size_views": sum(tuple(o) == tuple(out_size) for o in out_sizes),
             "config": cfg,
+            "exif_orientation": {k: v for k, v in exif.items() if v},
         }
         scene = Scene(out_size[0], out_size[1], frames, layout, str(src),
                       source.points_xyz, source.points_rgb, with_frame_sizes(extra, out_sizes, out_size))
         write_scene_json(scene, tmp)
+    if exif["applied"]:
+        log.info("%d view(s) turned upright by their EXIF orientation (e.g. %s)", len(exif["applied"]),
+                 exif["applied"][0])
+    if exif["kept_stored"]:
+        log.warning("%d view(s) have an EXIF orientation but cameras for the stored pixel grid "
+                    "(e.g. %s): kept as stored, as their poses were made", len(exif["kept_stored"]),
+                    exif["kept_stored"][0])
+    if exif["ambiguous"]:
+        log.warning("%d view(s) have an EXIF orientation that keeps their size (a flip, a half turn "
+                    "or a square view) and given cameras (e.g. %s): which grid the poses were made "
+                    "on cannot be told; kept as stored",
+                    len(exif["ambiguous"]), exif["ambiguous"][0])
     log.info("wrote %d views (%dx%d, poses: %s, points: %s) to %s", len(frames), out_size[0],
              out_size[1], scene.has_poses, 0 if scene.points_xyz is None else len(scene.points_xyz), out_dir)
     return scene
