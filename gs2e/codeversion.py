@@ -67,6 +67,11 @@ REGISTRY = "gs2e.common.registry"
 # network weights): {import name: distribution}. Their installed version joins the
 # code version of every stage that imports them; numpy, torch and the like do not.
 VERSIONED = {"pie_net": "event-pienet"}
+# Plug-ins (gs2e.common.registry): a stage that imports a registry runs its group's
+# installed plug-ins, whose names and versions join that stage's code version. (Not
+# imported from gs2e.common.registry: importing it makes a module's gs2e names count.)
+PLUGIN_REGISTRIES = {"gs2e.bench_tasks": "gs2e.bench.tasks", "gs2e.export_formats": "gs2e.export.formats",
+                     "gs2e.event_models": "gs2e.events.models", "gs2e.sensors": "gs2e.events.sensors"}
 
 _MODULE_NAME = re.compile(r"^[A-Za-z_]\w*(\.[A-Za-z_]\w*)*$")
 
@@ -212,6 +217,18 @@ def _dist_version(dist: str) -> str:
         return "absent"
 
 
+def _plugin_versions(group: str) -> list[str]:
+    """``name=dist==version`` of each installed plug-in of an entry-point group
+    (read from the packages' metadata; nothing imported)."""
+    from importlib.metadata import entry_points
+
+    out = []
+    for ep in sorted(entry_points(group=group), key=lambda e: e.name):
+        dist = getattr(ep, "dist", None)
+        out.append(f"{ep.name}={dist.name if dist else '?'}=={dist.version if dist else '?'}")
+    return out
+
+
 def _distributions(external: set[str]) -> dict[str, str]:
     return {VERSIONED[m]: _dist_version(VERSIONED[m]) for m in sorted(external & set(VERSIONED))}
 
@@ -225,8 +242,9 @@ def stage_distributions(stage: str) -> dict[str, str]:
 @functools.lru_cache(maxsize=None)
 def code_version(stage: str) -> str:
     """Short sha256 over the source files of the stage's import closure
-    (path relative to the package + content, in path order) and the installed
-    versions of the :data:`VERSIONED` packages it imports."""
+    (path relative to the package + content, in path order), the installed
+    versions of the :data:`VERSIONED` packages it imports, and the installed
+    plug-ins (names, packages, versions) of the registries it imports."""
     modules, external = _stage_closure(stage)  # one walk for both
     h = hashlib.sha256()
     for f in sorted(modules.values()):
@@ -237,4 +255,9 @@ def code_version(stage: str) -> str:
     for dist, ver in _distributions(external).items():
         h.update(f"{dist}=={ver}".encode())
         h.update(b"\0")
+    for group, module in PLUGIN_REGISTRIES.items():
+        if module in modules:
+            for v in _plugin_versions(group):
+                h.update(f"{group}:{v}".encode())
+                h.update(b"\0")
     return h.hexdigest()[:16]

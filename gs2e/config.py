@@ -57,7 +57,26 @@ _SCHEMA_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 @functools.lru_cache(maxsize=8)
 def _schema_cached(path) -> dict:
-    return yaml.load(path.read_text(), Loader=_SCHEMA_LOADER)
+    schema = yaml.load(path.read_text(), Loader=_SCHEMA_LOADER)
+    if path == CONFIG_SCHEMA:
+        _add_plugin_names(schema)
+    return schema
+
+
+def _add_plugin_names(schema: dict) -> None:
+    """Installed plug-ins' names join the enums of what they add (read from the
+    installed packages' metadata; nothing is imported)."""
+    from gs2e.common.registry import PLUGIN_GROUPS, plugin_names
+
+    for group, where in PLUGIN_GROUPS.items():
+        names = plugin_names(group)
+        if not names:
+            continue
+        node = schema["properties"]
+        for k in where[:-1]:
+            node = node[k]["properties"] if "properties" in node[k] else node[k]
+        enum = node[where[-1]]["enum"]
+        enum.extend(n for n in names if n not in enum)
 
 
 def _as_file(path):

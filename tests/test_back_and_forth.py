@@ -213,7 +213,9 @@ def test_recon3d_holds_out_by_position_on_a_back_and_forth_path(plane_legs):
     assert main(["windows", "--frames", str(out), "--events", str(tmp / "events"),
                  "--out", str(tmp / "windows.parquet")]) == 0
     ds = load_dataset("recon3d", out, tmp / "events", tmp / "windows.parquet", traj)
-    data = R3.recon3d_data(ds, R3.Recon3dSettings(test_every=4))
+    from gs2e.config import load_section
+
+    data = R3.recon3d_data(ds, R3.recon3d_settings(load_section("bench"), test_every=4))
     tr = load_trajectory(traj)
     pos = tr.arc_length_at(data.t_us) / tr.s.max()
     n = 4 * max(1, round(0.03 * 90 / 4))  # 2.7 frames per 30 ms leg: 4 pieces

@@ -205,7 +205,10 @@ def plane(tmp_path_factory):
 
 
 def _settings(**kw):
-    return R3.Recon3dSettings(**{"steps": STEPS, "n_init": 3000, "densify_from": 100, **kw})
+    from gs2e.config import load_section
+
+    return R3.recon3d_settings(load_section("bench"), **{"steps": STEPS, "n_init": 3000, "densify_from": 100,
+                                                          **kw})
 
 
 def _load(plane):

@@ -102,25 +102,50 @@ EXPOSURE_POSES = 33
 
 @dataclass(frozen=True)
 class Recon3dSettings:
-    """The ``bench.recon3d_*`` keys, resolved."""
+    """The ``bench.recon3d_*`` keys, resolved (:func:`recon3d_settings`: the
+    schema holds their defaults), and the task's own densification constants."""
 
-    variants: tuple[str, ...] = VARIANTS
-    steps: int = 1500
-    n_init: int = 5000
-    budget: int = 30000
-    test_every: int = 8
-    window_px_max: float = 64.0
-    blur_subframes: int = 3
-    blur_downscale: int = 2
-    lambda_blur: float = 1.0
+    variants: tuple[str, ...]
+    steps: int
+    n_init: int
+    budget: int
+    test_every: int
+    window_px_max: float
+    blur_subframes: int
+    blur_downscale: int
+    lambda_blur: float
+    # [[from_step, downscale factor], ...] as the trainer's coarse-to-fine schedule
+    resolution_schedule: tuple
+    backend: str  # resolved (gs2e.splat.backend.resolve_backend)
+    compute_dtype: str  # auto, float64, float32 (splat.compute_dtype's choices)
+    seed: int = 0
     densify_from: int = 300
     densify_every: int = 100
     densify_grad_threshold: float = 2e-4
-    # [[from_step, downscale factor], ...] as the trainer's coarse-to-fine schedule
-    resolution_schedule: tuple = ((0, 2), (800, 1))
-    seed: int = 0
-    backend: str = "cpu"  # resolved (gs2e.splat.backend.resolve_backend)
-    compute_dtype: str = "float64"  # auto, float64, float32 (splat.compute_dtype's choices)
+
+
+# bench key -> Recon3dSettings field, with the type it is read as
+RECON3D_KEYS = {"recon3d_variants": ("variants", tuple), "recon3d_steps": ("steps", int),
+                "recon3d_init_points": ("n_init", int), "recon3d_budget": ("budget", int),
+                "recon3d_test_every": ("test_every", int), "recon3d_window_px_max": ("window_px_max", float),
+                "recon3d_blur_subframes": ("blur_subframes", int),
+                "recon3d_blur_downscale": ("blur_downscale", int),
+                "recon3d_lambda_blur": ("lambda_blur", float),
+                "recon3d_resolution_schedule": ("resolution_schedule",
+                                                lambda v: tuple(tuple(int(x) for x in s) for s in v)),
+                "recon3d_backend": ("backend", None), "recon3d_compute_dtype": ("compute_dtype", str)}
+
+
+def recon3d_settings(bench: dict, seed: int = 0, **over) -> Recon3dSettings:
+    """The task's settings from the (validated) ``bench`` section; ``over``
+    replaces fields by name (tests use smaller runs)."""
+    from gs2e.splat.backend import resolve_backend
+
+    kw = {}
+    for key, (name, conv) in RECON3D_KEYS.items():
+        kw[name] = (resolve_backend(bench[key], "bench.recon3d_backend") if conv is None
+                    else conv(bench[key]))
+    return Recon3dSettings(**{**kw, "seed": int(seed), **over})
 
 
 @dataclass

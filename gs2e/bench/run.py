@@ -53,18 +53,9 @@ class BenchConfig:
 
 
 def resolve(cfg: dict, seed: int = 0) -> BenchConfig:
-    from gs2e.bench.recon3d import Recon3dSettings
-    from gs2e.splat.backend import resolve_backend
+    from gs2e.bench.recon3d import recon3d_settings
 
-    r3 = Recon3dSettings(
-        variants=tuple(cfg["recon3d_variants"]), steps=int(cfg["recon3d_steps"]),
-        n_init=int(cfg["recon3d_init_points"]), budget=int(cfg["recon3d_budget"]),
-        test_every=int(cfg["recon3d_test_every"]), window_px_max=float(cfg["recon3d_window_px_max"]),
-        blur_subframes=int(cfg["recon3d_blur_subframes"]),
-        blur_downscale=int(cfg["recon3d_blur_downscale"]), lambda_blur=float(cfg["recon3d_lambda_blur"]),
-        resolution_schedule=tuple(tuple(int(v) for v in x) for x in cfg["recon3d_resolution_schedule"]),
-        seed=int(seed), backend=resolve_backend(cfg["recon3d_backend"], "bench.recon3d_backend"),
-        compute_dtype=str(cfg["recon3d_compute_dtype"]))
+    r3 = recon3d_settings(cfg, seed)
     return BenchConfig(tuple(cfg["methods"]), int(cfg["eval_every"]),
                        M.DeblurSettings(float(cfg["edi_theta_min"]), float(cfg["edi_theta_max"]),
                                         int(cfg["edi_theta_steps"])),

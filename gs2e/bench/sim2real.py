@@ -78,12 +78,12 @@ class Sim2RealSettings:
     ``seed``: the models' seed.
     """
 
-    fps: float = 5000.0
-    window_us: int = 5000
-    warmup_us: int = 20000
-    variants: tuple[str, ...] = ("scene", "ideal", "davis346", "davis240")
-    fit: tuple[str, ...] = ("ideal", "voltmeter")
-    aps_linear: bool = True
+    fps: float
+    window_us: int
+    warmup_us: int
+    variants: tuple[str, ...]
+    fit: tuple[str, ...]
+    aps_linear: bool
     seed: int = 0
 
 

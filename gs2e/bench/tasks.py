@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from gs2e.common.errors import InputError
-from gs2e.common.registry import add, resolve
+from gs2e.common.registry import PluginRegistry, add, resolve
 
 
 @dataclass(frozen=True)
@@ -59,7 +59,7 @@ class Task:
         return None if self.summary is None else resolve(self.summary)
 
 
-TASKS: dict[str, Task] = {}
+TASKS: dict[str, Task] = PluginRegistry("gs2e.bench_tasks")
 
 
 def register(task: Task) -> Task:
@@ -83,3 +83,4 @@ register(Task("video", "gs2e.bench.video_task:run", summary="gs2e.bench.video_ta
 register(Task("recon3d", "gs2e.bench.recon3d:run", needs_trajectory=True, threads=2,
               runtime_min=120, summary="gs2e.bench.recon3d:summary"))
 register(Task("flow", "gs2e.bench.flow_task:run", needs_depth=True, summary="gs2e.bench.flow_task:summary"))
+TASKS.plugins(register, lambda t: t.name)

@@ -75,6 +75,7 @@ from typing import Iterable, Iterator
 import numpy as np
 
 from gs2e.common.errors import InputError, ConfigError
+from gs2e.common.registry import PluginRegistry
 from gs2e.events import _kernels as K
 from gs2e.events.presets import Preset, effective_threshold, get_preset
 from gs2e.events.sensors import resolve_noise
@@ -723,7 +724,7 @@ def make_model(settings: EventSettings | dict, shape: tuple[int, int], seed: int
 
 
 # ----------------------------------------------------------------- the registry
-MODELS: dict[str, type[_StreamingModel]] = {}
+MODELS: dict[str, type[_StreamingModel]] = PluginRegistry("gs2e.event_models")
 
 
 def register_model(cls: type[_StreamingModel]) -> type[_StreamingModel]:
@@ -732,7 +733,7 @@ def register_model(cls: type[_StreamingModel]) -> type[_StreamingModel]:
     workflow also add the name to the schema's ``events.model`` enum."""
     if not cls.name:
         raise ValueError(f"{cls.__name__}: an event model needs a name")
-    MODELS[cls.name] = cls
+    dict.__setitem__(MODELS, cls.name, cls)  # (a registry's read would load the plug-ins)
     return cls
 
 
@@ -761,3 +762,4 @@ def log_contrast(settings: EventSettings | dict, theta_on=None, theta_off=None):
 
 register_model(IdealModel)
 register_model(VoltmeterModel)
+MODELS.plugins(register_model, lambda cls: cls.name)

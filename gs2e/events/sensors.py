@@ -34,6 +34,7 @@ one camera.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -41,6 +42,7 @@ import numpy as np
 
 from gs2e.common.camera import fit_scale, size_problem
 from gs2e.common.errors import ConfigError, InputError
+from gs2e.common.registry import PluginRegistry, add
 from gs2e.events.settings import EventSettings, event_settings
 
 # The pixel non-idealities a sensor sets, and their value without a sensor.
@@ -123,7 +125,7 @@ _STREET = ("the still region of the DAVIS346 recording ../shared/data/events/dav
            "0.303; gs2e events-stats --aps, gs2e.events.stats.still_background)")
 _SLIDER = ("fitted: to the real events of ECD slider_depth (DAVIS240C; ../shared/data/slider_depth) "
            "along its recorded path by gs2e bench-sim2real (make sim2real; gs2e.bench.sim2real.fit_model)")
-SENSORS: dict[str, Sensor] = {
+_BUILT_IN: dict[str, Sensor] = {
     "davis346": Sensor(
         "davis346", "iniVation DAVIS346 (DVS + APS)", Sourced(346, _RES), Sourced(260, _RES),
         Sourced(0.15, _MISMATCH), Sourced(100.0, _REFRACTORY),
@@ -158,7 +160,35 @@ SENSORS: dict[str, Sensor] = {
 }
 
 
+def register_sensor(sensor: Sensor) -> Sensor:
+    """Add a sensor preset to :data:`SENSORS` under its name (a plug-in's
+    entry point of ``gs2e.sensors``; see :mod:`gs2e.common.registry`)."""
+    return add(SENSORS, sensor.name, sensor, "sensor preset")
+
+
+SENSORS = PluginRegistry("gs2e.sensors")  # the built-in presets, then any plug-in's
+for _s in _BUILT_IN.values():
+    register_sensor(_s)
+SENSORS.plugins(register_sensor, lambda s: s.name)
+
+
 def load_sensor_file(path: str | Path) -> Sensor:
+    """:func:`read_sensor_file`, read once per file version (a stage asks for
+    its sensor many times; the file's modification time and size key it)."""
+    p = Path(path)
+    try:
+        st = p.stat()
+    except OSError:
+        return read_sensor_file(p)  # its one-line error
+    return _sensor_file_cached(str(p.resolve()), st.st_mtime_ns, st.st_size)
+
+
+@functools.lru_cache(maxsize=16)
+def _sensor_file_cached(path: str, mtime_ns: int, size: int) -> Sensor:
+    return read_sensor_file(path)
+
+
+def read_sensor_file(path: str | Path) -> Sensor:
     """A ``custom`` sensor from YAML: ``width`` and ``height`` (required) and
     any of ``theta_mismatch_rel``, ``refractory_us``, ``leak_rate_hz``,
     ``shot_noise_rate_hz``, ``shot_noise_on_fraction``; each a number or

@@ -20,7 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
-from gs2e.common.registry import add, resolve
+from gs2e.common.registry import PluginRegistry, add, resolve
 
 
 @dataclass(frozen=True)
@@ -38,7 +38,7 @@ class Format:
         return resolve(self.run)
 
 
-FORMATS: dict[str, Format] = {}
+FORMATS: dict[str, Format] = PluginRegistry("gs2e.export_formats")
 
 
 def register(fmt: Format) -> Format:
@@ -60,3 +60,4 @@ for _f in (
         Format("rosbag2", "gs2e.export.rosbag:export_rosbag2", seeded=True,
                help="ROS 2 bag (MCAP), the same topics")):
     register(_f)
+FORMATS.plugins(register, lambda f: f.name)
