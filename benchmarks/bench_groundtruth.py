@@ -51,8 +51,11 @@ QUICK = ("demo.width=128;demo.height=96;splat.max_iterations=300;render.trajecto
          "events.max_duration_s=0.3")
 
 
-def build(names: list[str], quick: bool) -> Path:
-    """The workflow's results for ``names`` (cached; rebuilt where the config changed)."""
+def build(names: list[str], quick: bool, rebuild: bool) -> Path:
+    """The workflow's results for ``names``, cached: missing outputs are made;
+    with ``rebuild`` also those whose config or code changed (Snakemake's
+    params and code triggers; a code version changes with any edit of a
+    stage's imports, so by default a cached build is kept)."""
     wd = CACHE / ("quick" if quick else "full")
     wd.mkdir(parents=True, exist_ok=True)
     trajs = "render.trajectories=[" + ",".join(f"base_{s}" for s in SPEEDS) + "]"
@@ -68,8 +71,8 @@ def build(names: list[str], quick: bool) -> Path:
                PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}")
     subprocess.run([str(Path(sys.executable).parent / "snakemake"), "--snakefile", str(REPO / "Snakefile"),
                     "--cores", "2", "--directory", str(wd), "--config", f"scenes={wd / 'scenes.tsv'}",
-                    "results_dir=results", "--rerun-triggers", "mtime", "params", "input", "code"],
-                   check=True, env=env)
+                    "results_dir=results", "--rerun-triggers", "mtime", "input",
+                    *(["params", "code"] if rebuild else [])], check=True, env=env)
     return wd / "results"
 
 
@@ -136,9 +139,11 @@ def flow_task(scene_dir: Path, traj: str) -> dict:
 def main() -> None:
     ap = parser(__doc__, quick="the demo scene small and short, mild only (a few minutes)")
     ap.add_argument("--scenes", default=",".join(SCENES), help="comma-separated, from: " + ", ".join(SCENES))
+    ap.add_argument("--rebuild", action="store_true",
+                    help="rerun the cached workflow's jobs whose config or code changed")
     args = ap.parse_args()
     names = ["demo"] if args.quick else args.scenes.split(",")
-    results = build(names, args.quick)
+    results = build(names, args.quick, args.rebuild)
     rows = []
     for n in names:
         for sp in (SPEEDS[:1] if args.quick else SPEEDS):
