@@ -337,6 +337,20 @@ def _read_ecd(src: Path, cfg: dict) -> _Source:
     return _Source(views, extra={"sequential": True}, provenance=prov)
 
 
+def _read_llff(src: Path, cfg: dict) -> _Source:
+    from gs2e.io.llff import read_llff_views
+
+    views, prov = read_llff_views(src)
+    return _Source(views, provenance=prov)
+
+
+def _read_projection(src: Path, cfg: dict) -> _Source:
+    from gs2e.io.llff import read_projection_views
+
+    views, prov = read_projection_views(src)
+    return _Source(views, provenance=prov)
+
+
 _READERS = {
     "demo": _read_internal,
     "internal": _read_internal,
@@ -346,6 +360,8 @@ _READERS = {
     "dl3dv": _read_dl3dv,
     "nerf": _read_nerf,
     "ecd": _read_ecd,
+    "llff": _read_llff,
+    "projection": _read_projection,
 }
 
 

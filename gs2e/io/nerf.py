@@ -55,15 +55,22 @@ def _num(d: dict, key: str, where: str, default=None):
 
 
 def resolve_file_path(base: Path, file_path: str) -> Path:
-    """Image path for a ``file_path`` entry: as written, else with an image extension."""
+    """Image path for a ``file_path`` entry: as written, else with an image
+    extension; where neither exists, the file of that name in ``images/``
+    beside the json (captures are often copied flat: nerfstudio's
+    ``./images/<capture>/NAME.jpg`` found as ``images/NAME.jpg``)."""
     p = base / file_path
-    if p.suffix.lower() in IMAGE_EXTS or p.is_file():
-        return p
-    for ext in IMAGE_EXTS + tuple(e.upper() for e in IMAGE_EXTS):
-        q = p.with_name(p.name + ext)
-        if q.is_file():
-            return q
-    return p.with_name(p.name + ".png")
+    if not p.is_file() and p.suffix.lower() not in IMAGE_EXTS:
+        for ext in IMAGE_EXTS + tuple(e.upper() for e in IMAGE_EXTS):
+            q = p.with_name(p.name + ext)
+            if q.is_file():
+                return q
+        p = p.with_name(p.name + ".png")
+    if not p.is_file():
+        flat = base / "images" / p.name
+        if flat.is_file():
+            return flat
+    return p
 
 
 def camera_from_entry(d: dict, size: tuple[int, int], where: str) -> Camera:

@@ -17,7 +17,7 @@ import numpy as np
 from gs2e.io.scene import Camera
 
 # Source layouts gs2e ingest reads (see gs2e.io.ingest).
-LAYOUTS = ("demo", "internal", "folder", "colmap", "mvimgnet", "dl3dv", "nerf", "ecd")
+LAYOUTS = ("demo", "internal", "folder", "colmap", "mvimgnet", "dl3dv", "nerf", "ecd", "llff", "projection")
 
 
 @dataclass
