@@ -166,16 +166,6 @@ def uniform_open(state):
     return state, (float(z >> _S11) + 0.5) * _INV53
 
 
-@njit(cache=True)
-def normal_pair(state):
-    """Two independent standard normals (Box-Muller)."""
-    state, u1 = uniform_open(state)
-    state, u2 = uniform_open(state)
-    r = math.sqrt(-2.0 * math.log(u1))
-    a = _TWO_PI * u2
-    return state, r * math.cos(a), r * math.sin(a)
-
-
 def _ziggurat_tables(n=256, r=3.6541528853610088, v=0.00492867323399):
     """Marsaglia-Tsang ziggurat tables for the standard normal, 52-bit version
     (layer i spans x in [0, w_i 2^52]; fast acceptance if |draw| < k_i)."""
@@ -326,22 +316,6 @@ def poisson_small(state, lam):
 
 
 @njit(cache=True)
-def normal_polar(state):
-    """Marsaglia polar method: returns (state, n1^2, n2) with n1, n2 independent
-    standard normals (n1 only squared, which saves a sqrt)."""
-    while True:
-        state, u = uniform_open(state)
-        state, w = uniform_open(state)
-        u = 2.0 * u - 1.0
-        w = 2.0 * w - 1.0
-        s = u * u + w * w
-        if s < 1.0 and s > 0.0:
-            break
-    f = -2.0 * math.log(s) / s
-    return state, u * u * f, w * math.sqrt(f)
-
-
-@njit(cache=True)
 def _n_images(var, w):
     """Image terms per side needed for series with exponents ~ -k^2 w^2 / var."""
     return 3 + int(math.sqrt(max(var, 0.0)) / w * 6.0)
@@ -429,12 +403,16 @@ def tile_box(t, tiles_x, tile, H, W):
 def _voltmeter_slot(sl, batch, grid, params, state_in, state_out, slots):
     """Slot ``sl`` of :func:`voltmeter_tiles`; returns its number of capped
     pixel-intervals."""
-    btiles, boff, t0_us, t1_us, key_idx, lum = batch
-    H, W, tile = grid
-    scale, seed, k, tu_us, th_on, th_off, refractory_us, max_events_px, two_barrier = params
-    prev_in, res_in, ready_in = state_in
-    prev_out, res_out, ready_out = state_out
-    cap, ev_t, ev_x, ev_y, ev_p, fn = slots
+    # fields by name: a field added to a tuple cannot shift the others
+    btiles, boff, t0_us, t1_us, lum = batch.tiles, batch.offsets, batch.t0_us, batch.t1_us, batch.lum
+    key_idx = batch.key_idx
+    H, W, tile = grid.height, grid.width, grid.tile
+    scale, seed, k, tu_us = params.intensity_scale, params.seed, params.k, params.time_unit_us
+    th_on, th_off, refractory_us = params.theta_on, params.theta_off, params.refractory_us
+    max_events_px, two_barrier = params.max_events_px, params.two_barrier
+    prev_in, res_in, ready_in = state_in.prev, state_in.a, state_in.b
+    prev_out, res_out, ready_out = state_out.prev, state_out.a, state_out.b
+    cap, ev_t, ev_x, ev_y, ev_p, fn = slots.cap, slots.t, slots.x, slots.y, slots.p, slots.counts
     tiles_x = (W + tile - 1) // tile
     k1, k2, k3, k4, k5, k6 = k[0], k[1], k[2], k[3], k[4], k[5]
     capped = 0
@@ -671,12 +649,14 @@ def ideal_tiles(batch, grid, params, state_in, state_out, slots):
     within ``refractory_us`` of the previous emitted one is dropped but the
     reference still advances (as ESIM).
     """
-    btiles, boff, t0_us, t1_us, _, lum = batch
-    H, W, tile = grid
-    log_eps, th_on, th_off, refractory_us, max_events_px = params
-    prev_in, ref_in, last_in = state_in
-    prev_out, ref_out, last_out = state_out
-    cap, ev_t, ev_x, ev_y, ev_p, fn = slots
+    # fields by name: a field added to a tuple cannot shift the others
+    btiles, boff, t0_us, t1_us, lum = batch.tiles, batch.offsets, batch.t0_us, batch.t1_us, batch.lum
+    H, W, tile = grid.height, grid.width, grid.tile
+    log_eps, th_on, th_off = params.log_eps, params.theta_on, params.theta_off
+    refractory_us, max_events_px = params.refractory_us, params.max_events_px
+    prev_in, ref_in, last_in = state_in.prev, state_in.a, state_in.b
+    prev_out, ref_out, last_out = state_out.prev, state_out.a, state_out.b
+    cap, ev_t, ev_x, ev_y, ev_p, fn = slots.cap, slots.t, slots.x, slots.y, slots.p, slots.counts
     m = btiles.shape[0]
     tiles_x = (W + tile - 1) // tile
     capped = np.zeros(m, np.int64)
@@ -781,10 +761,12 @@ def _poisson(state, lam):
 def _noise_slot(sl, batch, grid, prev, params, slots):
     """Noise events of one slot of :func:`noise_tiles` (counted in a first
     pass, written interval by interval in a second over the same draws)."""
-    btiles, boff, t0_us, t1_us, _, lum = batch
-    H, W, tile = grid
-    seed, leak_rate_hz, shot_rate_hz, shot_on_fraction, block_us = params
-    cap, ev_t, ev_x, ev_y, ev_p, fn = slots
+    # fields by name: a field added to a tuple cannot shift the others
+    btiles, boff, t0_us, t1_us, lum = batch.tiles, batch.offsets, batch.t0_us, batch.t1_us, batch.lum
+    H, W, tile = grid.height, grid.width, grid.tile
+    seed, leak_rate_hz, shot_rate_hz = params.seed, params.leak_rate_hz, params.shot_rate_hz
+    shot_on_fraction, block_us = params.shot_on_fraction, params.block_us
+    cap, ev_t, ev_x, ev_y, ev_p, fn = slots.cap, slots.t, slots.x, slots.y, slots.p, slots.counts
     base = sl * cap
     tiles_x = (W + tile - 1) // tile
     y0, y1, x0, x1 = tile_box(btiles[sl], tiles_x, tile, H, W)
@@ -878,7 +860,7 @@ def noise_tiles(batch, grid, prev, params, slots):
 @njit(cache=True, parallel=True, nogil=True)
 def commit_tiles(tiles, grid, src, dst):
     """``dst`` = ``src`` (:class:`PixelState`) on the pixels of ``tiles``."""
-    H, W, tile = grid
+    H, W, tile = grid.height, grid.width, grid.tile
     src_a, src_b, src_c = src
     dst_a, dst_b, dst_c = dst
     tiles_x = (W + tile - 1) // tile
@@ -899,7 +881,7 @@ def gather_tiles(batch, signal, noise, out_t, out_x, out_y, out_p):
     the float offset from the interval start rounded to the nearest
     microsecond and clamped to the interval. p becomes 1 (ON) / 0 (OFF).
     Returns the count."""
-    _, boff, t0_us, t1_us, _, _ = batch
+    boff, t0_us, t1_us = batch.offsets, batch.t0_us, batch.t1_us
     cap, ev_t, ev_x, ev_y, ev_p, fn = signal
     noise_cap, nz_t, nz_x, nz_y, nz_p, fn_noise = noise
     m = boff.shape[0] - 1
