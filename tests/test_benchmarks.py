@@ -164,3 +164,26 @@ def test_csv_rows_may_have_different_fields(tmp_path, monkeypatch):
     assert list(rows[0]) == ["a", "b", "c", "d"]
     assert [(r["a"], r["b"], r["c"], r["d"]) for r in rows] == [("1", "2", "", ""), ("3", "", "4", ""),
                                                                 ("", "", "", "5")]
+
+
+# Scripts whose --quick run needs what this machine may lack (a GPU, the official
+# DVS-Voltmeter or other packages of the bench extra), with the reason.
+QUICK_NEEDS = {"bench_events_gpu": "a CUDA device", "bench_backend": "a CUDA device (gsplat)"}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("script", SCRIPTS, ids=lambda p: p.stem)
+def test_quick_run(script):
+    """Every benchmark's --quick run ends with its headline (make bench runs
+    them all). Slow tier: the first quick runs that need trained models build
+    them through the workflow (cached under benchmarks/results/)."""
+    proc = subprocess.run([sys.executable, str(script), "--quick"], capture_output=True, text=True,
+                          cwd=REPO, env={**os.environ, "GS2E_PROGRESS": "0"}, timeout=4 * 3600)
+    assert proc.returncode == 0, (proc.stdout + proc.stderr)[-3000:]
+    if script.stem in QUICK_NEEDS:
+        import torch
+
+        if not torch.cuda.is_available():
+            return  # it says why it measured nothing, and exits 0
+    last = proc.stdout.strip().splitlines()[-1]
+    assert last.endswith("]") and "CPUs" in last, last
