@@ -214,3 +214,59 @@ def test_dsec_png_round_trip_and_channel_order(tmp_path):
     # DSEC's own decoding of one pixel: (R - 2^15) / 128
     i, j = np.argwhere(fits)[0]
     assert (int(rgb[i, j, 0]) - 2 ** 15) / 128 == pytest.approx(flow[i, j, 0], abs=0.5 / 128)
+
+
+def test_depth_at_a_time_between_frames_by_reprojection():
+    """A tilted plane: the depth at an intermediate pose found from either
+    frame equals the plane's own (per-pixel poses too); where the nearer frame
+    does not show the point (off its image), the other one gives it."""
+    from gs2e.groundtruth.flow import depth_at_time, depth_by_reprojection
+
+    n_w = np.array([0.2, -0.3, 1.0]) / np.linalg.norm([0.2, -0.3, 1.0])
+    d_w = 4.0
+    a = look_at(np.array([0.3, -0.2, -2.0]), target=(0.1, 0.2, 4.0), up=(0, -1, 0))
+    b = a.copy()
+    b[:3, :3] = _rot([0.3, 1.0, -0.2], 0.08) @ a[:3, :3]
+    b[:3, 3] += [0.4, -0.1, 0.2]
+    t = a.copy()
+    t[:3, :3] = _rot([0.3, 1.0, -0.2], 0.03) @ a[:3, :3]
+    t[:3, 3] += [0.15, -0.04, 0.07]
+    za, zb, zt = _plane_depth(a, n_w, d_w), _plane_depth(b, n_w, d_w), _plane_depth(t, n_w, d_w)
+    u, v = pixel_centres(W, H)
+    got = depth_by_reprojection(u, v, K, t, a, za, za)
+    inside = np.isfinite(got)
+    # exact up to the sampler's 1/32 px positions (and float32 inverse depth)
+    assert inside.mean() > 0.8 and np.abs(got[inside] / zt[inside] - 1).max() < 2e-4
+    both = depth_at_time(u, v, K, np.broadcast_to(t, (H, W, 4, 4)), np.full((H, W), 0.4), (a, za), (b, zb))
+    assert np.isfinite(both).mean() >= inside.mean()
+    ok = np.isfinite(both)
+    assert np.abs(both[ok] / zt[ok] - 1).max() < 2e-4
+
+
+def test_reprojection_refuses_what_the_frame_does_not_show():
+    """The box before the wall: pixels of the camera at t that see wall the
+    box hides in frame a get NaN from a (frame b, which shows it, answers)."""
+    from gs2e.groundtruth.flow import depth_by_reprojection
+
+    u, v = pixel_centres(W, H)
+
+    def depth(x_cam):
+        x_box = (u - K[0, 2]) / K[0, 0] * 2.0 + x_cam
+        y_box = (v - K[1, 2]) / K[1, 1] * 2.0
+        return np.where((np.abs(x_box) <= 0.4) & (np.abs(y_box) <= 0.4), 2.0, 6.0)
+
+    a, t = np.eye(4), np.eye(4)
+    t[0, 3] = 0.3
+    za, zt = depth(0.0), depth(0.3)
+    got = depth_by_reprojection(u, v, K, t, a, za, za)
+    ok = np.isfinite(got)
+    # exact away from the box's edge (bilinear samples there mix the two depths)
+    import cv2
+
+    edge = cv2.dilate((np.abs(np.diff(zt, axis=1, prepend=zt[:, :1])) > 0).astype(np.uint8)
+                      | (np.abs(np.diff(zt, axis=0, prepend=zt[:1])) > 0).astype(np.uint8), np.ones((5, 5)))
+    clean = ok & ~edge.astype(bool)
+    assert clean.sum() > 0.5 * ok.size and np.abs(got[clean] - zt[clean]).max() < 1e-6
+    assert (np.abs(got[ok] - zt[ok]) > 1e-3).sum() <= 2 * H  # a column of pixels at most
+    # some of t's wall pixels hide behind the box in a: refused, not given the box's depth
+    assert (~ok & (zt == 6.0)).sum() > 5

@@ -19,11 +19,10 @@
 Flow comes from the rendered depth and the trajectory's exact poses
 (displacement between frames) and velocities (instantaneous flow):
 :mod:`gs2e.groundtruth.flow`. Per-event flow is the motion field at the
-event's pixel and time with the trajectory's exact velocity there and the
-depth interpolated in time between the two frames around the event; it is
-valid where both frames are opaque at that pixel and their depths agree
-within ``flow_event_depth_tolerance`` (no depth edge passes the pixel in
-between).
+event's pixel and time with the trajectory's exact pose and velocity there
+and the depth reprojected from the nearer of the two frames around the event
+(:func:`gs2e.groundtruth.flow.depth_at_time`); it is valid where a frame
+shows the surface the event's pixel sees at its time.
 """
 
 from __future__ import annotations
@@ -31,8 +30,8 @@ from __future__ import annotations
 import numpy as np
 
 from gs2e.export.common import ExportOut
-from gs2e.groundtruth.flow import (FlowSettings, encode_dsec_png, flow_pair, motion_field,
-                                   motion_field_at, surface_depth)
+from gs2e.groundtruth.flow import (FlowSettings, depth_at_time, encode_dsec_png, flow_pair,
+                                   motion_field, motion_field_at, surface_depth)
 
 EVENT_CHUNK = 500_000
 
@@ -139,7 +138,6 @@ def _event_flow(src, out: ExportOut, cfg: dict, st: FlowSettings, mpu: float, t_
     from gs2e.events.io import h5_compression
 
     comp = h5_compression("blosc")
-    tol = float(cfg["flow_event_depth_tolerance"])
     ev = src.events()
     M = len(ev)
     K = src.K(0)
@@ -158,7 +156,7 @@ def _event_flow(src, out: ExportOut, cfg: dict, st: FlowSettings, mpu: float, t_
         d_depth = f.create_dataset("depth_m", (M,), "f4", **c)
         d_valid = f.create_dataset("valid", (M,), "u1", **c)
         f.create_dataset("t_us", data=ev.t, **(comp if M else {}))
-        f.attrs.update({"events_file": "events.h5", "n_events": M, "tolerance": tol,
+        f.attrs.update({"events_file": "events.h5", "n_events": M,
                         "conventions": "row k: the k-th event of events.h5; flow in px/s at the "
                                        "event's time and pixel centre; NaN where not valid"})
         for a in range(0, M, EVENT_CHUNK):
@@ -168,12 +166,12 @@ def _event_flow(src, out: ExportOut, cfg: dict, st: FlowSettings, mpu: float, t_
             # the frames around each event: t_frames[k] <= t < t_frames[k + 1]
             k = np.clip(np.searchsorted(t_frames, te, side="right") - 1, 0, len(t_frames) - 2)
             z = np.full(b - a, np.nan)
+            poses = src.trajectory.pose_at(te.astype(np.float64))
             for i in (np.unique(k) if len(t_frames) > 1 else ()):  # one frame: no depth over time
                 m = k == i
-                z0, z1 = z_of(int(i))[y[m], x[m]], z_of(int(i) + 1)[y[m], x[m]]
                 w = (te[m] - t_frames[i]) / float(t_frames[i + 1] - t_frames[i])
-                agree = np.abs(z1 - z0) <= tol * np.minimum(z0, z1)
-                z[m] = np.where(agree, z0 + (z1 - z0) * w, np.nan)
+                fa, fb = (src.c2w([int(i)])[0], z_of(int(i))), (src.c2w([int(i) + 1])[0], z_of(int(i) + 1))
+                z[m] = depth_at_time(x[m] + 0.5, y[m] + 0.5, K, poses[m], w, fa, fb)
             v_c, w_c = camera_velocities(src, te)
             flow = motion_field_at(x + 0.5, y + 0.5, z, K, v_c, w_c)
             ok = np.isfinite(z)

@@ -219,6 +219,80 @@ def flow_pair(depth_a: np.ndarray, alpha_a: np.ndarray, depth_b: np.ndarray, alp
     return FlowPair(fw, bw, ok_f, ok_b)
 
 
+def depth_by_reprojection(u: np.ndarray, v: np.ndarray, K: np.ndarray, c2w_t: np.ndarray,
+                          c2w_f: np.ndarray, depth_f: np.ndarray, z0: np.ndarray,
+                          iters: int = 6, tol: float = 0.01) -> np.ndarray:
+    """The depth at pixels (u, v) (coordinates (...), centres at +0.5) of the
+    camera at some time t, from a rendered frame f's surface depth (H, W)
+    (NaN where none) and both exact poses, for a static scene: c2w_t (4, 4),
+    or (..., 4, 4) one pose per pixel (events at their own times).
+
+    A fixed point on z from the guess ``z0``: the point at depth z along the
+    pixel's ray projects into frame f at p_f; the surface there (bilinear in
+    inverse depth, exact across a plane, at positions rounded to 1/32 px by
+    :func:`sample_bilinear`) is the point X'; z becomes X''s depth in camera t. Where after
+    ``iters`` steps X' and the ray's point disagree by more than ``tol`` of
+    their depth in f, the pixel sees at t what f does not show there (an
+    occlusion, or the guess converged nowhere): NaN. On the demo at 8 times
+    between frames against the depth rendered there (benchmarks/
+    bench_groundtruth.py), it puts the motion field within 0.3 / 0.8 / 1.6 %
+    (median) of the rendered depth's at mild / medium / strong, and keeps 99 /
+    98 / 91 % of the pixels, where depth linear in time between the two frames
+    at the same pixel had 0.8 / 2.4 / 4.9 % and kept 84 / 64 / 38 %. Sampled
+    positions beyond frame f's outer pixel centres are not extrapolated (NaN).
+    """
+    u, v = np.asarray(u, np.float64), np.asarray(v, np.float64)
+    z = np.asarray(z0, np.float64).copy()
+    ray = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1)
+    c2w_t = np.asarray(c2w_t, np.float64)
+    Rf = np.asarray(c2w_f, np.float64)[:3, :3]
+    R_ft = np.einsum("ji,...jk->...ik", Rf, c2w_t[..., :3, :3])        # camera t -> camera f
+    t_ft = (c2w_t[..., :3, 3] - c2w_f[:3, 3]) @ Rf
+    R_tf = np.swapaxes(R_ft, -1, -2)                                   # camera f -> camera t
+    t_tf = -np.einsum("...ij,...j->...i", R_tf, t_ft)
+    with np.errstate(divide="ignore"):  # inverse depth: affine across a plane's image, so bilinear is exact
+        img = 1.0 / np.asarray(depth_f, np.float64)[..., None]
+    ok = np.isfinite(z)
+    for _ in range(iters):
+        Xf = np.einsum("...ij,...j->...i", R_ft, ray * z[..., None]) + t_ft  # the ray's point, in f
+        with np.errstate(divide="ignore", invalid="ignore"):
+            pu = K[0, 0] * Xf[..., 0] / Xf[..., 2] + K[0, 2]
+            pv = K[1, 1] * Xf[..., 1] / Xf[..., 2] + K[1, 2]
+        Hf, Wf = img.shape[:2]
+        centres = (pu >= 0.5) & (pu <= Wf - 0.5) & (pv >= 0.5) & (pv <= Hf - 0.5)  # no extrapolation
+        with np.errstate(divide="ignore"):
+            Zf = np.where(centres, 1.0 / sample_bilinear(img, pu, pv)[..., 0], np.nan)
+        Xs = np.stack([(pu - K[0, 2]) / K[0, 0], (pv - K[1, 2]) / K[1, 1], np.ones_like(pu)], -1) * Zf[..., None]
+        z_new = (np.einsum("...ij,...j->...i", R_tf, Xs) + t_tf)[..., 2]
+        ok = np.isfinite(z_new) & (Xf[..., 2] > 0)
+        z = np.where(ok, z_new, np.nan)
+    with np.errstate(invalid="ignore"):
+        agree = np.abs(Zf - Xf[..., 2]) <= tol * Zf
+    return np.where(ok & agree, z, np.nan)
+
+
+def depth_at_time(u: np.ndarray, v: np.ndarray, K: np.ndarray, c2w_t: np.ndarray, w: np.ndarray,
+                  frame_a: tuple[np.ndarray, np.ndarray], frame_b: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Depth at pixels (u, v) at times between two rendered frames a and b
+    (each (c2w (4, 4), surface depth (H, W))), w in [0, 1] the times' share
+    of the interval: :func:`depth_by_reprojection` from the nearer frame, else
+    from the other; each guess starts at that frame's depth at the pixel."""
+    iu = np.clip(np.floor(np.asarray(u)).astype(np.int64), 0, frame_a[1].shape[1] - 1)
+    iv = np.clip(np.floor(np.asarray(v)).astype(np.int64), 0, frame_a[1].shape[0] - 1)
+    near_a = np.asarray(w) < 0.5
+    out = np.full(np.shape(u), np.nan)
+    for first, second, sel in ((frame_a, frame_b, near_a), (frame_b, frame_a, ~near_a)):
+        if not np.any(sel):
+            continue
+        g1 = np.where(np.isfinite(first[1][iv, iu]), first[1][iv, iu], second[1][iv, iu])[sel]
+        g2 = np.where(np.isfinite(second[1][iv, iu]), second[1][iv, iu], first[1][iv, iu])[sel]
+        pose = c2w_t if np.ndim(c2w_t) == 2 else np.asarray(c2w_t)[sel]
+        z1 = depth_by_reprojection(np.asarray(u)[sel], np.asarray(v)[sel], K, pose, first[0], first[1], g1)
+        z2 = depth_by_reprojection(np.asarray(u)[sel], np.asarray(v)[sel], K, pose, second[0], second[1], g2)
+        out[sel] = np.where(np.isfinite(z1), z1, z2)
+    return out
+
+
 def encode_dsec_png(flow: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """DSEC's 16-bit flow image (H, W, 3) uint16 in RGB order (R = dx, G = dy,
     B = valid) from flow (H, W, 2) px and validity (H, W). Flow is rounded to
