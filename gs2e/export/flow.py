@@ -61,7 +61,6 @@ def export_flow(src, out: ExportOut, cfg: dict) -> None:
     from gs2e.events.io import h5_compression
 
     comp = h5_compression("blosc")
-
     st = FlowSettings()
     mpu = float(cfg["metres_per_unit"])
     t = src.frames["t_us"].to_numpy().astype(np.int64)
@@ -118,7 +117,7 @@ def export_flow(src, out: ExportOut, cfg: dict) -> None:
     out.text("backward_timestamps.txt", header + "".join(f"{b}, {a}\n" for a, b in zip(t[:-1], t[1:])))
     n_events = None
     if cfg["flow_per_event"]:
-        n_events = _event_flow(src, out, cfg, st, mpu, t)
+        n_events = _event_flow(src, out, st, mpu, t)
     out.manifest.update({
         "target": "optical flow, depth and per-event flow ground truth (DSEC PNG + HDF5)",
         "time": "t_us: absolute trajectory microseconds (events.h5 t + t_offset)",
@@ -130,7 +129,7 @@ def export_flow(src, out: ExportOut, cfg: dict) -> None:
         "n_events_with_flow": n_events})
 
 
-def _event_flow(src, out: ExportOut, cfg: dict, st: FlowSettings, mpu: float, t_frames: np.ndarray) -> int:
+def _event_flow(src, out: ExportOut, st: FlowSettings, mpu: float, t_frames: np.ndarray) -> int:
     """Per-event flow and depth into event_flow.h5 (module docstring); returns
     the event count."""
     import h5py
