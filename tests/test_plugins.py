@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import REPO, run_snakemake
+from tests.conftest import REPO
 
 TOY = '''
 """A gs2e plug-in: one of each kind."""
