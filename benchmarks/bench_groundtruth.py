@@ -86,6 +86,7 @@ def warp_and_valid(scene_dir: Path, traj: str) -> dict:
     """Pooled warp errors and the valid share of opaque pixels of one trajectory
     (module docstring), from its flow export."""
     import h5py
+    import hdf5plugin  # noqa: F401  (flow.h5 is Blosc-compressed, as events.h5)
 
     from gs2e.export.source import TrajectorySource
     from gs2e.groundtruth.flow import pixel_centres, sample_bilinear

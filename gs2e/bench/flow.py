@@ -9,8 +9,9 @@ warped events (IWE: bilinear votes, Gaussian-smoothed) is sharpest: its
 variance is largest. :func:`contrast_maximisation` finds a d per patch
 (all patches at once: each patch votes into its own canvas of a mosaic, so
 one smoothing serves every patch and candidate), coarse to fine in time, and
-interpolates the patches' flows to every pixel. Patches with too few events
-take the others' median. No parameter comes from the ground truth.
+median-filters the patches' flows over their neighbours and interpolates
+them to every pixel; isolated events are dropped first, patches with too few
+events take the others' median. No parameter comes from the ground truth.
 """
 
 from __future__ import annotations
@@ -25,6 +26,9 @@ import numpy as np
 class CMSettings:
     """patch_px : side of the patches that get a flow of their own (px).
     min_events : a patch with fewer events takes the median flow of the others.
+    min_support : an event counts only if the window holds at least this many
+        events in its 3 x 3 pixel neighbourhood, itself included (a
+        background-activity filter: isolated noise events sharpen nothing).
     max_events : events used per sub-window (an evenly strided subset beyond).
     max_flow_fraction : flows up to this fraction of the image's longer side
         over the window are searched for.
@@ -36,10 +40,19 @@ class CMSettings:
         px there): 0.5 = 2 px. On the demo's DVS-Voltmeter events, 1.0 was
         more accurate at medium and strong but worse than zero flow at mild,
         at 2.4x the CPU (15 windows, 2026-11-29).
+
+    The patches' flows are median-filtered over their 3 x 3 neighbours: a
+    patch of little texture (or noise) finds a wrong sharpest warp on its own.
+    On 18 DAVIS346 windows of four scenes (demo, mouse_colmap, temple_ring,
+    llff_fern at mild to strong; DVS-Voltmeter with the davis346 noise), 32 px
+    patches without the filter lost to zero flow on two of six cases
+    (mouse_colmap mild 14.4 against 9.6 px); 64 px patches with the filter and
+    the support rule beat it on all six, at 0.36x the CPU (2026-11-29).
     """
 
-    patch_px: int = 32
+    patch_px: int = 64
     min_events: int = 30
+    min_support: int = 3
     max_events: int = 10000
     max_flow_fraction: float = 0.5
     start_px: float = 12.0
@@ -148,9 +161,19 @@ def contrast_maximisation(x: np.ndarray, y: np.ndarray, t_us: np.ndarray, t0_us:
 
     if len(x) == 0 or t1_us <= t0_us:
         return np.zeros((height, width, 2))
-    x = np.asarray(x, np.float64) + 0.5
-    y = np.asarray(y, np.float64) + 0.5
-    s = (np.asarray(t_us, np.float64) - t0_us) / float(t1_us - t0_us) - 0.5
+    x, y, t_us = np.asarray(x), np.asarray(y), np.asarray(t_us)
+    if st.min_support > 1:  # drop isolated events (background activity)
+        cnt = np.zeros((height + 2, width + 2), np.int32)
+        np.add.at(cnt, (y.astype(np.int64) + 1, x.astype(np.int64) + 1), 1)
+        box = cv2.boxFilter(cnt.astype(np.float32), -1, (3, 3), normalize=False,
+                            borderType=cv2.BORDER_CONSTANT)
+        keep = box[y.astype(np.int64) + 1, x.astype(np.int64) + 1] >= st.min_support
+        x, y, t_us = x[keep], y[keep], t_us[keep]
+        if len(x) == 0:
+            return np.zeros((height, width, 2))
+    x = x.astype(np.float64) + 0.5
+    y = y.astype(np.float64) + 0.5
+    s = (t_us.astype(np.float64) - t0_us) / float(t1_us - t0_us) - 0.5
     R = st.max_flow_fraction * max(width, height)
     levels = max(0, int(math.ceil(math.log2(R / st.start_px))))
     d = None
@@ -169,7 +192,11 @@ def contrast_maximisation(x: np.ndarray, y: np.ndarray, t_us: np.ndarray, t0_us:
     if few.all():
         return np.zeros((height, width, 2))
     d[few] = np.median(d[~few], axis=0)
-    grid = d.reshape(pts.rows, pts.cols, 2).astype(np.float32)
+    from scipy.ndimage import median_filter
+
+    grid = d.reshape(pts.rows, pts.cols, 2)
+    grid = np.stack([median_filter(grid[..., c], size=3, mode="nearest") for c in range(2)], -1)
+    grid = grid.astype(np.float32)
     # patch centres to pixels (bilinear; constant beyond the outer centres)
     P = st.patch_px
     dense = cv2.resize(grid, (pts.cols * P, pts.rows * P), interpolation=cv2.INTER_LINEAR)
