@@ -512,7 +512,8 @@ def ingest_scene(src: str | os.PathLike, layout: str, out_dir: str | os.PathLike
             "output_size": list(out_size),
             "main_size_views": sum(tuple(o) == tuple(out_size) for o in out_sizes),
             "config": cfg,
-            "exif_orientation": {k: v for k, v in exif.items() if v},
+            # (only where EXIF turned or kept a view: other scenes' files keep their bytes)
+            **({"exif_orientation": {k: v for k, v in exif.items() if v}} if any(exif.values()) else {}),
         }
         scene = Scene(out_size[0], out_size[1], frames, layout, str(src),
                       source.points_xyz, source.points_rgb, with_frame_sizes(extra, out_sizes, out_size))
