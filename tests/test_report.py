@@ -189,7 +189,7 @@ def test_report_of_synthetic_tree_shows_sections_images_and_missing(tmp_path):
     text = build_report(res, timings=timings)
     doc = _Parsed(text)
     assert doc.h2 == ["Dataset overview", "Speed against error (training)",
-                      "Benchmark: deblurring, video and 3D reconstruction", "Real recording",
+                      "Benchmark: deblurring, video and 3D reconstruction, optical flow", "Real recording",
                       "Scene a", "Scene b"]
     assert doc.h3.count("Event statistics") == 2 and doc.h3.count("Thumbnails") == 2
     # a: speed-error, costs, event stats, sharp + blur thumbnails, preview; b: nothing
@@ -292,3 +292,26 @@ def test_workflow_builds_report_and_snakemake_report(tiny_pipeline, tmp_path):
     bad = run_snakemake(*args[:-1], args[-1], "metrics={real_events: no/such.aedat4}", "-n")
     msg = bad.stdout + bad.stderr
     assert bad.returncode != 0 and "metrics.real_events: no/such.aedat4 does not exist" in msg
+
+
+def test_bench_table_shows_flow_as_endpoint_error():
+    """The flow task's cells are "AEE px / share over 3 px", the others'
+    "PSNR / SSIM"."""
+    import math
+
+    import pandas as pd
+
+    from gs2e.report.build import bench_tables
+
+    rows = []
+    for task, method, v in (("flow", "zero", 5.0), ("flow", "contrast_max", 2.5), ("video", "integrate", 20.0)):
+        for sp in ("mild", "strong"):
+            rows.append({"scene_id": "a", "trajectory": f"base_{sp}", "preset": sp, "task": task,
+                         "model": "ideal", "method": method, "psnr": math.nan if task == "flow" else v,
+                         "ssim": math.nan if task == "flow" else 0.5, "motion_px_median": 1.0,
+                         "aee_px": v if task == "flow" else math.nan,
+                         "out_3px": 0.25 if task == "flow" else math.nan})
+    tabs = bench_tables(pd.DataFrame(rows))
+    flow = tabs["flow"].set_index("method")
+    assert flow.loc["contrast_max", "mild"] == "2.50 px / 25.0%"
+    assert tabs["video"].set_index("method").loc["integrate", "strong"] == "20.00 / 0.500"
