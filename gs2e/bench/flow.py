@@ -163,11 +163,10 @@ def contrast_maximisation(x: np.ndarray, y: np.ndarray, t_us: np.ndarray, t0_us:
         return np.zeros((height, width, 2))
     x, y, t_us = np.asarray(x), np.asarray(y), np.asarray(t_us)
     if st.min_support > 1:  # drop isolated events (background activity)
-        cnt = np.zeros((height + 2, width + 2), np.int32)
-        np.add.at(cnt, (y.astype(np.int64) + 1, x.astype(np.int64) + 1), 1)
-        box = cv2.boxFilter(cnt.astype(np.float32), -1, (3, 3), normalize=False,
-                            borderType=cv2.BORDER_CONSTANT)
-        keep = box[y.astype(np.int64) + 1, x.astype(np.int64) + 1] >= st.min_support
+        pix = y.astype(np.int64) * width + x.astype(np.int64)
+        cnt = np.bincount(pix, minlength=height * width).astype(np.float32).reshape(height, width)
+        box = cv2.boxFilter(cnt, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
+        keep = box.reshape(-1)[pix] >= st.min_support
         x, y, t_us = x[keep], y[keep], t_us[keep]
         if len(x) == 0:
             return np.zeros((height, width, 2))

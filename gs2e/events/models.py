@@ -75,7 +75,7 @@ from typing import Iterable, Iterator
 import numpy as np
 
 from gs2e.common.errors import InputError, ConfigError
-from gs2e.common.registry import PluginRegistry
+from gs2e.common.registry import PluginRegistry, add
 from gs2e.events import _kernels as K
 from gs2e.events.presets import Preset, effective_threshold, get_preset
 from gs2e.events.sensors import resolve_noise
@@ -733,8 +733,7 @@ def register_model(cls: type[_StreamingModel]) -> type[_StreamingModel]:
     workflow also add the name to the schema's ``events.model`` enum."""
     if not cls.name:
         raise ValueError(f"{cls.__name__}: an event model needs a name")
-    dict.__setitem__(MODELS, cls.name, cls)  # (a registry's read would load the plug-ins)
-    return cls
+    return add(MODELS, cls.name, cls, "event model")
 
 
 def model_class(name: str) -> type[_StreamingModel]:

@@ -25,7 +25,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gs2e.common.errors import ConfigError
 from gs2e.export.common import ExportOut
 from gs2e.groundtruth.imu import (ImuNoise, add_noise, gravity_from_poses, ideal_imu, imu_noise,
                                   imu_times_us)
@@ -45,11 +44,9 @@ class ImuSettings:
 
 
 def imu_settings(cfg: dict) -> ImuSettings:
+    """The ``export`` section (as :func:`gs2e.config.load_section` returns it:
+    T_cam_imu and gravity already checked there) resolved."""
     T = np.eye(4) if cfg["imu_T_cam_imu"] is None else np.asarray(cfg["imu_T_cam_imu"], np.float64)
-    R = T[:3, :3]
-    if T.shape != (4, 4) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0 \
-            or not np.allclose(T[3], [0, 0, 0, 1]):
-        raise ConfigError("export.imu_T_cam_imu: not a rigid transform (4x4, proper rotation, last row 0 0 0 1)")
     g = cfg["imu_gravity"]
     return ImuSettings(float(cfg["imu_rate_hz"]), imu_noise(cfg["imu_preset"]), cfg["imu_preset"],
                        g if isinstance(g, str) else tuple(float(v) for v in g), T,
@@ -173,14 +170,24 @@ def continuity_note(out: ExportOut, rd: ImuReadings) -> None:
                  f"acceleration {c['accel_rms_m_s2']:.3g} m/s^2), and the accelerometer with it")
 
 
+def topic_prefix(cfg: dict) -> str:
+    """``export.rosbag_topic_prefix`` without a trailing slash."""
+    return cfg["rosbag_topic_prefix"].rstrip("/")
+
+
+def write_kalibr(src, out: ExportOut, st: ImuSettings, rd: ImuReadings, prefix: str) -> None:
+    """Kalibr's imu.yaml and camchain.yaml (topics under ``prefix``) and the
+    continuity note: what formats imu and rosbag write alike."""
+    out.text("imu.yaml", kalibr_imu_yaml(st, f"{prefix}/imu"))
+    out.text("camchain.yaml", kalibr_camchain_yaml(src.K(0), src.width, src.height, st, f"{prefix}/image_raw"))
+    continuity_note(out, rd)
+
+
 def export_imu(src, out: ExportOut, cfg: dict, seed: int = 0) -> None:
     st = imu_settings(cfg)
     rd = imu_readings(src.trajectory, st, seed)
     write_imu(out, rd, st)
-    topic = cfg["rosbag_topic_prefix"]
-    out.text("imu.yaml", kalibr_imu_yaml(st, f"{topic}/imu"))
-    out.text("camchain.yaml", kalibr_camchain_yaml(src.K(0), src.width, src.height, st, f"{topic}/image_raw"))
-    continuity_note(out, rd)
+    write_kalibr(src, out, st, rd, topic_prefix(cfg))
     out.manifest.update({
         "target": "IMU (HDF5, EuRoC CSV) with Kalibr imu.yaml and camchain.yaml",
         "time": f"t_us: trajectory microseconds on the IMU's clock (offset {st.time_offset_us} us)",

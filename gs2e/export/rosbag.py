@@ -184,10 +184,10 @@ def _bag_streams(src, cfg: dict, seed: int, ts, ros: int, settings) -> tuple[dic
     """Connections to open (topic -> msgtype), one time-ordered stream per
     topic of (t_ns, topic, serialized bytes), and the IMU readings."""
     from gs2e.common.so3 import rotmat_to_quat
-    from gs2e.export.imu import imu_readings
+    from gs2e.export.imu import imu_readings, topic_prefix
 
     ser = ts.serialize_ros1 if ros == 1 else ts.serialize_cdr
-    prefix = cfg["rosbag_topic_prefix"].rstrip("/")
+    prefix = topic_prefix(cfg)
     W, H = src.width, src.height
     t_frames = src.frames["t_us"].to_numpy().astype(np.int64)
     K = src.K(0)
@@ -247,7 +247,7 @@ def _bag_streams(src, cfg: dict, seed: int, ts, ros: int, settings) -> tuple[dic
 def write_bag(src, out: ExportOut, cfg: dict, seed: int, ros: int) -> dict:
     """Write the bag (ROS 1 or 2) and the Kalibr files; returns per-topic
     message counts."""
-    from gs2e.export.imu import continuity_note, imu_settings, kalibr_camchain_yaml, kalibr_imu_yaml
+    from gs2e.export.imu import imu_settings, topic_prefix, write_kalibr
 
     st = imu_settings(cfg)
     ts = typestore(ros)
@@ -270,11 +270,7 @@ def write_bag(src, out: ExportOut, cfg: dict, seed: int, ros: int) -> dict:
         for t_ns, topic, data in heapq.merge(*streams, key=lambda m: m[0]):
             writer.write(conns[topic], t_ns, data)
             counts[topic] += 1
-    prefix = cfg["rosbag_topic_prefix"].rstrip("/")
-    out.text("imu.yaml", kalibr_imu_yaml(st, f"{prefix}/imu"))
-    out.text("camchain.yaml", kalibr_camchain_yaml(src.K(0), src.width, src.height, st,
-                                                   f"{prefix}/image_raw"))
-    continuity_note(out, rd)
+    write_kalibr(src, out, st, rd, topic_prefix(cfg))
     out.manifest.update({
         "target": ("ROS 1 bag" if ros == 1 else "ROS 2 bag (MCAP)") + ", Event Camera Dataset topics",
         "bag": path.name, "topics": topics, "messages": counts,

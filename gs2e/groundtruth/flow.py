@@ -252,13 +252,13 @@ def depth_by_reprojection(u: np.ndarray, v: np.ndarray, K: np.ndarray, c2w_t: np
     t_tf = -np.einsum("...ij,...j->...i", R_tf, t_ft)
     with np.errstate(divide="ignore"):  # inverse depth: affine across a plane's image, so bilinear is exact
         img = 1.0 / np.asarray(depth_f, np.float64)[..., None]
+    Hf, Wf = img.shape[:2]
     ok = np.isfinite(z)
     for _ in range(iters):
         Xf = np.einsum("...ij,...j->...i", R_ft, ray * z[..., None]) + t_ft  # the ray's point, in f
         with np.errstate(divide="ignore", invalid="ignore"):
             pu = K[0, 0] * Xf[..., 0] / Xf[..., 2] + K[0, 2]
             pv = K[1, 1] * Xf[..., 1] / Xf[..., 2] + K[1, 2]
-        Hf, Wf = img.shape[:2]
         centres = (pu >= 0.5) & (pu <= Wf - 0.5) & (pv >= 0.5) & (pv <= Hf - 0.5)  # no extrapolation
         with np.errstate(divide="ignore"):
             Zf = np.where(centres, 1.0 / sample_bilinear(img, pu, pv)[..., 0], np.nan)
@@ -277,19 +277,25 @@ def depth_at_time(u: np.ndarray, v: np.ndarray, K: np.ndarray, c2w_t: np.ndarray
     (each (c2w (4, 4), surface depth (H, W))), w in [0, 1] the times' share
     of the interval: :func:`depth_by_reprojection` from the nearer frame, else
     from the other; each guess starts at that frame's depth at the pixel."""
-    iu = np.clip(np.floor(np.asarray(u)).astype(np.int64), 0, frame_a[1].shape[1] - 1)
-    iv = np.clip(np.floor(np.asarray(v)).astype(np.int64), 0, frame_a[1].shape[0] - 1)
+    u, v = np.asarray(u, np.float64), np.asarray(v, np.float64)
+    iu = np.clip(np.floor(u).astype(np.int64), 0, frame_a[1].shape[1] - 1)
+    iv = np.clip(np.floor(v).astype(np.int64), 0, frame_a[1].shape[0] - 1)
+    za, zb = frame_a[1][iv, iu], frame_b[1][iv, iu]
+    guess_a, guess_b = np.where(np.isfinite(za), za, zb), np.where(np.isfinite(zb), zb, za)
     near_a = np.asarray(w) < 0.5
-    out = np.full(np.shape(u), np.nan)
-    for first, second, sel in ((frame_a, frame_b, near_a), (frame_b, frame_a, ~near_a)):
+    out = np.full(u.shape, np.nan)
+    for first, second, g1, g2, sel in ((frame_a, frame_b, guess_a, guess_b, near_a),
+                                       (frame_b, frame_a, guess_b, guess_a, ~near_a)):
         if not np.any(sel):
             continue
-        g1 = np.where(np.isfinite(first[1][iv, iu]), first[1][iv, iu], second[1][iv, iu])[sel]
-        g2 = np.where(np.isfinite(second[1][iv, iu]), second[1][iv, iu], first[1][iv, iu])[sel]
+        us, vs = u[sel], v[sel]
         pose = c2w_t if np.ndim(c2w_t) == 2 else np.asarray(c2w_t)[sel]
-        z1 = depth_by_reprojection(np.asarray(u)[sel], np.asarray(v)[sel], K, pose, first[0], first[1], g1)
-        z2 = depth_by_reprojection(np.asarray(u)[sel], np.asarray(v)[sel], K, pose, second[0], second[1], g2)
-        out[sel] = np.where(np.isfinite(z1), z1, z2)
+        z = depth_by_reprojection(us, vs, K, pose, first[0], first[1], g1[sel])
+        miss = ~np.isfinite(z)  # only these need the other frame
+        if np.any(miss):
+            z[miss] = depth_by_reprojection(us[miss], vs[miss], K, pose if np.ndim(pose) == 2 else pose[miss],
+                                            second[0], second[1], g2[sel][miss])
+        out[sel] = z
     return out
 
 

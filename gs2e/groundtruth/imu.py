@@ -30,6 +30,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from gs2e.common.errors import ConfigError
 
@@ -147,15 +148,6 @@ def add_noise(gyro: np.ndarray, accel: np.ndarray, dt_s: float, noise: ImuNoise,
     return g, a, b_g, b_a
 
 
-def _so3_exp(phi: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a rotation vector (3,) (Rodrigues)."""
-    th = float(np.linalg.norm(phi))
-    Kx = np.array([[0, -phi[2], phi[1]], [phi[2], 0, -phi[0]], [-phi[1], phi[0], 0]])
-    if th < 1e-8:
-        return np.eye(3) + Kx + 0.5 * Kx @ Kx
-    return np.eye(3) + math.sin(th) / th * Kx + (1 - math.cos(th)) / th ** 2 * Kx @ Kx
-
-
 def integrate_imu(t_s: np.ndarray, gyro: np.ndarray, accel: np.ndarray, R0: np.ndarray,
                   p0: np.ndarray, v0: np.ndarray, gravity_w: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -172,9 +164,11 @@ def integrate_imu(t_s: np.ndarray, gyro: np.ndarray, accel: np.ndarray, R0: np.n
     R[0], p[0], v[0] = R0, p0, v0
     g = np.asarray(gravity_w, np.float64)
     a_prev = R0 @ accel[0] + g
+    dts = np.diff(np.asarray(t_s, np.float64))
+    dR = Rotation.from_rotvec(0.5 * (gyro[:-1] + gyro[1:]) * dts[:, None]).as_matrix()
     for k in range(Q - 1):
-        dt = float(t_s[k + 1] - t_s[k])
-        R[k + 1] = R[k] @ _so3_exp(0.5 * (gyro[k] + gyro[k + 1]) * dt)
+        dt = float(dts[k])
+        R[k + 1] = R[k] @ dR[k]
         a_next = R[k + 1] @ accel[k + 1] + g
         v[k + 1] = v[k] + 0.5 * (a_prev + a_next) * dt
         p[k + 1] = p[k] + v[k] * dt + (2 * a_prev + a_next) * dt * dt / 6

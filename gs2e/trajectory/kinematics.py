@@ -30,6 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gs2e.common.so3 import quat_to_rotmat
+
 US = 1e-6  # seconds per microsecond
 
 
@@ -105,21 +107,6 @@ def _quat_conj_mul_vec(q: np.ndarray, r: np.ndarray) -> np.ndarray:
     return w * rv - rw * v - np.cross(v, rv)
 
 
-def _rotmat(q: np.ndarray) -> np.ndarray:
-    w, x, y, z = q.T
-    R = np.empty((len(q), 3, 3))
-    R[:, 0, 0] = 1 - 2 * (y * y + z * z)
-    R[:, 0, 1] = 2 * (x * y - w * z)
-    R[:, 0, 2] = 2 * (x * z + w * y)
-    R[:, 1, 0] = 2 * (x * y + w * z)
-    R[:, 1, 1] = 1 - 2 * (x * x + z * z)
-    R[:, 1, 2] = 2 * (y * z - w * x)
-    R[:, 2, 0] = 2 * (x * z - w * y)
-    R[:, 2, 1] = 2 * (y * z + w * x)
-    R[:, 2, 2] = 1 - 2 * (x * x + y * y)
-    return R
-
-
 def kinematics_at(traj, t_us: np.ndarray, side: str = "right") -> Kinematics:
     """Pose, velocity, acceleration, angular velocity and acceleration of
     ``traj`` at times ``t_us`` (Q,) microseconds, exactly (chain rule through
@@ -157,7 +144,7 @@ def kinematics_at(traj, t_us: np.ndarray, side: str = "right") -> Kinematics:
            - p * (np.sum(dp * dp, axis=1, keepdims=True) + np.sum(p * d2p, axis=1, keepdims=True)) / n ** 3
            + 3 * p * pd * pd / n ** 5)
     c2w = np.zeros((len(t), 4, 4))
-    c2w[:, :3, :3] = _rotmat(q)
+    c2w[:, :3, :3] = quat_to_rotmat(p)  # normalises p as q is: the same bytes
     c2w[:, :3, 3] = y[:, :3]
     c2w[:, 3, 3] = 1.0
     return Kinematics(t, c2w, dy[:, :3], d2y[:, :3], 2 * _quat_conj_mul_vec(q, dq),
