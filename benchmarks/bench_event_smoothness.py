@@ -18,7 +18,20 @@ in three variants:
   (1 - e^-4.5) (continuous), no 1/255 cut, no early stop; still sorted at every
   render, so depth-order swaps remain;
 * ``smooth_fixed_order``: the same with the depth order of the step's middle
-  for every render of the step (truth included): no jump at all.
+  for every render of the step (truth included): no jump at all;
+* ``gs2e_smooth``: gs2e's own renderer (float64) with ``splat.window:
+  smooth`` (alpha less its tangent at the cut: C1; weights faded before a
+  pixel stops), sorted at every render;
+* ``gs2e_continuous``: the same through gs2e's continuous renderer
+  (:class:`gs2e.splat.forward.ContinuousRenderer`: depth orders held at knots
+  2 px of motion apart, ``render.order_step_px``, and cross-faded), what the
+  event stage renders for a model trained with the smooth window. Its order
+  does not depend on the step measured, unlike ``smooth_fixed_order``'s.
+
+The gs2e variants render the whole DAVIS346 image (then cropped), of the
+model trained with the smooth window by ``bench_window.py`` where it has
+cached one (else of the cut model: the window, not the weights, decides
+smoothness; the row's ``gs2e_model`` says which).
 
 Per variant and step (px of image motion, :func:`gs2e.splat.forward.image_motion_px`,
 the ``motion`` clock's unit): the mean |error| of linear interpolation (what the
@@ -48,7 +61,7 @@ import numpy as np
 import harness
 from event_runs import PAPER_FPS, build_scenes, events_cfg, exact_slope, hermite, motion_rate_px_per_us
 
-VARIANTS = ("rasteriser", "smooth_window", "smooth_fixed_order")
+VARIANTS = ("rasteriser", "smooth_window", "smooth_fixed_order", "gs2e_smooth", "gs2e_continuous")
 FRACTIONS = (0.25, 0.5, 0.75)
 
 
@@ -140,7 +153,8 @@ class CropRenderer:
         return np.log(lum + self.eps)
 
 
-def case(model_dir, traj_path, sensor: str, crop: int, steps_px, trials: int) -> list[dict]:
+def case(model_dir, traj_path, sensor: str, crop: int, steps_px, trials: int,
+         smooth_model_dir=None) -> list[dict]:
     """Rows (variant, step) of one scene and trajectory, and the check row."""
     from gs2e.events.rendered import RenderedSource
     from gs2e.events.sampling import image_luminance
@@ -157,11 +171,26 @@ def case(model_dir, traj_path, sensor: str, crop: int, steps_px, trials: int) ->
 
     rate = motion_rate_px_per_us(src, t_mid)
     cr = CropRenderer(src, crop, t_mid, rate)
+    from gs2e.splat.forward import ContinuousRenderer, order_knots
+
+    from gs2e.splat.model import load_model
+
+    sp, sinfo = load_model(smooth_model_dir) if smooth_model_dir else (src.params, src.info)
+    smooth = ForwardRenderer(sp, int(sinfo["sh_degree"]), K[0, 0], K[1, 1], K[0, 2], K[1, 2],
+                             W, H, dtype=np.float64, window="smooth")
+    t_a, t_b = float(src.traj.t_us[0]), float(src.traj.t_us[-1])
+    cont = ContinuousRenderer(smooth, pose, order_knots(smooth, pose, t_a, t_b, 2.0), t_b)
+
+    def gs2e_log(img):
+        lum = np.empty((H, W))
+        image_luminance(img, lum)
+        return np.log(lum + src.log_eps)[cr.y0:cr.y0 + crop, cr.x0:cr.x0 + crop]
     lum = np.empty((H, W))
     image_luminance(whole.render(pose(t_mid)), lum)
     mine = np.log(lum + src.log_eps)[cr.y0:cr.y0 + crop, cr.x0:cr.x0 + crop]
     check = float(np.abs(cr.log_luminance(t_mid, "rasteriser") - mine).max())
-    base = {"crop_px": crop, "gaussians": cr.n_gaussians, "px_per_2400fps_step": rate * 1e6 / PAPER_FPS,
+    base = {"crop_px": crop, "gaussians": cr.n_gaussians,
+            "gs2e_model": "smooth-trained" if smooth_model_dir else "cut-trained", "px_per_2400fps_step": rate * 1e6 / PAPER_FPS,
             "check_max_abs_vs_gs2e": check}
     rows = []
     for variant in VARIANTS:
@@ -173,6 +202,10 @@ def case(model_dir, traj_path, sensor: str, crop: int, steps_px, trials: int) ->
                 cr.hold_order(t0 + 0.5 * h if variant == "smooth_fixed_order" else None)
 
                 def G(t):
+                    if variant == "gs2e_smooth":
+                        return gs2e_log(smooth.render(pose(t)))
+                    if variant == "gs2e_continuous":
+                        return gs2e_log(cont.render(t))
                     return cr.log_luminance(t, variant)
 
                 g0, g1 = G(t0), G(t0 + h)
@@ -233,7 +266,7 @@ def summary(df):
 def plot(df):
     plt = harness.pyplot()
     cases = list(df.groupby(["scene", "speed"], sort=False))
-    fig, axes = plt.subplots(1, len(VARIANTS), figsize=(4.6 * len(VARIANTS), 3.8), sharey=True)
+    fig, axes = plt.subplots(1, len(VARIANTS), figsize=(4.0 * len(VARIANTS), 3.8), sharey=True)
     for ax, v in zip(axes, VARIANTS):
         for i, ((scene, speed), d) in enumerate(cases):
             for m, ls in (("linear", "-"), ("hermite_dt", "--")):
@@ -271,13 +304,17 @@ def main() -> None:
         args.scenes, args.speeds, args.crop, args.trials = "demo", "mild", 24, 2
     steps = [float(s) for s in args.steps.split(",")]
     rows = []
+    cache = harness.RESULTS / "bench_window_cache"
+    smooth_models = {s: cache / s / "smooth" for s in args.scenes.split(",")
+                     if (cache / s / "smooth" / "model.json").exists()}
     with harness.clock() as total:
         for scene, d in build_scenes(args.scenes.split(",")).items():
             for speed in args.speeds.split(","):
                 with harness.clock() as t:
                     rows += [{"scene": scene, "speed": speed, "sensor": args.sensor, **r}
                              for r in case(d / "splat", d / "trajectories" / f"base_{speed}.npz",
-                                           args.sensor, args.crop, steps, args.trials)]
+                                           args.sensor, args.crop, steps, args.trials,
+                                           smooth_models.get(scene))]
                 print(f"{scene} {speed}: {t.wall_s:.0f} s", flush=True)
     df = pd.DataFrame(rows)
     name = "bench_event_smoothness" + ("_quick" if args.quick else "")

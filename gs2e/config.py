@@ -322,6 +322,9 @@ def _check_splat(cfg: dict) -> None:
             raise ConfigError("splat.ply_path: must be set when splat.model_source is 'ply'")
         if not Path(s["ply_path"]).exists():
             raise _missing("splat.ply_path", s["ply_path"])
+    if s["window"] != "cut" and s["backend"] == "gsplat":
+        raise ConfigError(f"splat.window: {s['window']} needs splat.backend cpu or auto (gsplat composites "
+                          "with the cut window only)")
 
 
 def _check_sensor_size(path: str) -> None:
@@ -345,6 +348,9 @@ def _check_events(cfg: dict) -> None:
     lo, hi = e["theta_range"]
     if lo > hi:
         raise ConfigError(f"events.theta_range: low {lo:g} is larger than high {hi:g}")
+    if e["sampling"]["substeps"] > 1 and e["sampling"]["mode"] == "tile":
+        raise ConfigError("events.sampling.substeps: points between renders need a whole-image mode "
+                          "(fixed, motion or adaptive), not tile")
     if e["sampling"]["mode"] == "motion" and e["sampling"]["max_motion_px"] is None:
         raise ConfigError("events.sampling.mode=motion needs events.sampling.max_motion_px "
                           "(the largest image motion between samples, px)")
@@ -473,8 +479,16 @@ CROSS_CHECKS = (
     (("export",), _check_export),
     (("bench",), _check_bench),
 )
+def _check_window_backend(cfg: dict) -> None:
+    """A model of the smooth window renders on the cpu only (gsplat has the cut window)."""
+    if cfg["splat"]["window"] != "cut" and cfg["render"]["backend"] == "gsplat":
+        raise ConfigError(f"render.backend: gsplat composites with the cut window only; splat.window is "
+                          f"{cfg['splat']['window']} (use render.backend cpu or auto)")
+
+
 WORKFLOW_CHECKS = (
     (("render", "trajectory"), _check_render_trajectories),
+    (("splat", "render"), _check_window_backend),
     (("bench", "render"), _check_bench_inputs),
     (("export", "render"), _check_export_inputs),
 )

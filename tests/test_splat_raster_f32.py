@@ -239,7 +239,7 @@ def test_rasterize_computes_float32_only_where_no_gradient_can_follow(monkeypatc
 
     asked = []
     real = R.forward_kernel
-    monkeypatch.setattr(R, "forward_kernel", lambda dt, off: asked.append(np.dtype(dt)) or real(dt, off))
+    monkeypatch.setattr(R, "forward_kernel", lambda dt, off, window="cut": asked.append(np.dtype(dt)) or real(dt, off, window))
     cam = look_at_camera()
     p = random_scene(300, seed=5, dtype=torch.float32)
     keys = ("means", "quats", "log_scales", "opacity_logits", "sh")

@@ -507,3 +507,17 @@ def test_evaluation_sees_the_model_before_that_steps_densification(tiny_scene, t
     assert list(curve["iteration"]) == [10, 20, 30]
     assert curve["n_gaussians"].iloc[0] == n0  # step 10's densification comes after its evaluation
     assert curve["n_gaussians"].iloc[1] > n0 and st["n_gaussians"] == curve["n_gaussians"].iloc[-1]
+
+
+def test_smooth_window_trains_records_itself_and_renders_as_trained(tiny_scene, tmp_path):
+    """splat.window smooth (issue 67): the model reaches the cut window's
+    held-out quality on a tiny scene, model.json records the window, and
+    render-views scores it with that window (the same figures)."""
+    st = {w: train(tiny_scene, tmp_path / w, cfg(window=w), seed=0, scene_id="tiny")
+          for w in ("cut", "smooth")}
+    assert st["smooth"]["window"] == "smooth"
+    assert json.loads((tmp_path / "smooth" / "model.json").read_text())["window"] == "smooth"
+    assert json.loads((tmp_path / "cut" / "model.json").read_text())["window"] == "cut"
+    assert abs(st["smooth"]["test_psnr"] - st["cut"]["test_psnr"]) < 0.5, st
+    rows = render_views(tmp_path / "smooth", tiny_scene, tmp_path / "renders", "test")
+    assert np.mean([r["psnr"] for r in rows]) == pytest.approx(st["smooth"]["test_psnr"], abs=0.05)

@@ -27,6 +27,9 @@ def register(subparsers) -> None:
                    help="with --model: resolution relative to the trajectory's camera (default 1)")
     p.add_argument("--backend", default="cpu", choices=["cpu", "gsplat", "auto"],
                    help="with --model: rasterizer (default cpu)")
+    p.add_argument("--order-step-px", type=float, default=2.0,
+                   help="with --model and a model trained with the smooth window: px of image motion "
+                        "between the continuous renderer's depth-order knots (render.order_step_px)")
     p.add_argument("--threads", type=int, default=None,
                    help="CPU threads for rendering and simulation (default events.num_threads; "
                         "-1 = the CPUs this process may use)")
@@ -146,10 +149,12 @@ def run(args) -> int:
         from gs2e.events.rendered import RenderedSource
 
         src = RenderedSource(args.model, args.trajectory, cfg, background=args.background,
-                             scale=args.scale, backend=args.backend, batch_frames=cfg.batch_frames)
+                             scale=args.scale, backend=args.backend, batch_frames=cfg.batch_frames,
+                             order_step_px=args.order_step_px)
         extra = {"model_dir": str(args.model), "trajectory": str(args.trajectory),
                  "render": {"background": list(args.background), "scale": args.scale,
-                            "backend": args.backend}, "camera": src.camera}
+                            "backend": args.backend, "order_step_px": args.order_step_px,
+                            "window": src.window}, "camera": src.camera}
     else:
         if not args.input:
             raise ConfigError("give INPUT (frames) or --model and --trajectory")

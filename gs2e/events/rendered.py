@@ -29,9 +29,9 @@ from gs2e.events.sensors import get_sensor
 from gs2e.events.settings import EventSettings, event_settings
 from gs2e.events.sampling import (MODES, SamplerStats, TileSampler, adaptive_samples,
                                   image_luminance, motion_times)
-from gs2e.splat.backend import resolve_backend
-from gs2e.splat.forward import ForwardRenderer, image_motion_px
-from gs2e.splat.model import load_model, render
+from gs2e.splat.backend import resolve_backend_for
+from gs2e.splat.forward import ContinuousRenderer, ForwardRenderer, image_motion_px, order_knots
+from gs2e.splat.model import load_model, model_window, render
 from gs2e.splat.rasterize import SplatCamera
 from gs2e.trajectory import fixed_times_us, load_trajectory
 
@@ -67,6 +67,55 @@ def sampling_log_eps(settings: EventSettings | dict) -> float:
     scale), luminance L in [0, 1]: dark pixels, where the ideal model's log
     swings widely, barely move its voltage."""
     return log_contrast(settings)[2]
+
+
+def cubic_substeps(frames, substeps: int, log_eps: float, first: tuple[int, np.ndarray]):
+    """Frames between renders on a cubic: yields (t_us, (H, W) float32
+    luminance), ``substeps`` per step between consecutive renders of
+    ``frames`` (an iterator of (t_us, luminance) after ``first``, the
+    render at the span's start, which is not yielded), the render itself
+    last in each step.
+
+    In g = log(L + log_eps), each step [t_i, t_{i+1}] is the cubic Hermite
+    curve through g_i and g_{i+1} with slopes from the neighbouring renders,
+    m_i = (g_{i+1} - g_{i-1}) / (t_{i+1} - t_{i-1}) (Catmull-Rom on the
+    renders' own, uneven, times; one-sided at the span's ends); its error is
+    O(h^3) on a signal smooth in time against a line's O(h^2). Points fall
+    at whole microseconds (fewer where the step is shorter than
+    ``substeps`` us); luminance is clamped at 0; the renders are passed on
+    as they are. Reads one render ahead.
+    """
+    k = int(substeps)
+    t_prev, g_prev = None, None
+    t0, l0 = first
+    g0 = np.log(l0.astype(np.float64) + log_eps)
+    it = iter(frames)
+    nxt = next(it, None)
+    if nxt is None:
+        return
+    t1, l1, g1 = nxt[0], nxt[1], np.log(nxt[1].astype(np.float64) + log_eps)
+    while True:
+        nxt = next(it, None)
+        t2, l2, g2 = ((None, None, None) if nxt is None
+                      else (nxt[0], nxt[1], np.log(nxt[1].astype(np.float64) + log_eps)))
+        h = float(t1 - t0)
+        m0 = (g1 - g0) / h if t_prev is None else (g1 - g_prev) / float(t1 - t_prev)
+        m1 = (g1 - g0) / h if t2 is None else (g2 - g0) / float(t2 - t0)
+        done = set()
+        for j in range(1, k):
+            t = int(round(t0 + h * j / k))
+            if t <= t0 or t >= t1 or t in done:
+                continue
+            done.add(t)
+            s = (t - t0) / h
+            s2, s3 = s * s, s * s * s
+            g = ((2 * s3 - 3 * s2 + 1) * g0 + (s3 - 2 * s2 + s) * h * m0
+                 + (-2 * s3 + 3 * s2) * g1 + (s3 - s2) * h * m1)
+            yield t, np.maximum(np.exp(g) - log_eps, 0.0).astype(np.float32)
+        yield t1, l1  # the render itself
+        if t2 is None:
+            return
+        t_prev, g_prev, t0, g0, t1, l1, g1 = t0, g0, t1, g1, t2, l2, g2
 
 
 class _GsplatRenderer:
@@ -112,7 +161,8 @@ class RenderedSource:
     def __init__(self, model_dir: str | Path, trajectory_path: str | Path,
                  settings: EventSettings | dict,
                  background=(0.0, 0.0, 0.0), scale: float = 1.0, backend: str = "cpu",
-                 batch_frames: int = 32, span_us: tuple[int, int] | None = None):
+                 batch_frames: int = 32, span_us: tuple[int, int] | None = None,
+                 order_step_px: float = 2.0):
         settings = event_settings(settings)
         sc = settings.sampling
         if sc.mode not in MODES:
@@ -131,12 +181,28 @@ class RenderedSource:
                        "sensor_fit": settings.sensor_fit if sensor else None,
                        "trajectory_camera": {"K": K.tolist(), "width": int(self.traj.width),
                                              "height": int(self.traj.height)}}
-        self.backend = resolve_backend(backend, "render.backend")
+        self.window = model_window(self.info)
+        self.backend = resolve_backend_for(backend, self.window, "render.backend")
         cpu = ForwardRenderer(self.params, int(self.info["sh_degree"]), self.K[0, 0], self.K[1, 1],
-                              self.K[0, 2], self.K[1, 2], W, H, background=background)
+                              self.K[0, 2], self.K[1, 2], W, H, background=background,
+                              window=self.window)
         self.renderer = (cpu if self.backend == "cpu"
                          else _GsplatRenderer(self.params, self.info, cpu, background))
         self.t0_us, self.t1_us = int(self.traj.t_us[0]), int(self.traj.t_us[-1])
+        # continuous in time (smooth window): depth orders held at knots over the whole path
+        if not order_step_px > 0:
+            raise ConfigError(f"render.order_step_px must be > 0, got {order_step_px}")
+
+        def path_pose(t):  # the whole path's, whatever span this source simulates
+            return self.traj.pose_at(np.array([float(t)]))[0]
+
+        self.continuous = (None if self.window == "cut" else ContinuousRenderer(
+            cpu, path_pose, order_knots(cpu, path_pose, self.t0_us, self.t1_us, order_step_px),
+            self.t1_us))
+        if self.continuous is not None and settings.sampling.mode == "tile":
+            log.warning("events %s: mode tile renders tiles in each render's own depth order; "
+                        "only the whole-image modes (fixed, motion, adaptive) render continuous "
+                        "in time", self.name)
         if span_us is not None:  # a part of the trajectory only
             if not self.t0_us <= span_us[0] < span_us[1] <= self.t1_us:
                 raise InputError(f"trajectory {self.name}: span {span_us} us outside "
@@ -169,7 +235,8 @@ class RenderedSource:
     def frame(self, t_us: int, out: np.ndarray | None = None) -> np.ndarray:
         """(H, W) float32 linear luminance of the whole image at ``t_us`` (into
         ``out`` if given)."""
-        img = self.renderer.render(self.pose_at(t_us))
+        img = (self.renderer.render(self.pose_at(t_us)) if self.continuous is None
+               else self.continuous.render(t_us))
         out = np.empty(self.shape, np.float32) if out is None else out
         image_luminance(img, out)
         self.stats.renders += 1
@@ -212,6 +279,9 @@ class RenderedSource:
             frames = ((t, None) for t in self.motion_clock())
         else:
             frames = self._adaptive_frames()
+        if self.sc.substeps > 1:
+            frames = cubic_substeps(self._rendered(frames), self.sc.substeps, self.log_eps,
+                                    (self.t0_us, self.luminance.copy()))
         ts = []
         for t, f in frames:
             if f is None:
@@ -227,6 +297,15 @@ class RenderedSource:
         if ts:
             self.luminance[:] = buf[len(ts) - 1]
             yield np.array(ts, np.int64), buf[:len(ts)]
+
+    def _rendered(self, frames) -> Iterator[tuple[int, np.ndarray]]:
+        """``frames`` ((t, frame or None: render it)) with every frame rendered
+        into its own array (:func:`cubic_substeps` holds four)."""
+        for t, f in frames:
+            if f is None:
+                self.stats.accepted += 1
+                f = self.frame(t)
+            yield t, f
 
     def step_motion_px(self, step_us: int, n: int = STEP_MOTION_PROBES) -> np.ndarray:
         """Image motion (px, :func:`gs2e.splat.forward.image_motion_px`: the

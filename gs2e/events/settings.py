@@ -31,6 +31,7 @@ class SamplingSettings:
     dt_max_us: int
     max_motion_px: float | None   # tile / motion: image motion per step (px / Gaussian sigma)
     window_motion_px: float   # tile: motion over which a tile's candidate list is kept
+    substeps: int             # points per step on the cubic through the renders (1: renders only)
 
 
 @dataclass(frozen=True)

@@ -67,7 +67,7 @@ def render_dataset(model_dir: str | Path, trajectory_path: str | Path, out_dir: 
     check_render_config(cfg)
     t_start = time.perf_counter()
     r = TrajectoryRenderer(model_dir, trajectory_path, cfg["background"], cfg["scale"],
-                           cfg["backend"], sensor=sensor)
+                           cfg["backend"], sensor=sensor, order_step_px=cfg["order_step_px"])
     if np.any(np.diff(r.traj.t_us) <= 0):
         raise InputError(f"{trajectory_path}: timestamps are not strictly increasing")
     times = fixed_times_us(r.t0_us, r.t1_us, cfg["fps"])
@@ -80,6 +80,8 @@ def render_dataset(model_dir: str | Path, trajectory_path: str | Path, out_dir: 
         for i, t in enumerate(progress(times, desc=f"rendering {r.name}")):
             c2w = r.pose(int(t))
             rgb, alpha, depth = r.render_pose(c2w)
+            if r.window != "cut":  # the continuous render's image (alpha, depth: this pose's order)
+                rgb = r.rgb_at(float(t)).astype(np.float64)
             coverage = float((alpha > 0.5).mean())
             if coverage < cfg["min_coverage"]:
                 raise InputError(f"trajectory {trajectory_path}: the view at t={int(t)} us is empty "
@@ -104,12 +106,12 @@ def render_dataset(model_dir: str | Path, trajectory_path: str | Path, out_dir: 
                 if n_sub == 1:
                     blur = rgb
                 elif cfg["blur_tolerance_db"] is not None:
-                    blur, n_sub, _ = adaptive_blur(lambda tk: r.render_rgb(r.pose(tk)), float(t), E,
+                    blur, n_sub, _ = adaptive_blur(r.rgb_at, float(t), E,
                                                    (r.t0_us, r.t1_us), cfg["blur_tolerance_db"],
                                                    cfg["blur_max_subframes"], known={float(t): rgb})
                 else:
                     ts = np.clip(subframe_times_us(float(t), E, n_sub), r.t0_us, r.t1_us)
-                    blur = average_srgb([r.render_rgb(r.pose(ts_k)) for ts_k in ts])
+                    blur = average_srgb([r.rgb_at(ts_k) for ts_k in ts])
                 write_png(out / "blur" / name, to_u8(blur))
                 n_sub_total += n_sub
             rows.append({"frame": i, "file": name, "t_us": int(t), "c2w": c2w.reshape(-1).tolist(),

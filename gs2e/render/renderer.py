@@ -10,9 +10,9 @@ import torch
 from gs2e.common.camera import render_camera
 from gs2e.common.color import luminance, srgb_to_linear
 from gs2e.common.errors import InputError
-from gs2e.splat.backend import resolve_backend
+from gs2e.splat.backend import resolve_backend_for
 from gs2e.splat.rasterize import SplatCamera
-from gs2e.splat.model import load_model, render
+from gs2e.splat.model import load_model, model_window, render
 from gs2e.trajectory import load_trajectory
 
 
@@ -25,9 +25,12 @@ class TrajectoryRenderer:
 
     def __init__(self, model_dir: str | Path, trajectory_path: str | Path, background=(0.0, 0.0, 0.0),
                  scale: float = 1.0, backend: str = "cpu",
-                 sensor: tuple[tuple[int, int], str] | None = None):
+                 sensor: tuple[tuple[int, int], str] | None = None, order_step_px: float = 2.0):
         self.params, self.info = load_model(model_dir)
-        self.backend = resolve_backend(backend, "render.backend")
+        self.window = model_window(self.info)
+        self.backend = resolve_backend_for(backend, self.window, "render.backend")
+        self.order_step_px = float(order_step_px)
+        self._continuous = None  # built on the first rgb_at of a smooth-window model
         self.traj = load_trajectory(trajectory_path)
         self.name = Path(trajectory_path).stem
         # the event sensor's camera ((W, H), fit) when given; then scale does not apply
@@ -49,7 +52,8 @@ class TrajectoryRenderer:
     def render_pose(self, c2w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         cam = SplatCamera.from_c2w(c2w, self.fx, self.fy, self.cx, self.cy, self.width, self.height)
         with torch.no_grad():
-            img, alpha, depth, _ = render(self.params, cam, self.bg, self.sh_degree, self.backend)
+            img, alpha, depth, _ = render(self.params, cam, self.bg, self.sh_degree, self.backend,
+                                          window=self.window)
         self.renders += 1
         return (img.clamp(0, 1).double().numpy(), alpha.double().numpy(), depth.double().numpy())
 
@@ -66,9 +70,29 @@ class TrajectoryRenderer:
 
             self._forward = ForwardRenderer(self.params, self.sh_degree, self.fx, self.fy, self.cx,
                                             self.cy, self.width, self.height,
-                                            background=self.bg.tolist())
+                                            background=self.bg.tolist(), window=self.window)
         self.renders += 1
         return np.clip(self._forward.render(c2w), 0.0, 1.0)  # a copy: the renderer reuses its buffer
+
+    def rgb_at(self, t_us: float) -> np.ndarray:
+        """The image (H, W, 3) at time ``t_us``, sRGB-encoded, clamped to [0,
+        1]: :meth:`render_rgb` of its pose for a model with the cut window;
+        for one with the smooth window the continuous render
+        (:class:`gs2e.splat.forward.ContinuousRenderer`: depth orders held at
+        knots ``order_step_px`` apart and cross-faded), which the event stage
+        renders too."""
+        if self.window == "cut":
+            return self.render_rgb(self.pose(t_us))
+        if self._continuous is None:
+            from gs2e.splat.forward import ContinuousRenderer, order_knots
+
+            self.render_rgb(self.pose(t_us))  # builds the forward renderer
+            self._continuous = ContinuousRenderer(
+                self._forward, self.pose,
+                order_knots(self._forward, self.pose, self.t0_us, self.t1_us, self.order_step_px),
+                self.t1_us)
+        self.renders += 1
+        return np.clip(self._continuous.render(t_us), 0.0, 1.0)
 
     def render_at(self, t_us: float):
         return self.render_pose(self.pose(t_us))

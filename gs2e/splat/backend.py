@@ -53,6 +53,18 @@ def resolve_backend(name: str, key: str = "splat.backend") -> str:
     return "gsplat" if ok else "cpu"
 
 
+def resolve_backend_for(name: str, window: str, key: str = "splat.backend") -> str:
+    """:func:`resolve_backend` for a model of compositing ``window``: gsplat
+    composites with the cut window only, so for another 'auto' means 'cpu'
+    and 'gsplat' raises ConfigError naming ``key``."""
+    if window == "cut":
+        return resolve_backend(name, key)
+    if name == "gsplat":
+        raise ConfigError(f"config key '{key}': gsplat composites with the cut window only; the model's "
+                          f"window is {window} (use 'cpu' or 'auto')")
+    return resolve_backend("cpu" if name == "auto" else name, key)
+
+
 def rasterize_gsplat(means, quats, log_scales, opacity_logits, sh, cam, background, sh_degree: int):
     """Same contract as :func:`gs2e.splat.rasterize.rasterize` (checked inputs),
     computed by gsplat on the first CUDA device.

@@ -15,28 +15,30 @@ from gs2e.io.images import to_u8, write_png
 from gs2e.io.scene import read_scene
 from gs2e.splat.backend import resolve_backend
 from gs2e.splat.loss import psnr, ssim
-from gs2e.splat.model import load_model, render
+from gs2e.splat.model import load_model, model_window, render
 from gs2e.splat.views import View, load_views, split_views
 
 log = get_logger("gs2e.splat")
 
 
 def score_view(p: dict[str, torch.Tensor], view: View, background: torch.Tensor, sh_degree: int,
-               backend: str = "cpu") -> tuple[torch.Tensor, float, float]:
-    """The model's render of ``view`` at full resolution ((H, W, 3) in [0, 1]),
-    its PSNR (dB) and SSIM against the view's image (call under no_grad)."""
+               backend: str = "cpu", window: str = "cut") -> tuple[torch.Tensor, float, float]:
+    """The model's render of ``view`` at full resolution ((H, W, 3) in [0, 1],
+    with the compositing ``window``), its PSNR (dB) and SSIM against the
+    view's image (call under no_grad)."""
     cam, gt = view.camera(1)
-    img = render(p, cam, background, sh_degree, backend)[0].clamp(0, 1)
+    img = render(p, cam, background, sh_degree, backend, window=window)[0].clamp(0, 1)
     return img, psnr(img, gt), float(ssim(img, gt))
 
 
 def evaluate(p: dict[str, torch.Tensor], views: list[View], background: torch.Tensor,
-             sh_degree: int, backend: str = "cpu") -> dict[str, float]:
-    """Mean PSNR (dB) and SSIM over ``views`` at full resolution (NaN without views)."""
+             sh_degree: int, backend: str = "cpu", window: str = "cut") -> dict[str, float]:
+    """Mean PSNR (dB) and SSIM over ``views`` at full resolution (NaN without
+    views), rendered with the compositing ``window``."""
     if not views:
         return {"psnr": float("nan"), "ssim": float("nan")}
     with torch.no_grad():
-        scores = [score_view(p, v, background, sh_degree, backend)[1:] for v in views]
+        scores = [score_view(p, v, background, sh_degree, backend, window)[1:] for v in views]
     return {"psnr": float(np.mean([s[0] for s in scores])), "ssim": float(np.mean([s[1] for s in scores]))}
 
 
@@ -64,7 +66,8 @@ def render_views(model_dir: str | Path, scene_dir: str | Path, out_dir: str | Pa
     rows = []
     with atomic_dir(out_dir) as out, torch.no_grad():
         for v in progress(sel, desc="rendering views"):
-            img, view_psnr, view_ssim = score_view(p, v, bg, int(info["sh_degree"]), backend)
+            img, view_psnr, view_ssim = score_view(p, v, bg, int(info["sh_degree"]), backend,
+                                                   model_window(info))
             write_png(out / (Path(v.name).stem + ".png"), to_u8(img.numpy()))
             rows.append({"view": v.name, "psnr": view_psnr, "ssim": view_ssim})
         write_metrics(out / "metrics.parquet", rows, stage="render-views")

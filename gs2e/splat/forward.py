@@ -224,6 +224,49 @@ def _tile_lists(tiles, c_off, c_gids, rect, depths, width, tile):
     return counts, out
 
 
+@njit(cache=True)
+def _differing_lists(offsets, gids_a, gids_b):
+    """Tiles whose lists differ between two orders of the same members
+    (int64 tile numbers), and their lists in order b as (offsets, gids) of
+    just those tiles. (Only swaps of Gaussians that share a pixel change a
+    composite, but on trained models nearly every tile that holds a swap
+    holds such a one: demo, 1-4 px of motion between the orders.)"""
+    n = offsets.shape[0] - 1
+    diff = np.zeros(n, np.bool_)
+    m = 0
+    for t in range(n):
+        for k in range(offsets[t], offsets[t + 1]):
+            if gids_a[k] != gids_b[k]:
+                diff[t] = True
+                m += offsets[t + 1] - offsets[t]
+                break
+    tiles = np.flatnonzero(diff).astype(np.int64)
+    sub_off = np.zeros(tiles.shape[0] + 1, np.int64)
+    sub = np.empty(m, np.int64)
+    c = 0
+    for s in range(tiles.shape[0]):
+        t = tiles[s]
+        for k in range(offsets[t], offsets[t + 1]):
+            sub[c] = gids_b[k]
+            c += 1
+        sub_off[s + 1] = c
+    return tiles, sub_off, sub
+
+
+@njit(cache=True, parallel=True)
+def _blend_tiles(image, other, tiles, s, width, tile):
+    """image = (1 - s) image + s other on the pixels of ``tiles``."""
+    tiles_x = (width + tile - 1) // tile
+    H = image.shape[0]
+    for q in prange(tiles.shape[0]):
+        ty = tiles[q] // tiles_x
+        tx = tiles[q] - ty * tiles_x
+        for i in range(ty * tile, min(H, ty * tile + tile)):
+            for j in range(tx * tile, min(width, tx * tile + tile)):
+                for c in range(image.shape[2]):
+                    image[i, j, c] = image[i, j, c] + s * (other[i, j, c] - image[i, j, c])
+
+
 @njit(cache=True, parallel=True)
 def _finish_subset(idx, means2d, conics, radii, opac, radius_factor, width, height, tile, m2_32,
                    cn_32, rect):
@@ -263,11 +306,14 @@ class ForwardRenderer:
     dtype : storage dtype of the compositing inputs and the image, and the
         precision the compositing computes in (float32: what the event stage
         uses, 16 pixels per vector; float64 as the training renders at float64).
+    window : the compositing window (:data:`gs2e.splat.raster.WINDOWS`; the
+        model's own, :func:`gs2e.splat.model.model_window`).
     """
 
     def __init__(self, params, sh_degree: int, fx: float, fy: float, cx: float, cy: float,
                  width: int, height: int, background=(0.0, 0.0, 0.0), dtype=np.float32,
-                 near: float = 0.01, far: float = 1.0e10):
+                 near: float = 0.01, far: float = 1.0e10, window: str = "cut"):
+        self.window = _raster.check_window(window)
         def arr(k):
             x = params[k]
             return np.ascontiguousarray(x.detach().cpu().numpy() if hasattr(x, "detach") else x,
@@ -313,6 +359,8 @@ class ForwardRenderer:
         self._mark = 0
         self.image = np.zeros((self.height, self.width, 3), self.dtype)
         self._T = np.empty((self.height, self.width), self.dtype)
+        self._other = None  # second image of an order blend (render_blended)
+        self.tiles_blended = 0  # tiles composited a second time by render_blended
         self._nc = np.empty((self.height, self.width), np.int32)
         self.renders = 0          # calls of render / render_tiles
         self.tiles_rendered = 0   # tiles composited
@@ -352,13 +400,50 @@ class ForwardRenderer:
         self._order = order
         offsets, gids = _raster.bin_rects_kernel(order, self.rect[order], self.width, self.height,
                                                  TILE, numba.get_num_threads())
-        tiles = np.arange(self.n_tiles, dtype=np.int64)
-        _raster.forward_kernel(self.dtype, offsets)(
-            tiles, offsets, gids, self.m2_dt, self.cn_dt, self.opac_dt, self.colors, self.bg,
-            self.width, self.height, TILE, self.image, self._T, self._nc,
-            *_raster.tile_schedule(offsets))
+        self._composite(np.arange(self.n_tiles, dtype=np.int64), offsets, gids, self.image)
         self.renders += 1
         self.tiles_rendered += self.n_tiles
+        return self.image
+
+    def _composite(self, tiles, offsets, gids, image) -> None:
+        _raster.forward_kernel(self.dtype, offsets, self.window)(
+            tiles, offsets, gids, self.m2_dt, self.cn_dt, self.opac_dt, self.colors, self.bg,
+            self.width, self.height, TILE, image, self._T, self._nc,
+            *_raster.tile_schedule(offsets))
+
+    def depth_order_at(self, c2w) -> np.ndarray:
+        """(N,) int64: every Gaussian (culled or not) by increasing camera depth
+        of its centre at pose ``c2w``, ties by index (a held order for
+        :meth:`render_blended`)."""
+        vm = self._viewmat(c2w)
+        return np.argsort(self.means @ vm[2, :3] + vm[2, 3], kind="stable").astype(np.int64)
+
+    def render_blended(self, c2w, order_a: np.ndarray, order_b: np.ndarray, s: float) -> np.ndarray:
+        """The whole image at pose ``c2w`` composited in two held depth orders
+        and cross-faded: (1 - s) x the image in ``order_a`` + s x the one in
+        ``order_b`` ((N,) from :meth:`depth_order_at` at two poses). Only the
+        tiles whose lists the two orders change are composited twice. With
+        order_a at this pose and s = 0 this is :meth:`render`. Returns
+        :attr:`image` (overwritten by the next call)."""
+        vm = self._viewmat(c2w)
+        self._project(vm, None)
+        vis = (self.radii > 0) & self._binned
+        orders = [o[vis[o]] for o in (order_a, order_b)]
+        lists = [_raster.bin_rects_kernel(o, self.rect[o], self.width, self.height, TILE,
+                                          numba.get_num_threads()) for o in orders]
+        (offsets, gids_a), (_, gids_b) = lists
+        self._composite(np.arange(self.n_tiles, dtype=np.int64), offsets, gids_a, self.image)
+        self.renders += 1
+        self.tiles_rendered += self.n_tiles
+        if s == 0.0:
+            return self.image
+        tiles, sub_off, sub = _differing_lists(offsets, gids_a, gids_b)
+        if len(tiles):
+            if self._other is None:
+                self._other = np.zeros_like(self.image)
+            self._composite(tiles, sub_off, sub, self._other)
+            _blend_tiles(self.image, self._other, tiles, self.dtype.type(s), self.width, TILE)
+            self.tiles_blended += len(tiles)
         return self.image
 
     def centres(self, c2w) -> CentreProjection:
@@ -450,10 +535,91 @@ class ForwardRenderer:
         self._project(self._viewmat(c2w), idx)
         offsets, gids = _tile_lists(tiles, cand.offsets, cand.gids, self.rect, self.depths,
                                     self.width, TILE)
-        _raster.forward_kernel(self.dtype, offsets)(
-            tiles, offsets, gids, self.m2_dt, self.cn_dt, self.opac_dt, self.colors, self.bg,
-            self.width, self.height, TILE, self.image, self._T, self._nc,
-            *_raster.tile_schedule(offsets))
+        self._composite(tiles, offsets, gids, self.image)
         self.renders += 1
         self.tiles_rendered += len(tiles)
         return self.image
+
+
+# ---------------------------------------------------------------- continuous in time
+ORDER_PROBES = 64  # poses probed for the path's largest image-motion rate
+ORDER_PROBE_US = 1000  # step over which each probe measures it
+
+
+@dataclass(frozen=True)
+class OrderKnots:
+    """Times at which a continuous render takes its depth orders: every
+    ``dt_us`` from ``t0_us`` (the path's start), so every stage that renders
+    the path (sharp frames, blurred frames' sub-frames, events) composes the
+    same image at the same time, whatever span it renders."""
+
+    t0_us: float
+    dt_us: float
+
+    def bracket(self, t_us: float) -> tuple[int, float]:
+        """(j, s): t_us lies in knot interval [t_j, t_{j+1}] at smoothstep
+        weight s in [0, 1] (C1: s' = 0 at both knots)."""
+        x = (float(t_us) - self.t0_us) / self.dt_us
+        j = int(math.floor(x))
+        f = x - j
+        return j, f * f * (3.0 - 2.0 * f)
+
+    def time(self, j: int) -> float:
+        return self.t0_us + j * self.dt_us
+
+
+def order_knots(renderer: "ForwardRenderer", pose_at, t0_us: float, t1_us: float,
+                step_px: float, probes: int = ORDER_PROBES, probe_us: int = ORDER_PROBE_US) -> OrderKnots:
+    """Knots ``step_px`` of image motion apart at the path's fastest.
+
+    The rate is the largest of ``probes`` measurements of
+    :func:`image_motion_px` over ``probe_us``, evenly over [t0_us, t1_us]
+    (the whole path: the knots must not depend on the span a stage renders).
+    A path with no image motion gets one interval. ``pose_at``: t_us -> c2w.
+    """
+    if not step_px > 0:
+        raise ValueError(f"order_knots: step_px must be > 0, got {step_px}")
+    span = float(t1_us - t0_us)
+    step = float(min(probe_us, max(span, 1.0)))
+    starts = np.linspace(t0_us, max(t0_us, t1_us - step), probes)
+    rate = max((image_motion_px(renderer.centres(pose_at(t)), renderer.centres(pose_at(min(t1_us, t + step))))
+                for t in starts), default=0.0) / step
+    dt = span + 1.0 if rate <= 0.0 else max(1.0, min(span + 1.0, step_px / rate))
+    return OrderKnots(float(t0_us), float(dt))
+
+
+class ContinuousRenderer:
+    """A model's image at any time of a path, continuous in time (issue 67).
+
+    With the smooth window (:mod:`gs2e.splat.raster`) a Gaussian no longer
+    jumps where its edge crosses a pixel; what is left is the depth order,
+    which a render sorts anew at every pose, so two Gaussians that swap
+    change a pixel by a jump. Here the order is held at the knots (:class:`OrderKnots`)
+    and cross-faded between them: at time t in [t_j, t_{j+1}] the image is
+    (1 - s) x the composite in the order of t_j + s x the one in the order of
+    t_{j+1} (:meth:`ForwardRenderer.render_blended`, s the knot's smoothstep),
+    both at t's pose. At a knot it is that pose's ordinary render, and it is
+    C1 across knots where each fixed-order composite is.
+
+    ``renderer``: a :class:`ForwardRenderer` (its window: the model's);
+    ``pose_at``: t_us -> (4, 4) c2w on [knots.t0_us, t1_us] (a knot past the
+    path's end takes the end's order).
+    """
+
+    def __init__(self, renderer: "ForwardRenderer", pose_at, knots: OrderKnots, t1_us: float):
+        self.renderer, self.pose_at, self.knots, self.t1_us = renderer, pose_at, knots, t1_us
+        self._orders: dict[int, np.ndarray] = {}
+
+    def _order(self, j: int) -> np.ndarray:
+        if j not in self._orders:
+            if len(self._orders) > 4:  # renders go forward in time: keep the recent knots
+                for old in sorted(self._orders)[:-2]:
+                    del self._orders[old]
+            t = min(max(self.knots.time(j), self.knots.t0_us), self.t1_us)
+            self._orders[j] = self.renderer.depth_order_at(self.pose_at(int(round(t))))
+        return self._orders[j]
+
+    def render(self, t_us: float) -> np.ndarray:
+        """(H, W, 3) image at ``t_us`` (the renderer's buffer)."""
+        j, s = self.knots.bracket(t_us)
+        return self.renderer.render_blended(self.pose_at(t_us), self._order(j), self._order(j + 1), s)

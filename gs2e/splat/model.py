@@ -49,14 +49,22 @@ def from_params(p: dict[str, torch.Tensor]) -> dict[str, np.ndarray]:
 
 
 def render(p: dict[str, torch.Tensor], cam: SplatCamera, background: torch.Tensor, sh_degree: int,
-           backend: str = "cpu", grad_dtype: str = "float64"):
+           backend: str = "cpu", grad_dtype: str = "float64", window: str = "cut"):
     """Differentiable render of the model: (image, alpha, depth, meta), see
     :func:`gs2e.splat.rasterize.rasterize` (``grad_dtype``: what the CPU
-    compositing computes in when a gradient may follow)."""
+    compositing computes in when a gradient may follow; ``window``: the
+    compositing window, :func:`model_window`)."""
     sh = torch.cat([p["sh_dc"], p["sh_rest"]], dim=1)
     return rasterize(p["means"], p["quats"], p["log_scales"], p["opacity_logits"], sh, cam,
                      background=background, sh_degree=sh_degree, backend=backend,
-                     grad_dtype=grad_dtype)
+                     grad_dtype=grad_dtype, window=window)
+
+
+def model_window(info: dict) -> str:
+    """The compositing window a model was trained with (model.json's
+    ``window``; 'cut' for models from before it was recorded and imported
+    PLYs, which 3DGS trained with that window)."""
+    return str(info.get("window", "cut"))
 
 
 def save_model(out: Path, g: dict[str, np.ndarray], iterations: int, sh_degree: int,

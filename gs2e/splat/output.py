@@ -28,7 +28,8 @@ def write_train_output(out_dir: Path, scene: Scene, g: dict[str, np.ndarray], it
         save_model(out, g, iterations, sh_degree, {
             "scene": str(scene_dir), "width": scene.width, "height": scene.height,
             "source": stats.get("source"), "background": stats["background"],
-            "test_every": stats["test_every"], "view_sizes": view_sizes})
+            "test_every": stats["test_every"], "view_sizes": view_sizes,
+            "window": stats.get("window", "cut")})
         write_cameras_json(out / "cameras.json", scene)
         write_json_atomic(out / "train_stats.json", stats)
         write_metrics(out / "metrics.parquet", stats, scene_id=scene_id or out_dir.parent.name,

@@ -101,7 +101,7 @@ def _np(x: torch.Tensor) -> np.ndarray:
 class _Rasterize(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means, quats, logscales, opacity_logits, sh, background,
-                cam, sh_degree, meta, forward_only, grad_dtype):
+                cam, sh_degree, meta, forward_only, grad_dtype, window):
         dt = means.dtype
         ndt = np.float64 if dt == torch.float64 else np.float32
         vm = cam.validate()
@@ -126,8 +126,9 @@ class _Rasterize(torch.autograd.Function):
         # a forward that a backward may follow computes in the backward's dtype
         compute = ndt if forward_only else grad_dtype
         out, out_T, n_contrib = _raster.rasterize_forward(
-            m2, cn, op, feats, bg4, W, H, offsets, gids, TILE, compute_dtype=compute)
+            m2, cn, op, feats, bg4, W, H, offsets, gids, TILE, compute_dtype=compute, window=window)
         ctx.compute = compute
+        ctx.window = window
         ctx.cam = cam
         ctx.sh_degree = sh_degree
         ctx.meta = meta
@@ -164,7 +165,8 @@ class _Rasterize(torch.autograd.Function):
         # image = C + T*bg and alpha = 1 - T
         g_T = np.ascontiguousarray(gi @ bg4[:3].astype(np.float64) - ga)
         grads = _raster.rasterize_backward(m2, cn, op, feats, W, H, offsets, gids,
-                                           out_T, n_contrib, g_out, g_T, TILE, ctx.compute)
+                                           out_T, n_contrib, g_out, g_T, TILE, ctx.compute,
+                                           ctx.window)
         g_means2d = np.ascontiguousarray(grads[:, 0:2])
         g_conics = np.ascontiguousarray(grads[:, 2:5])
         g_logit = grads[:, 5] * opac * (1.0 - opac)
@@ -191,13 +193,14 @@ class _Rasterize(torch.autograd.Function):
                 raise NonFiniteError(f"gradient of {name} holds "
                                      f"{int((~np.isfinite(arr)).sum())} non-finite value(s)")
             out.append(torch.from_numpy(np.ascontiguousarray(arr)).to(dt))
-        return (*out, None, None, None, None, None)
+        return (*out, None, None, None, None, None, None)
 
 
 def rasterize(means: torch.Tensor, quats: torch.Tensor, log_scales: torch.Tensor,
               opacity_logits: torch.Tensor, sh: torch.Tensor, cam: SplatCamera,
               background: torch.Tensor | None = None, sh_degree: int | None = None,
-              check: bool = True, backend: str = "cpu", grad_dtype: str = "float64"):
+              check: bool = True, backend: str = "cpu", grad_dtype: str = "float64",
+              window: str = "cut"):
     """Render Gaussians with a differentiable CPU rasterizer.
 
     Parameters
@@ -217,6 +220,11 @@ def rasterize(means: torch.Tensor, quats: torch.Tensor, log_scales: torch.Tensor
         asked for: 'float64' (8 lanes, products and sums rounded one by one)
         or 'float32' (16 lanes, fused multiply-adds; about 1.5x faster); its
         backward recomputes in the same type.
+    window : the compositing window, 'cut' (3DGS's: each Gaussian cut at 3
+        sigma and alpha 1/255, compositing stopped at transmittance 1e-4) or
+        'smooth' (the same footprint tapered to zero with its slope, weights
+        faded before the stop: images continuous in the camera pose; issue
+        67, :mod:`gs2e.splat.raster`). The CUDA backend has 'cut' only.
 
     All tensors share one dtype, float32 or float64 (outputs take it). Where
     no gradient can be asked for (grad mode off or no input requiring one) the
@@ -260,7 +268,12 @@ def rasterize(means: torch.Tensor, quats: torch.Tensor, log_scales: torch.Tensor
         qn = quats.detach().norm(dim=1)
         if bool((qn == 0).any()):
             raise NonFiniteError(f"quats has zero-norm rows {torch.nonzero(qn == 0)[:5].flatten().tolist()}")
+    if window not in _raster.WINDOWS:
+        raise InputError(f"rasterize: window must be one of {', '.join(_raster.WINDOWS)}, got {window!r}")
     if backend == "gsplat":
+        if window != "cut":
+            raise InputError("rasterize: the gsplat backend composites with the 'cut' window only; "
+                             "use backend 'cpu' for window 'smooth'")
         from gs2e.splat.backend import rasterize_gsplat
 
         return rasterize_gsplat(means, quats, log_scales, opacity_logits, sh, cam, background,
@@ -274,7 +287,7 @@ def rasterize(means: torch.Tensor, quats: torch.Tensor, log_scales: torch.Tensor
         x.requires_grad for x in (means, quats, log_scales, opacity_logits, sh, background)))
     image, alpha, depth_acc = _Rasterize.apply(means, quats, log_scales, opacity_logits, sh,
                                                background, cam, int(sh_degree), meta, forward_only,
-                                               np.dtype(grad_dtype).type)
+                                               np.dtype(grad_dtype).type, window)
     depth = depth_acc / alpha.clamp_min(1e-10)
     return image, alpha, depth, meta
 

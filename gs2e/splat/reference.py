@@ -114,11 +114,49 @@ def reference_alpha(power: torch.Tensor, opac: torch.Tensor) -> torch.Tensor:
     return torch.where(stop, torch.zeros_like(alpha), alpha)
 
 
+def reference_weights(power: torch.Tensor, opac: torch.Tensor, window: str = "cut"):
+    """Compositing weights (P, M) of M depth-ordered Gaussians at P pixels and
+    the final transmittance (P,), with the rasteriser's ``window``
+    (:data:`gs2e.splat.raster.WINDOWS`): ``cut`` (:func:`reference_alpha`,
+    w = alpha T) or ``smooth`` (alpha = o phi(p) / phi(0), phi = e^p less its
+    tangent at the Gaussian's cut p_c; w = alpha T r(T), the Gaussian that
+    takes T below T_MIN applied: :mod:`gs2e.splat.raster`). Which pixels a Gaussian reaches
+    and where a pixel stops are not differentiated."""
+    _r.check_window(window)
+    one = torch.ones_like(power[:, :1])
+    if window == "cut":
+        alpha = reference_alpha(power, opac)
+        T = torch.cumprod(torch.cat([one, 1 - alpha[:, :-1]], dim=1), dim=1)
+        T_final = torch.prod(1 - alpha, dim=1) if alpha.shape[1] else one[:, 0]
+        return alpha * T, T_final
+    o = opac[None, :]
+    e0 = float(torch.exp(torch.tensor(_r.POWER_MIN, dtype=torch.float64)))
+    big = (o * e0 >= _r.ALPHA_MIN).detach()
+    pc = torch.where(big, torch.full_like(o, _r.POWER_MIN), torch.log(_r.ALPHA_MIN / o))
+    ec = torch.exp(pc)
+    phi0 = 1 - ec * (1 - pc)
+    drawn = (o >= _r.ALPHA_MIN) & (phi0 >= _r.SMOOTH_PHI0_MIN).detach()
+    inside = ((power <= 0) & (power >= pc) & drawn).detach()
+    p = torch.where(inside, power, torch.zeros_like(power))
+    raw = o * (torch.exp(p) - ec * (1 + p - pc)) / torch.where(drawn, phi0, torch.ones_like(phi0))
+    alpha = torch.where(inside, torch.clamp(raw, min=0.0, max=_r.ALPHA_MAX), torch.zeros_like(raw))
+    T = torch.cumprod(torch.cat([one, 1 - alpha[:, :-1]], dim=1), dim=1)
+    with torch.no_grad():  # pixels stop after the Gaussian that takes T below T_MIN
+        after = torch.cat([one.bool() & False, (T * (1 - alpha) < _r.T_MIN)[:, :-1]], dim=1)
+        after = torch.cumsum(after.to(torch.int64), dim=1) > 0
+    alpha = torch.where(after, torch.zeros_like(alpha), alpha)
+    T = torch.cumprod(torch.cat([one, 1 - alpha[:, :-1]], dim=1), dim=1)
+    x = torch.clamp((T - _r.T_MIN) / _r.T_MIN, 0.0, 1.0)
+    T_final = torch.prod(1 - alpha, dim=1) if alpha.shape[1] else one[:, 0]
+    return alpha * T * x * x * (3 - 2 * x), T_final
+
+
 def render_reference(means, quats, log_scales, opacity_logits, sh, cam,
-                     background=None, sh_degree=None):
+                     background=None, sh_degree=None, window="cut"):
     """Dense render; same signature and outputs (image, alpha, depth, meta) as
-    :func:`gs2e.splat.rasterize.rasterize`; meta holds means2d (with grad,
-    retain_grad() called) and radii."""
+    :func:`gs2e.splat.rasterize.rasterize` (``window``: the rasteriser's,
+    :func:`reference_weights`); meta holds means2d (with grad, retain_grad()
+    called) and radii."""
     dt = means.dtype
     if background is None:
         background = torch.zeros(3, dtype=dt)
@@ -142,11 +180,7 @@ def render_reference(means, quats, log_scales, opacity_logits, sh, cam,
     dx = u[None, :] - px
     dy = v[None, :] - py
     power = -0.5 * (A * dx * dx + Cc * dy * dy) - B * dx * dy
-    alpha = reference_alpha(power, opac[idx])
-    one = torch.ones_like(alpha[:, :1])
-    T = torch.cumprod(torch.cat([one, 1 - alpha[:, :-1]], dim=1), dim=1)
-    w = alpha * T
-    T_final = torch.prod(1 - alpha, dim=1) if alpha.shape[1] else one[:, 0]
+    w, T_final = reference_weights(power, opac[idx], window)
     rgb = w @ col[idx] + T_final[:, None] * background[None, :]
     dacc = w @ z[idx]
     image = rgb.reshape(H, W, 3)

@@ -24,7 +24,7 @@ from gs2e.common.errors import InputError
 from gs2e.common.log import get_logger, timed
 from gs2e.common.threads import set_threads
 from gs2e.io.scene import IMAGES_DIR, Scene, read_scene
-from gs2e.splat.backend import resolve_backend
+from gs2e.splat.backend import resolve_backend_for
 from gs2e.splat.checkpoint import Checkpoint
 from gs2e.splat.evaluate import evaluate
 from gs2e.splat.import_ply import import_ply
@@ -88,20 +88,22 @@ def initial_params(scene: Scene, scene_dir: Path, cfg: dict, sh_degree: int) -> 
 
 
 def photometric_step(p: dict[str, torch.Tensor], cam, gt: torch.Tensor, bg: torch.Tensor,
-                     sh_degree: int, backend: str, compute_dtype: str, lambda_ssim: float):
+                     sh_degree: int, backend: str, compute_dtype: str, lambda_ssim: float,
+                     window: str = "cut"):
     """Render one view and its photometric loss against ``gt``: (loss, the
     render's meta: radii, 2D-mean gradients for densification)."""
-    img, _, _, meta = render(p, cam, bg, sh_degree, backend, compute_dtype)
+    img, _, _, meta = render(p, cam, bg, sh_degree, backend, compute_dtype, window)
     return photometric_loss(img, gt, lambda_ssim), meta
 
 
 def train_step(p: dict[str, torch.Tensor], opt: Adam, cam, gt: torch.Tensor, bg: torch.Tensor,
-               sh_degree: int, backend: str, compute_dtype: str, lambda_ssim: float):
+               sh_degree: int, backend: str, compute_dtype: str, lambda_ssim: float,
+               window: str = "cut"):
     """One optimiser step on one view (:func:`photometric_step`, backward,
     Adam; ``p`` updated in place): what a step of :func:`train` does, for
     benchmarks. Returns (loss, meta)."""
     return gradient_step(p, opt, lambda: photometric_step(p, cam, gt, bg, sh_degree, backend,
-                                                          compute_dtype, lambda_ssim))
+                                                          compute_dtype, lambda_ssim, window))
 
 
 class PhotometricObjective:
@@ -111,8 +113,9 @@ class PhotometricObjective:
     (``lambda_ssim``) against its photo at the step's downscale."""
 
     def __init__(self, views: list[View], rng: np.random.Generator, bg: torch.Tensor, backend: str,
-                 compute_dtype: str, lambda_ssim: float, order: list[int] | None = None):
-        self.views, self.rng, self.bg = views, rng, bg
+                 compute_dtype: str, lambda_ssim: float, order: list[int] | None = None,
+                 window: str = "cut"):
+        self.views, self.rng, self.bg, self.window = views, rng, bg, window
         self.backend, self.compute_dtype, self.lambda_ssim = backend, compute_dtype, lambda_ssim
         self.order = list(order or [])
         self.view: View | None = None
@@ -123,7 +126,7 @@ class PhotometricObjective:
         self.view = self.views[self.order.pop()]
         cam, gt = self.view.camera(downscale)
         loss, meta = photometric_step(p, cam, gt, self.bg, sh_degree, self.backend,
-                                      self.compute_dtype, self.lambda_ssim)
+                                      self.compute_dtype, self.lambda_ssim, self.window)
         return Step(loss, meta, cam)
 
     def where(self) -> str:
@@ -190,7 +193,7 @@ class _Run:
         if not (n_it % cfg["eval_every"] == 0 or n_it == cfg["max_iterations"]):
             return False
         elapsed, cpu = self.elapsed()
-        ev = evaluate(p, self.eval_views, self.bg, sh_deg, self.backend)
+        ev = evaluate(p, self.eval_views, self.bg, sh_deg, self.backend, self.cfg["window"])
         self.curve.append({"iteration": n_it, "train_time_s": elapsed, "cpu_time_s": cpu,
                            "psnr": ev["psnr"], "ssim": ev["ssim"], "n_gaussians": int(p["means"].shape[0]),
                            "budget": int(self.strategy.ops.budget), "downscale": ds,
@@ -253,7 +256,8 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     gradients become NaN/inf; no output is written then.
     """
     scene_dir, out_dir = Path(scene_dir), Path(out_dir)
-    backend = resolve_backend(cfg["backend"])
+    window = cfg["window"]
+    backend = resolve_backend_for(cfg["backend"], window)
     set_threads(threads)
     scene = read_scene(scene_dir)
     t0 = time.perf_counter()
@@ -265,7 +269,7 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     bg = torch.tensor(cfg["background"], dtype=torch.float32)
     timings: dict[str, float] = {}
     compute_dtype = training_dtype(cfg["compute_dtype"], train_size)
-    stats: dict[str, Any] = {"backend": backend, "compute_dtype": compute_dtype,
+    stats: dict[str, Any] = {"backend": backend, "compute_dtype": compute_dtype, "window": window,
                              "n_views": len(views), "n_train_views": len(train_v),
                              "n_test_views": len(test_v), "extent": extent,
                              "test_every": cfg["test_every"], "background": list(cfg["background"]),
@@ -302,7 +306,7 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     rng = np.random.default_rng(seed)  # view order
     run = _Run(cfg, p, make_optimizer(cfg, sched, extent), torch.Generator().manual_seed(seed), rng,
                strategy, PhotometricObjective(train_v, rng, bg, backend, compute_dtype,
-                                              cfg["lambda_ssim"]),
+                                              cfg["lambda_ssim"], window=window),
                growing, Checkpoint(checkpoint_dir or out_dir.with_name(out_dir.name + ".ckpt"),
                                    {**cfg, "view_sizes": view_sizes}, scene_dir, seed),
                test_v or train_v[:4], bg, backend, interrupt_after)
@@ -316,7 +320,7 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     p, growing, curve, stop_reason = run.p, run.growing, run.curve, run.stop_reason
     train_s, cpu_s = run.elapsed()
     sh_final = min(sh_max, max(0, n_iters - 1) // cfg["sh_increase_every"])
-    final = evaluate(p, test_v, bg, sh_final, backend)
+    final = evaluate(p, test_v, bg, sh_final, backend, window)
     if growing is not None:
         frozen = [h[0] for h in growing.history if h[3] == "frozen"]
         stats.update({"budget": int(growing.budget),

@@ -15,6 +15,7 @@ rule events:
         background=lambda wc: ",".join(map(repr, SCENE_CFG[wc.scene]["render"]["background"])),
         scale=lambda wc: SCENE_CFG[wc.scene]["render"]["scale"],
         backend=lambda wc: SCENE_CFG[wc.scene]["render"]["backend"],
+        order_step_px=lambda wc: SCENE_CFG[wc.scene]["render"]["order_step_px"],
         seed=lambda wc: derive_seed(SCENE_CFG[wc.scene]["seed"], f"{wc.scene}/{wc.traj}", "events"),
         code=code_version("events"),
         trajectory=lambda wc, input: str(Path(input.trajectories, f"{wc.traj}.npz")),
@@ -34,4 +35,5 @@ rule events:
         "{GS2E} events --model {input.model:q} --trajectory {params.trajectory:q}"
         " -o {output:q} --seed {params.seed} --threads {threads}"
         " --background {params.background} --scale {params.scale} --backend {params.backend}"
+        " --order-step-px {params.order_step_px}"
         " --config-json {params.cfg:q} 2> {log:q}"
