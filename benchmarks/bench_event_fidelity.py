@@ -67,7 +67,6 @@ METHODS = {  # name -> (mode, fps, sampling overrides)
     "tile": ("tile", 2400.0, {}),
     "motion 1 cubic 4": ("motion", 2400.0, {"max_motion_px": 1.0, "substeps": 4}),
     "motion 2 cubic 8": ("motion", 2400.0, {"max_motion_px": 2.0, "substeps": 8}),
-    "fixed 2400 cubic 2": ("fixed", 2400.0, {"substeps": 2}),
 }
 DEFAULT_METHODS = ("fixed 2400", "fixed 1200", "motion 0.1", "motion 0.25", "motion 0.5", "motion 1", "tile")
 

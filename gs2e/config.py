@@ -479,6 +479,8 @@ CROSS_CHECKS = (
     (("export",), _check_export),
     (("bench",), _check_bench),
 )
+
+
 def _check_window_backend(cfg: dict) -> None:
     """A model of the smooth window renders on the cpu only (gsplat has the cut window)."""
     if cfg["splat"]["window"] != "cut" and cfg["render"]["backend"] == "gsplat":

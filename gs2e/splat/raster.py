@@ -486,7 +486,8 @@ def _gaussian(g, means2d, conics, opac, feats):
             np.float64(feats[g, 0]), f1, f2, f3)
 
 
-_NGEO = 22  # per-Gaussian set-up: _gaussian's 13, row radius, 1 / a, the smooth window's 7
+_NGEO_CUT = 15  # per-Gaussian set-up: _gaussian's 13, row radius, 1 / a
+_NGEO = 22  # and the smooth window's 7 (_smooth_constants)
 
 
 # Per render, per tile and per Gaussian helpers are compiled functions of their
@@ -495,13 +496,14 @@ _NGEO = 22  # per-Gaussian set-up: _gaussian's 13, row radius, 1 / a, the smooth
 # each of the four kernels' cold compile (float32 forward 10.0 -> 7.6 CPU-s, plus
 # 1.4 once for this kernel), for no measurable speed (interleaved renders, same bits).
 @njit(parallel=True, cache=True, fastmath=False)
-def _prepare_gaussians(means2d, conics, opac, feats):
-    """(N, _NGEO) float64: per Gaussian, :func:`_gaussian`'s values, the row
+def _prepare_gaussians(means2d, conics, opac, feats, smooth):
+    """(N, _NGEO_CUT) float64, or with ``smooth`` (N, _NGEO) holding the
+    smooth window's constants too: per Gaussian, :func:`_gaussian`'s values, the row
     radius of the rows it reaches (:func:`_rows_of`; power >= lpm, slightly
     enlarged) and 1 / a, computed once per render instead of once per (tile,
     Gaussian) pair (a Gaussian reaches ~30 tiles at HD)."""
     n = means2d.shape[0]
-    geo = np.zeros((n, _NGEO))
+    geo = np.zeros((n, _NGEO if smooth else _NGEO_CUT))
     for g in prange(n):
         o, a, b, c, lpm, m2, det, u, v, f0, f1, f2, f3 = _gaussian(g, means2d, conics, opac, feats)
         geo[g, 0], geo[g, 1], geo[g, 2], geo[g, 3], geo[g, 4] = o, a, b, c, lpm
@@ -510,9 +512,10 @@ def _prepare_gaussians(means2d, conics, opac, feats):
         if lpm <= 0.0:
             geo[g, 13] = math.sqrt(m2 * a / det) * (1.0 + 1e-6) + 1e-3  # var_y = a / det
             geo[g, 14] = 1.0 / a
-            k = _smooth_constants(o)
-            for i in range(7):
-                geo[g, 15 + i] = k[i]
+            if smooth:
+                k = _smooth_constants(o)
+                for i in range(_NGEO - _NGEO_CUT):
+                    geo[g, _NGEO_CUT + i] = k[i]
     return geo
 
 
@@ -557,8 +560,9 @@ def _segment_values(geo, g, ftype):
 def _smooth_values(geo, g, ftype):
     """Gaussian g's smooth-window constants (p_c, A, c0, c1, u0, q0, q1:
     :func:`_smooth_constants`) in ``ftype``."""
-    return (ftype(geo[g, 15]), ftype(geo[g, 16]), ftype(geo[g, 17]), ftype(geo[g, 18]),
-            ftype(geo[g, 19]), ftype(geo[g, 20]), ftype(geo[g, 21]))
+    k = _NGEO_CUT
+    return (ftype(geo[g, k]), ftype(geo[g, k + 1]), ftype(geo[g, k + 2]), ftype(geo[g, k + 3]),
+            ftype(geo[g, k + 4]), ftype(geo[g, k + 5]), ftype(geo[g, k + 6]))
 
 
 @njit(inline="always", fastmath=False)
@@ -768,7 +772,7 @@ def _make_forward(ftype, lanes: int, smooth: bool = False):
         tiles_x = (width + tile - 1) // tile
         C = feats.shape[1]
         nseg = (tile + lanes - 1) // lanes
-        geo = _prepare_gaussians(means2d, conics, opac, feats)
+        geo = _prepare_gaussians(means2d, conics, opac, feats, smooth)
         for w in prange(bounds.shape[0] - 1):
             for r in range(bounds[w], bounds[w + 1]):
                 si = order[r]
@@ -994,7 +998,7 @@ def _make_backward(ftype, lanes: int, smooth: bool = False):
         tiles_x = (width + tile - 1) // tile
         C = feats.shape[1]
         nseg = (tile + lanes - 1) // lanes
-        geo = _prepare_gaussians(means2d, conics, opac, feats)
+        geo = _prepare_gaussians(means2d, conics, opac, feats, smooth)
         for w in prange(bounds.shape[0] - 1):
             for r in range(bounds[w], bounds[w + 1]):
                 t = order[r]

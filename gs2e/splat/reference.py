@@ -8,6 +8,8 @@ Memory is O(H*W*N): only for small scenes.
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from gs2e.splat import raster as _r
@@ -130,7 +132,7 @@ def reference_weights(power: torch.Tensor, opac: torch.Tensor, window: str = "cu
         T_final = torch.prod(1 - alpha, dim=1) if alpha.shape[1] else one[:, 0]
         return alpha * T, T_final
     o = opac[None, :]
-    e0 = float(torch.exp(torch.tensor(_r.POWER_MIN, dtype=torch.float64)))
+    e0 = math.exp(_r.POWER_MIN)
     big = (o * e0 >= _r.ALPHA_MIN).detach()
     pc = torch.where(big, torch.full_like(o, _r.POWER_MIN), torch.log(_r.ALPHA_MIN / o))
     ec = torch.exp(pc)
@@ -142,7 +144,8 @@ def reference_weights(power: torch.Tensor, opac: torch.Tensor, window: str = "cu
     alpha = torch.where(inside, torch.clamp(raw, min=0.0, max=_r.ALPHA_MAX), torch.zeros_like(raw))
     T = torch.cumprod(torch.cat([one, 1 - alpha[:, :-1]], dim=1), dim=1)
     with torch.no_grad():  # pixels stop after the Gaussian that takes T below T_MIN
-        after = torch.cat([one.bool() & False, (T * (1 - alpha) < _r.T_MIN)[:, :-1]], dim=1)
+        after = torch.cat([torch.zeros_like(one, dtype=torch.bool), (T * (1 - alpha) < _r.T_MIN)[:, :-1]],
+                          dim=1)
         after = torch.cumsum(after.to(torch.int64), dim=1) > 0
     alpha = torch.where(after, torch.zeros_like(alpha), alpha)
     T = torch.cumprod(torch.cat([one, 1 - alpha[:, :-1]], dim=1), dim=1)
