@@ -90,13 +90,13 @@ def warm_gsplat() -> float:
 def train_both(scene_dir: Path, iterations: int, work: Path) -> list[dict]:
     """The default recipe for ``iterations`` steps with each backend, same seed
     (gsplat's CUDA build is done before, not counted)."""
-    from gs2e.config import load_section
+    from gs2e.splat.settings import SplatSettings
     from gs2e.splat.train import train
 
     print(f"first gsplat call of this process: {warm_gsplat():.1f} s", flush=True)
     rows = []
     for backend in ("cpu", "gsplat"):
-        cfg = dict(load_section("splat"), backend=backend, max_iterations=iterations)
+        cfg = SplatSettings.defaults(backend=backend, max_iterations=iterations)
         with harness.clock() as t:
             st = train(scene_dir, work / f"model_{backend}", cfg, seed=0, resume=False)
         rows.append(dict(backend=backend, wall_s=t.wall_s,

@@ -80,6 +80,7 @@ def bench_kernel(results: Path, events_cfg: dict, scene: str, traj: str, n_poses
     import torch
 
     from gs2e.events.rendered import RenderedSource
+    from gs2e.events.settings import event_settings
     from gs2e.splat import raster as R
     from gs2e.splat.forward import TILE
     from gs2e.splat.model import load_model, render
@@ -87,7 +88,7 @@ def bench_kernel(results: Path, events_cfg: dict, scene: str, traj: str, n_poses
 
     numba.set_num_threads(2)
     src = RenderedSource(results / scene / "splat", results / scene / "trajectories" / f"{traj}.npz",
-                         events_cfg)
+                         event_settings(events_cfg))
     fr = src.renderer
     rows = []
     t_us = np.linspace(src.t0_us, src.t1_us, n_poses).astype(np.int64)

@@ -87,11 +87,12 @@ def bench_blur(results: Path, cfg: dict, scene: str, traj: str, n_frames: int) -
     import pandas as pd
 
     from gs2e.events.sensors import get_sensor
+    from gs2e.events.settings import event_settings
     from gs2e.io.images import to_u8
     from gs2e.render.blur import adaptive_blur, average_srgb, subframe_times_us
     from gs2e.render.renderer import TrajectoryRenderer
 
-    sensor = get_sensor(cfg["events"])
+    sensor = get_sensor(event_settings(cfg["events"]))
     sensor_arg = None if sensor is None else (tuple(sensor.size), cfg["events"]["sensor_fit"])
     r = TrajectoryRenderer(results / scene / "splat", results / scene / "trajectories" / f"{traj}.npz",
                            cfg["render"]["background"], cfg["render"]["scale"], "cpu", sensor=sensor_arg)

@@ -15,8 +15,8 @@ import tempfile
 from pathlib import Path
 
 import harness
-from gs2e.config import load_section
 from gs2e.demo.io import generate_demo_scene
+from gs2e.demo.settings import DemoSettings
 from gs2e.demo.world import RAY_CHUNK, build_world, intrinsics, orbit_c2w, render_view, wall_size
 
 
@@ -44,7 +44,7 @@ def main() -> None:
                      "s_per_view_one_batch": round(base, 4), "s_per_view_chunked": round(fast, 4),
                      "speedup": round(base / fast, 2), "mrays_per_s": round(W * H * ss * ss / fast / 1e6, 2)})
 
-    cfg = load_section("demo")
+    cfg = DemoSettings.defaults()
     with tempfile.TemporaryDirectory() as tmp:
         with harness.clock() as t:
             stats = generate_demo_scene(Path(tmp) / "demo", cfg)

@@ -75,9 +75,11 @@ def case(model_dir, traj_path, sensor: str, steps_px, trials: int) -> list[dict]
     """Rows (method, step) of one scene and trajectory."""
     from gs2e.events.rendered import RenderedSource
     from gs2e.events.sampling import image_luminance
+    from gs2e.events.settings import event_settings
     from gs2e.splat.forward import ForwardRenderer
 
-    src = RenderedSource(model_dir, traj_path, events_cfg("voltmeter", "fixed", extra={"sensor": sensor}))
+    cfg = event_settings(events_cfg("voltmeter", "fixed", extra={"sensor": sensor}))
+    src = RenderedSource(model_dir, traj_path, cfg)
     eps = src.log_eps
     K, (H, W) = src.K, src.shape
     fr = ForwardRenderer(src.params, int(src.info["sh_degree"]), K[0, 0], K[1, 1], K[0, 2], K[1, 2],
@@ -127,15 +129,16 @@ def events_case(model_dir, traj_path, sensor: str, ratios, ref_renders: int,
     reference's events over the same span."""
     from gs2e.events.models import Events, make_model
     from gs2e.events.rendered import RenderedSource
+    from gs2e.events.settings import event_settings
 
     extra = {"sensor": sensor}
     cfg = events_cfg("ideal", "fixed", extra=extra)
-    src = RenderedSource(model_dir, traj_path, cfg)
+    src = RenderedSource(model_dir, traj_path, event_settings(cfg))
     span = reference_span(src, ref_renders, max_span_us)
     px_per_step = motion_rate_px_per_us(src, span[0]) * 1e6 / PAPER_FPS
     ref = reference_run(model_dir, traj_path, span, extra, sample_for=("ideal",))
     R, shape = ref["events"]["ideal"], ref["shape"]
-    src = RenderedSource(model_dir, traj_path, cfg, span_us=span)
+    src = RenderedSource(model_dir, traj_path, event_settings(cfg), span_us=span)
     eps = float(cfg["log_eps"])
     lo, hi = span
 
@@ -146,7 +149,7 @@ def events_case(model_dir, traj_path, sensor: str, ratios, ref_renders: int,
         return np.clip(np.exp(g) - eps, 0.0, 1.0).astype(np.float32)
 
     def events(frames):
-        m = make_model(cfg, shape, 0)[0]
+        m = make_model(event_settings(cfg), shape, 0)[0]
         t0, f0 = next(frames)
         m.start(t0, f0)
         return Events.concat(list(m.run(frames, batch=64)))

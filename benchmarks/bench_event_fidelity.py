@@ -94,9 +94,10 @@ def case(model_dir, traj, sensor_name: str | None, methods: list[str], ref_rende
          max_span_us: int, prefix: str = "") -> list[dict]:
     """All methods and the reference on one scene x speed x sensor."""
     from gs2e.events.rendered import RenderedSource
+    from gs2e.events.settings import event_settings
 
     sensor = {"sensor": sensor_name} if sensor_name else {}
-    probe = RenderedSource(model_dir, traj, events_cfg("ideal", "fixed", extra=sensor))
+    probe = RenderedSource(model_dir, traj, event_settings(events_cfg("ideal", "fixed", extra=sensor)))
     span = reference_span(probe, ref_renders, max_span_us)
     rate = motion_rate_px_per_us(probe, span[0])
     ref = reference_run(model_dir, traj, span, sensor, seeds=(0, 1))

@@ -63,6 +63,7 @@ def legacy_render_ratio(model_dir, traj, t_us: int, n: int) -> tuple[float, floa
     """ms per frame of the old event-stage render path and of the forward renderer."""
     from gs2e.events.rendered import RenderedSource
     from gs2e.events.sampling import image_luminance
+    from gs2e.events.settings import event_settings
     from gs2e.render.renderer import TrajectoryRenderer
 
     old = TrajectoryRenderer(model_dir, traj)
@@ -70,7 +71,7 @@ def legacy_render_ratio(model_dir, traj, t_us: int, n: int) -> tuple[float, floa
     with harness.clock() as t_old:
         for i in range(n):
             old.linear_luminance(t_us + 100 * i)
-    src = RenderedSource(model_dir, traj, events_cfg("ideal", "fixed"))
+    src = RenderedSource(model_dir, traj, event_settings(events_cfg("ideal", "fixed")))
     out = np.empty(src.shape, np.float32)
     image_luminance(src.renderer.render(src.pose_at(t_us)), out)
     with harness.clock() as t_new:

@@ -158,9 +158,11 @@ def case(model_dir, traj_path, sensor: str, crop: int, steps_px, trials: int,
     """Rows (variant, step) of one scene and trajectory, and the check row."""
     from gs2e.events.rendered import RenderedSource
     from gs2e.events.sampling import image_luminance
+    from gs2e.events.settings import event_settings
     from gs2e.splat.forward import ForwardRenderer
 
-    src = RenderedSource(model_dir, traj_path, events_cfg("voltmeter", "fixed", extra={"sensor": sensor}))
+    cfg = event_settings(events_cfg("voltmeter", "fixed", extra={"sensor": sensor}))
+    src = RenderedSource(model_dir, traj_path, cfg)
     K, (H, W) = src.K, src.shape
     whole = ForwardRenderer(src.params, int(src.info["sh_degree"]), K[0, 0], K[1, 1], K[0, 2], K[1, 2],
                             W, H, dtype=np.float64)

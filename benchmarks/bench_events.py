@@ -41,6 +41,7 @@ import numpy as np
 
 from gs2e.events.models import IdealModel, VoltmeterModel
 from gs2e.events.presets import PRESETS, effective_threshold
+from gs2e.events.settings import event_settings
 from gs2e.events.synthetic import standard_sequence
 from harness import REPO, clock, gs2e_env, parser, pyplot, report, save_plot, write_csv
 
@@ -125,7 +126,7 @@ def child_memory(n_frames: int, out: str) -> None:
                                                   "compression": "lzf"}))
     src = IterSource(standard_sequence(n_frames=n_frames), shape=(260, 346),
                      n_frames=n_frames, name="standard")
-    st = simulate_to_folder(src, cfg, out, seed=0)
+    st = simulate_to_folder(src, event_settings(cfg), out, seed=0)
     # VmHWM (peak RSS of this process image); ru_maxrss would include the
     # parent's RSS at fork time, which Linux keeps across exec
     try:

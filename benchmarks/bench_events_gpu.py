@@ -49,17 +49,18 @@ def simulate(scene_dir: Path, speed: str, sensor: str, mode: str, motion_px, bac
     the per-pixel x polarity counts."""
     from gs2e.events.models import Events, make_model
     from gs2e.events.rendered import RenderedSource
+    from gs2e.events.settings import event_settings
 
     traj = scene_dir / "trajectories" / f"base_{speed}.npz"
     cfg = events_cfg(mode, sensor, motion_px)
-    probe = RenderedSource(scene_dir / "splat", traj, cfg)
+    probe = RenderedSource(scene_dir / "splat", traj, event_settings(cfg))
     t0 = (probe.t0_us + probe.t1_us) // 2
     span = (t0, min(probe.t1_us, t0 + int(span_ms * 1e3)))
-    src = RenderedSource(scene_dir / "splat", traj, cfg, backend=backend, span_us=span,
+    src = RenderedSource(scene_dir / "splat", traj, event_settings(cfg), backend=backend, span_us=span,
                          batch_frames=64)
     with harness.clock() as t:
         t_start, f0 = src.start()
-        model = make_model(cfg, src.shape, 0)[0]
+        model = make_model(event_settings(cfg), src.shape, 0)[0]
         model.start(t_start, f0)
         ev = Events.concat([model.process_batch(*b) for b in src.batches()] + [model.flush()])
     wall, cpu = t.wall_s, t.cpu_s

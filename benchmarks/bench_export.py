@@ -54,11 +54,11 @@ def trajectories(results: Path) -> list[tuple[Path, str]]:
 
 def bench_exports(pairs, reps: int) -> list[dict]:
     from gs2e.common.errors import GS2EError
-    from gs2e.config import load_section
+    from gs2e.export.settings import ExportSettings
     from gs2e.export.formats import FORMATS
     from gs2e.export.run import export_trajectory
 
-    cfg = {**load_section("export"), **CFG_OVERRIDES}
+    cfg = ExportSettings.defaults(**CFG_OVERRIDES)
 
     rows = []
     for scene_dir, traj in pairs:

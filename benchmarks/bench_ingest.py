@@ -21,6 +21,7 @@ from pathlib import Path
 import cv2
 
 from gs2e.io.ingest import ingest_scene
+from gs2e.io.settings import IngestSettings
 from harness import SHARED, clock, parser, pyplot, report, save_plot, write_csv
 
 
@@ -59,7 +60,8 @@ def main() -> int:
                         _baseline(files, tmp / f"base_{name}_{r}", max_side)
                     t_base.append(t.wall_s)
                     with clock() as t:
-                        ingest_scene(src, "folder", tmp / f"ing_{name}_{r}", {"max_side": max_side})
+                        ingest_scene(src, "folder", tmp / f"ing_{name}_{r}",
+                                     IngestSettings.defaults(max_side=max_side))
                     t_ing.append(t.wall_s)
                 tb, ti = min(t_base), min(t_ing)
                 rows.append({"scene": name, "views": len(files), "max_side": max_side or 0,

@@ -35,6 +35,7 @@ os.environ.setdefault("GS2E_PROGRESS", "0")
 
 # first: importing gs2e sets OMP_WAIT_POLICY before torch loads
 from gs2e.config import load_section  # noqa: E402
+from gs2e.events.settings import event_settings
 
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
@@ -78,7 +79,7 @@ def prepare(work: Path, squeezed: bool = True) -> dict[str, Path]:
     for layout in ("colmap", "mvimgnet"):
         d = work / f"ingest_{layout}"
         if not d.exists():
-            ingest_scene(src, layout, d, load_section("ingest"))
+            ingest_scene(src, layout, d)
         out[layout] = d
     if not squeezed:
         return out
@@ -105,15 +106,17 @@ def run_variant(name: str, scene_dir: Path, work: Path, target: tuple[int, int],
     """SfM (the capture's own cameras) + training + held-out renders of one variant."""
     from gs2e.io.scene import read_scene
     from gs2e.sfm.colmap_sfm import run_sfm
+    from gs2e.sfm.settings import SfmSettings
     from gs2e.splat.evaluate import render_views
+    from gs2e.splat.settings import SplatSettings
     from gs2e.splat.train import train
 
     sfm, model, views = work / f"sfm_{name}", work / f"splat_{name}", work / f"views_{name}"
     for d in (sfm, model, views):
         shutil.rmtree(d, ignore_errors=True)
-    run_sfm(scene_dir, sfm, dict(load_section("sfm"), reuse_poses=True), seed=seed, threads=2)
+    run_sfm(scene_dir, sfm, SfmSettings.defaults(reuse_poses=True), seed=seed, threads=2)
     with harness.clock() as t:
-        stats = train(sfm, model, load_section("splat"), seed=seed, threads=2, target_size=target)
+        stats = train(sfm, model, SplatSettings.defaults(), seed=seed, threads=2, target_size=target)
     rows = render_views(model, sfm, views, "test")
     src = read_scene(scene_dir)  # the views' orientation in the capture
     orient = {f.name: ("portrait" if src.frame_size(i)[1] > src.frame_size(i)[0] else "landscape")
@@ -165,7 +168,7 @@ def main() -> int:
         return 2
     from gs2e.events.sensors import get_sensor
 
-    target = tuple(get_sensor({**load_section("events"), "sensor": a.sensor}).size)
+    target = tuple(get_sensor(event_settings({**load_section("events"), "sensor": a.sensor})).size)
     a.work.mkdir(parents=True, exist_ok=True)
     scenes = prepare(a.work, squeezed=not a.quick)
     mvimgnet_same = same_views(scenes["colmap"], scenes["mvimgnet"])

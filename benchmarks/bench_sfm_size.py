@@ -44,11 +44,11 @@ from pathlib import Path
 
 import harness
 import pycolmap
-from gs2e.config import load_config
 from gs2e.io.ingest import ingest_scene
 from gs2e.sfm import colmap_sfm
 from gs2e.io.scene import read_scene
 from gs2e.sfm.colmap_sfm import run_sfm, sift_max_side_px
+from gs2e.sfm.settings import SfmSettings
 from harness import SHARED_SCENES
 
 
@@ -119,8 +119,7 @@ def run_one(scene: str, scene_dir: Path, config: str, seed: int, tmp: Path, thre
     the CPU of COLMAP's undistorter run beside it on the same model (reported
     apart). The baseline ``config`` uses COLMAP's undistorter itself, as gs2e
     sfm did then."""
-    cfg = load_config({})["sfm"]
-    cfg.update(parse_config(config))
+    cfg = SfmSettings.defaults(**parse_config(config))
     out = tmp / f"sfm_{scene}_{config.replace(':', '_')}_{seed}"
     ours = colmap_sfm._undistort
     cpu = {"colmap": float("nan"), "ours": float("nan")}
@@ -149,7 +148,7 @@ def run_one(scene: str, scene_dir: Path, config: str, seed: int, tmp: Path, thre
     baseline = config == BASELINE
     shutil.rmtree(out, ignore_errors=True)
     return {"scene": scene, "config": config, "seed": seed, "sift_px": sift_max_side_px(cfg, read_scene(scene_dir)),
-            "extractor": cfg["extractor"], "bundle_adjustment": cfg["bundle_adjustment"],
+            "extractor": cfg.extractor, "bundle_adjustment": cfg.bundle_adjustment,
             "n_views": st.get("n_views"), "n_registered": st.get("n_registered"), "n_points": st.get("n_points"),
             "reproj_px": st.get("mean_reproj_error_px"),
             "gt_rot_deg": st.get("gt_rot_median_deg"), "gt_center_pct": st.get("gt_center_rmse_pct_extent"),
@@ -229,7 +228,7 @@ def main() -> int:
                 if scene == "mouse_colmap" and (args.mouse_side or args.mouse_16_9 or args.mouse_views):
                     src, layout = _derived(src, tmp, args.mouse_side, args.mouse_16_9, args.mouse_views), "folder"
                 ingested[scene] = tmp / f"ingest_{scene}"
-                ingest_scene(src, layout, ingested[scene], load_config({})["ingest"])
+                ingest_scene(src, layout, ingested[scene])
             r = run_one(scene, ingested[scene], config, seed, tmp, args.threads)
             rows.append(r)
             print(f"  {scene:13s} {config:22s} seed {seed}: {r['n_registered']}/{r['n_views']} views, "

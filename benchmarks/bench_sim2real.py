@@ -66,6 +66,7 @@ def street_rows(sim_s: float) -> list[dict]:
     from gs2e.events.models import make_model
     from gs2e.events.readout import SensorChain, resolve_readout
     from gs2e.events.recordings import read_aedat4_frames
+    from gs2e.events.settings import event_settings
     from gs2e.events.stats import still_background
 
     rec = read_aedat4_frames(SHARED / "events" / "davis346_street_aps.aedat4")
@@ -83,8 +84,8 @@ def street_rows(sim_s: float) -> list[dict]:
                                                                 **OLD_DAVIS346},
                 "davis346 refitted + DVS-Voltmeter": {"sensor": "davis346", "model": "voltmeter"}}
     for name, s in variants.items():
-        model, _ = make_model(s, rec.shape, 11)
-        ev = SensorChain(model, resolve_readout(s)[0], 11).simulate(ts, frames)
+        model, _ = make_model(event_settings(s), rec.shape, 11)
+        ev = SensorChain(model, resolve_readout(event_settings(s))[0], 11).simulate(ts, frames)
         sim = still_background(ev, rec.shape, rec.frames, mask=real["_mask"]) if len(ev) > 1 else None
         row = {"part": "street", "variant": name}
         for k in keys:

@@ -60,7 +60,9 @@ def settings(base: dict) -> dict[str, dict]:
 def run_one(scene_dir: Path, out: Path, cfg: dict, threads: int | None) -> tuple[dict, pd.DataFrame]:
     from gs2e.splat.train import train
 
-    st = train(scene_dir, out, cfg, seed=0, threads=threads, resume=False)
+    from gs2e.splat.settings import SplatSettings
+
+    st = train(scene_dir, out, SplatSettings.defaults(**cfg), seed=0, threads=threads, resume=False)
     return st, pd.read_parquet(out / "curve.parquet")
 
 

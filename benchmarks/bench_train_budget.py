@@ -73,13 +73,18 @@ def child(repo: str, scene_dir: str, out: str, overrides: str, threads: int) -> 
     and ``_seed`` (the training seed, default 0: settings that differ only in
     it give the seed-to-seed spread)."""
     harness.check_gs2e_root(repo)  # imports gs2e first: thread settings before torch loads
-    from gs2e.config import load_section
     from gs2e.splat.train import train
 
     over = json.loads(overrides)
     target = over.pop("_target_size", None)
     seed = int(over.pop("_seed", 0))
-    st = train(scene_dir, out, load_section("splat", json.dumps(over)), seed=seed, threads=threads,
+    try:
+        from gs2e.splat.settings import SplatSettings
+        cfg = SplatSettings.defaults(**over)
+    except ImportError:  # a revision from before typed settings took the section as a dict
+        from gs2e.config import load_section
+        cfg = load_section("splat", json.dumps(over))
+    st = train(scene_dir, out, cfg, seed=seed, threads=threads,
                resume=False, **({"target_size": tuple(target)} if target else {}))
     print(json.dumps({k: st.get(k) for k in ("iterations", "stop_reason", "train_cpu_s",
                                               "n_gaussians", "budget", "test_psnr", "test_ssim")}))
@@ -98,7 +103,7 @@ def run(repo: Path, scene_dir: Path, out: Path, overrides: dict, threads: int):
     return stats, pd.read_parquet(out / "curve.parquet")
 
 
-def replay_stop(curve, cfg: dict, patience: int, delta_db: float):
+def replay_stop(curve, cfg, patience: int, delta_db: float):
     """The evaluation at which the trainer's plateau stop
     (:func:`gs2e.splat.train.plateau_step`) would have ended this run with
     ``patience`` and ``delta_db``: the run is deterministic, so stopping earlier
@@ -107,7 +112,7 @@ def replay_stop(curve, cfg: dict, patience: int, delta_db: float):
     beyond the run)."""
     from gs2e.splat.train import plateau_step
 
-    rule = dict(cfg, plateau_patience=patience, plateau_min_delta_db=delta_db)
+    rule = cfg.replace(plateau_patience=patience, plateau_min_delta_db=delta_db)
     best, bad = -float("inf"), 0
     rows = curve.sort_values("iteration")
     for r in rows.itertuples():
@@ -208,12 +213,13 @@ def main() -> int:
         import yaml
 
         from gs2e.events.sensors import get_sensor
+        from gs2e.events.settings import event_settings
 
         cost = RESULTS / f"cost_{a.cost_run}"
         if a.work == RESULTS / "work_train_budget":
             a.work = RESULTS / f"work_train_cost_{a.cost_run}"
         ev = load_config(yaml.safe_load((cost / "config.yaml").read_text()))["events"]
-        base["_target_size"] = list(get_sensor(ev).size)
+        base["_target_size"] = list(get_sensor(event_settings(ev)).size)
         if a.scenes == "temple_ring,llff_fern" and not (cost / "results" / "llff_fern").exists():
             a.scenes = ",".join(p.name for p in sorted((cost / "results").iterdir()) if (p / "sfm").is_dir())
     def cost_scene(scene: str) -> Path:
@@ -271,15 +277,15 @@ def main() -> int:
         with pd.option_context("display.width", 160):
             print(tab.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
     if a.cost_run:
-        from gs2e.config import load_section
+        from gs2e.splat.settings import SplatSettings
 
-        cfg = load_section("splat")
-        rules = list(dict.fromkeys([(float(cfg["plateau_patience"]), float(cfg["plateau_min_delta_db"]))] + [
+        cfg = SplatSettings.defaults()
+        rules = list(dict.fromkeys([(float(cfg.plateau_patience), float(cfg.plateau_min_delta_db))] + [
             tuple(float(v) for v in r.split(",")) for r in a.replay_stop]))
         rows = []
         for (scene, name), g in df.groupby(["scene", "setting"], sort=False):
             # the setting's own schedule: which evaluations count as full resolution
-            own = dict(cfg, **{k: v for k, v in settings.get(name, {}).items() if k in cfg})
+            own = cfg.replace(**{k: v for k, v in settings.get(name, {}).items() if k in cfg.as_dict()})
             ref = replay_stop(g, own, 3, 0.1)  # the rule of the runs measured before 2026-11-26
             for pat, dl in rules:
                 r = replay_stop(g, own, int(pat), dl)

@@ -36,11 +36,11 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from gs2e.common.so3 import geodesic_angle  # noqa: E402
-from gs2e.config import load_section  # noqa: E402
 from gs2e.io.scene import write_scene_json  # noqa: E402
 from gs2e.testing import TEMPLE, make_scene, ring, temple_c2w  # noqa: E402
 from gs2e.trajectory.curve import pose_deltas, smooth_poses, translation_scale  # noqa: E402
 from gs2e.trajectory.io import write_outputs  # noqa: E402
+from gs2e.trajectory.settings import TrajectorySettings  # noqa: E402
 from gs2e.trajectory.stage import generate  # noqa: E402
 from gs2e.trajectory.trajectory import (build_base_path, timed_trajectory,  # noqa: E402
                                         timestamps_us)
@@ -68,12 +68,12 @@ def baseline_dense(c2w_in, cfg, v):
     from scipy.interpolate import make_interp_spline
     from scipy.spatial.transform import Rotation, RotationSpline
 
-    sm = smooth_poses(c2w_in, cfg["smooth_half_width"])
+    sm = smooth_poses(c2w_in, cfg.smooth_half_width)
     scale = translation_scale(sm)
-    d = pose_deltas(sm, cfg["alpha"], cfg["beta"] / scale)
+    d = pose_deltas(sm, cfg.alpha, cfg.beta / scale)
     s = np.concatenate([[0.0], np.cumsum(d)])
     N = len(sm)
-    M = int(np.ceil(cfg["gamma"] * N - 1e-9))
+    M = int(np.ceil(cfg.gamma * N - 1e-9))
     t = np.linspace(0, 1, M)
     st = reparameterise(v(t), s[-1])
     pos = make_interp_spline(s, sm[:, :3, 3], k=3)(st)
@@ -106,18 +106,18 @@ def main() -> None:
     real = TEMPLE.exists()
     c2w = temple_c2w(30) if real else ring(30, noise=0.01)
     scene_name = "temple_ring (30 of 47 real views)" if real else "synthetic ring (30 views)"
-    cfg = load_section("trajectory")
-    v = parse_velocity_expression(cfg["velocity"])
+    cfg = TrajectorySettings.defaults()
+    v = parse_velocity_expression(cfg.velocity)
     rows = []
 
     # warm-up: numba cache load / compile
-    build_base_path(c2w, dict(cfg, gamma=5), v)
+    build_base_path(c2w, cfg.replace(gamma=5), v)
 
     print(f"scene: {scene_name}; one core; best of {reps}")
     print(f"{'M':>9} {'build us/pose':>14} {'pose_at us/pose':>16} {'scipy us/pose':>14} "
           f"{'ratio':>7} {'speed err ours':>15} {'speed err scipy':>16}")
     for M in (10_000, 100_000, 1_000_000):
-        c = dict(cfg, gamma=M / 30)
+        c = cfg.replace(gamma=M / 30)
         tb, tb_med, p = best_of(lambda: build_base_path(c2w, c, v), reps)
         tr = timed_trajectory(p, timestamps_us(10.0, len(p.s)), np.eye(3), 1, 1, {})
         tq = best_s(lambda: tr.pose_at(tr.t_us), reps)
@@ -139,7 +139,7 @@ def main() -> None:
 
     # whole stage
     scene = make_scene(c2w, 640, 480)
-    sc = dict(cfg)
+    sc = cfg
     generate(scene, sc, 0)
     t_gen, t_gen_med, res = best_of(lambda: generate(scene, sc, 0), reps)
     with tempfile.TemporaryDirectory() as td:
@@ -154,8 +154,8 @@ def main() -> None:
         t_cli = t.wall_s
         assert r.returncode == 0, r.stderr
     n_poses = sum(len(t.t_us) for t in res.trajectories.values())
-    print(f"\nwhole stage, 30 views, gamma=5, presets {cfg['speed_presets']}, "
-          f"G={cfg['mini_groups']} x F={cfg['mini_frames']} ({len(res.trajectories)} trajectories, "
+    print(f"\nwhole stage, 30 views, gamma=5, presets {cfg.speed_presets}, "
+          f"G={cfg.mini_groups} x F={cfg.mini_frames} ({len(res.trajectories)} trajectories, "
           f"{n_poses} poses):")
     print(f"  compute (generate)      {t_gen * 1e3:8.1f} ms  (median {t_gen_med * 1e3:.1f} ms)")
     print(f"  + write npz/json        {t_write * 1e3:8.1f} ms")
@@ -184,12 +184,12 @@ def baseline_step_error(c2w, c, v):
     from scipy.interpolate import make_interp_spline
     from scipy.spatial.transform import Rotation, RotationSpline
 
-    sm = smooth_poses(c2w, c["smooth_half_width"])
+    sm = smooth_poses(c2w, c.smooth_half_width)
     scale = translation_scale(sm)
-    beta_n = c["beta"] / scale
-    d = pose_deltas(sm, c["alpha"], beta_n)
+    beta_n = c.beta / scale
+    d = pose_deltas(sm, c.alpha, beta_n)
     s = np.concatenate([[0.0], np.cumsum(d)])
-    M = int(np.ceil(c["gamma"] * len(sm) - 1e-9))
+    M = int(np.ceil(c.gamma * len(sm) - 1e-9))
     st = reparameterise(v(np.linspace(0, 1, M)), s[-1])
     ps = make_interp_spline(s, sm[:, :3, 3], k=3)
     rs = RotationSpline(s, Rotation.from_matrix(sm[:, :3, :3]))
@@ -201,7 +201,7 @@ def baseline_step_error(c2w, c, v):
         out[:, 3, 3] = 1
         return out
 
-    return fine_step_error(fn, st, c["alpha"], beta_n)
+    return fine_step_error(fn, st, c.alpha, beta_n)
 
 
 def plot(rows, scene_name) -> Path:

@@ -122,17 +122,19 @@ def run(model_dir, traj, span, mode, fps=2400.0, bound=1.0, seeds=(0,),
     ``extra``: see :func:`events_cfg`."""
     from gs2e.events.models import Events, TileBatch, make_model
     from gs2e.events.rendered import RenderedSource
+    from gs2e.events.settings import event_settings
 
     cfg = events_cfg(sample_for[0], mode, fps, bound, extra)
-    src = RenderedSource(model_dir, traj, cfg, span_us=span, batch_frames=64)
+    src = RenderedSource(model_dir, traj, event_settings(cfg), span_us=span, batch_frames=64)
     with clock() as whole:
         t0, f0 = src.start()
         models = {}
         if "ideal" in sample_for:
-            models["ideal"] = make_model(events_cfg("ideal", mode, fps, bound, extra), src.shape, 0)[0]
+            models["ideal"] = make_model(event_settings(events_cfg("ideal", mode, fps, bound, extra)),
+                                         src.shape, 0)[0]
         for s in seeds if "voltmeter" in sample_for else ():
-            models[f"voltmeter{s}"] = make_model(events_cfg("voltmeter", mode, extra=extra), src.shape,
-                                                 s)[0]
+            vm = event_settings(events_cfg("voltmeter", mode, extra=extra))
+            models[f"voltmeter{s}"] = make_model(vm, src.shape, s)[0]
         for m in models.values():
             m.start(t0, f0)
         out = {k: [] for k in models}

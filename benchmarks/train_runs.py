@@ -29,14 +29,14 @@ def prepare(work: Path, name: str, data: Path, max_side: int | None = None) -> P
     128x96, ground-truth poses), ``demo`` (the demo scene through ingest +
     sfm like the pipeline) or a real scene of :data:`PHOTOS` under ``data``,
     ingested at ``max_side`` px long side if given, then posed by SfM."""
-    from gs2e.config import load_section
     from gs2e.demo.io import generate_demo_scene
+    from gs2e.demo.settings import DemoSettings
 
     if name == "demo-small":
         out = work / "demo_small"
         if not (out / "scene.json").exists():
-            generate_demo_scene(out, load_section("demo", json.dumps(
-                {"n_views": 16, "width": 128, "height": 96, "n_points": 3000})))
+            generate_demo_scene(out, DemoSettings.defaults(
+                n_views=16, width=128, height=96, n_points=3000))
         return out
     out = work / f"{name}_sfm"
     if (out / "scene.json").exists():

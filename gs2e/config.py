@@ -300,10 +300,10 @@ def _check_trajectory(cfg: dict) -> None:
     if not t["alpha"] + t["beta"] > 0:
         raise ConfigError("trajectory.alpha / trajectory.beta: at least one must be positive")
     if t["speed_list"]:
-        sample_profile(make_profile(t), np.linspace(0.0, 1.0, 2), "trajectory.speed_list")
+        sample_profile(make_profile(t["velocity"], t["speed_list"], t["speed_list_tau"]),
+                       np.linspace(0.0, 1.0, 2), "trajectory.speed_list")
     # parsed and checked even when speed_list replaces it: a bad value is a bad value
-    sample_profile(make_profile({**t, "speed_list": None}), np.linspace(0.0, 1.0, 2),
-                   "trajectory.velocity")
+    sample_profile(make_profile(t["velocity"]), np.linspace(0.0, 1.0, 2), "trajectory.velocity")
 
 
 def _missing(key: str, path: str) -> ConfigError:

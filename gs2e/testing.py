@@ -58,9 +58,9 @@ def plane_model(tmp: Path) -> Path:
 
 def straight_trajectory(tmp: Path, dx: float, n_in: int = 5) -> Path:
     """Constant-velocity translation along +x over the plane, identity rotation."""
-    from gs2e.config import load_config
     from gs2e.io.scene import Camera, Frame, Scene
     from gs2e.trajectory.io import save_trajectory
+    from gs2e.trajectory.settings import TrajectorySettings
     from gs2e.trajectory.stage import generate
 
     frames = []
@@ -68,9 +68,9 @@ def straight_trajectory(tmp: Path, dx: float, n_in: int = 5) -> Path:
         T = np.eye(4)
         T[0, 3] = -dx / 2 + dx * i / (n_in - 1)
         frames.append(Frame(f"{i}.png", Camera(PLANE_F, PLANE_F, PLANE_W / 2, PLANE_H / 2), T))
-    cfg = load_config({"trajectory": {"velocity": "1", "smooth_half_width": 0, "view_order": "sequence",
-                                      "interpolation": "linear", "speed_presets": ["medium"],
-                                      "mini_groups": 0, "plot": False}})["trajectory"]
+    cfg = TrajectorySettings.defaults(velocity="1", smooth_half_width=0, view_order="sequence",
+                                      interpolation="linear", speed_presets=["medium"], mini_groups=0,
+                                      plot=False)
     tr = generate(Scene(PLANE_W, PLANE_H, frames, "test"), cfg, seed=0).trajectories["base_medium"]
     path = tmp / "straight.npz"
     save_trajectory(path, tr)

@@ -11,16 +11,16 @@ import pytest
 
 from gs2e.bench import recon3d as R3
 from gs2e.cli import main
-from gs2e.config import load_section
+from gs2e.events.settings import event_settings
 from gs2e.testing import make_scene, ring
 from gs2e.trajectory.io import load_trajectory, save_trajectory
+from gs2e.trajectory.settings import TrajectorySettings
 from gs2e.trajectory.stage import generate
 from gs2e.trajectory.trajectory import Trajectory, back_and_forth
 
 
 def _generate(**kw):
-    cfg = load_section("trajectory")
-    cfg.update(kw, mini_frames=150)
+    cfg = TrajectorySettings.defaults(**kw, mini_frames=150)
     return generate(make_scene(ring(30, noise=0.01)), cfg, seed=3).trajectories
 
 
@@ -170,7 +170,8 @@ def test_the_motion_and_adaptive_clocks_sample_every_turn(plane_legs, mode):
     from gs2e.events.rendered import RenderedSource
 
     tmp, model, traj = plane_legs
-    src = RenderedSource(model, traj, {"model": "ideal", "sampling": {"mode": mode, "max_motion_px": 2.0}})
+    cfg = event_settings({"model": "ideal", "sampling": {"mode": mode, "max_motion_px": 2.0}})
+    src = RenderedSource(model, traj, cfg)
     src.start()
     times = np.array([t for b, _ in src.batches() for t in b])
     assert np.all(np.diff(times) > 0) and times[0] > 0 and times[-1] == 200_000

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import torch
 
+from gs2e.events.settings import event_settings
 from gs2e.bench.finetune import (FinetuneSettings, Sequence, evaluate, finetune, load_network,
                                  recording_sequence)
 from gs2e.common.errors import ConfigError, InputError
@@ -38,7 +39,7 @@ def _sliding(H: int = 48, W: int = 64, frames: int = 8, px_per_frame: float = 0.
     ts = np.arange(frames * sub + 1, dtype=np.int64) * 500
     lin = np.stack([srgb_to_linear(frame(px_per_frame / sub * k)) for k in range(len(ts))]).astype(np.float32)
     cfg = {**load_section("events"), "model": "ideal", "theta_on": 0.2, "theta_off": 0.2}
-    ev = make_model(cfg, (H, W), 0)[0].simulate(ts, lin)
+    ev = make_model(event_settings(cfg), (H, W), 0)[0].simulate(ts, lin)
     targets = np.stack([frame(px_per_frame * k) for k in range(1, frames + 1)]).astype(np.float32)
     return Sequence(f"sliding@{row0}", np.stack(list(interval_inputs(ev, (H, W), ts[::sub]))), targets)
 

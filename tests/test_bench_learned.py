@@ -10,6 +10,7 @@ import torch
 
 from gs2e.bench.learned import VARIANTS, reconstruct_learned, robust_normalize
 from gs2e.events.models import Events
+from gs2e.events.settings import event_settings
 
 
 def _random_events(n: int, shape: tuple[int, int], t_max_us: int, seed: int = 0) -> Events:
@@ -69,7 +70,7 @@ def test_a_moving_texture_is_recovered_from_its_events():
     ts = np.arange(20 * sub + 1, dtype=np.int64) * 500
     lin = np.stack([srgb_to_linear(frame(0.05 * k)) for k in range(len(ts))]).astype(np.float32)
     cfg = {**load_section("events"), "model": "ideal", "theta_on": 0.2, "theta_off": 0.2}
-    ev = make_model(cfg, (H, W), 0)[0].simulate(ts, lin)
+    ev = make_model(event_settings(cfg), (H, W), 0)[0].simulate(ts, lin)
     assert len(ev) > 10_000
     for name in VARIANTS:
         outs = list(reconstruct_learned(name, ev, (H, W), ts[::sub]))

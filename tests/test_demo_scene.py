@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import socket
 
 import numpy as np
@@ -12,7 +11,7 @@ from PIL import Image
 from gs2e.cli import main as gs2e_main
 from gs2e.common.errors import ConfigError
 from gs2e.common.so3 import geodesic_angle
-from gs2e.config import load_section
+from gs2e.demo.settings import DemoSettings
 from gs2e.demo import geometry as geo
 from gs2e.demo.io import generate_demo_scene
 from gs2e.demo.textures import BUNDLED_PHOTOS, build_atlas, load_photo
@@ -24,8 +23,8 @@ from tests.conftest import REPO
 SMALL = {"n_views": 8, "width": 96, "height": 72, "n_points": 2000}
 
 
-def cfg(**over) -> dict:
-    return load_section("demo", text=json.dumps({**SMALL, **over}))
+def cfg(**over) -> DemoSettings:
+    return DemoSettings.defaults(**{**SMALL, **over})
 
 
 def soa(a) -> np.ndarray:
@@ -221,7 +220,7 @@ def test_points_project_onto_pixels_of_their_colour(tmp_path):
     c = cfg(n_views=12, width=320, height=240, supersample=1, n_points=6000)
     generate_demo_scene(out, c)
     scene = read_scene(out)
-    world = build_world(c["seed"], *wall_size(c["orbit_radius"]))
+    world = build_world(c.seed, *wall_size(c.orbit_radius))
     X = scene.points_xyz
     rgb = scene.points_rgb.astype(np.float64)
     for k in (0, 7):

@@ -12,6 +12,7 @@ import yaml
 
 from gs2e.cli import main
 from gs2e.events.models import Events
+from gs2e.events.settings import event_settings
 from gs2e.events.stats import calibrate_noise
 from tests.conftest import shared_data
 
@@ -117,8 +118,8 @@ def test_cli_writes_the_sensor_preset(tmp_path, capsys):
     from gs2e.events.sensors import get_sensor, resolve_noise
 
     ev_cfg = load_config({"events": {"sensor": "custom", "sensor_file": str(preset)}})["events"]
-    assert get_sensor(ev_cfg).size == (320, 240)
-    vals, src = resolve_noise(ev_cfg, 1.0)
+    assert get_sensor(event_settings(ev_cfg)).size == (320, 240)
+    vals, src = resolve_noise(event_settings(ev_cfg), 1.0)
     assert vals["shot_noise_rate_hz"] == p["shot_noise_rate_hz"]["value"]
     assert vals["refractory_us"] == p["refractory_us"]["value"]
     assert src["shot_noise_rate_hz"].endswith(f"measured from {rec}")

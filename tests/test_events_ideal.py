@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from gs2e.common.errors import InputError
-from gs2e.events.models import Events, IdealModel, make_model
 from gs2e.config import load_section
+from gs2e.events.models import Events, IdealModel, make_model
+from gs2e.events.settings import event_settings
 
 
 def _ramp(rates_per_s, n_frames, dt_us, start, eps, t0_us=0):
@@ -82,9 +83,9 @@ def test_black_saturated_constant_and_bad_input():
 def test_make_model_theta_sampling_and_mismatch():
     cfg = load_section("events", text='{"model": "ideal", "theta_sampling": "uniform", '
                                       '"theta_mismatch_sigma": 0.03, "theta_range": [0.2, 0.5]}')
-    m1, info1 = make_model(cfg, (50, 60), seed=4)
-    m2, info2 = make_model(cfg, (50, 60), seed=4)
-    m3, info3 = make_model(cfg, (50, 60), seed=5)
+    m1, info1 = make_model(event_settings(cfg), (50, 60), seed=4)
+    m2, info2 = make_model(event_settings(cfg), (50, 60), seed=4)
+    m3, info3 = make_model(event_settings(cfg), (50, 60), seed=5)
     assert 0.2 <= info1["theta_on_nominal"] <= 0.5
     assert info1["theta_on_nominal"] == info1["theta_off_nominal"]
     assert info1 == info2 and info1 != info3
@@ -94,7 +95,7 @@ def test_make_model_theta_sampling_and_mismatch():
     assert abs(m1.th_on.mean() - info1["theta_on_nominal"]) < 0.003
     # large sigma: still positive (truncated at 5 % of theta)
     cfg2 = dict(cfg, theta_mismatch_sigma=1.0, theta_sampling="fixed", theta_on=0.2)
-    m4, _ = make_model(cfg2, (50, 60), seed=1)
+    m4, _ = make_model(event_settings(cfg2), (50, 60), seed=1)
     assert m4.th_on.min() >= 0.01 - 1e-12
 
 
@@ -245,12 +246,13 @@ def test_an_event_model_registered_alone_is_built_and_read_back():
         fr = np.exp(np.linspace(0, 1.2, len(ts)))[:, None, None] * np.full((1, 2, 3), 0.2) - 1e-3
         counts = {}
         for name in ("ideal", "doubled_ideal"):
-            m, _ = make_model({**cfg, "model": name}, (2, 3), 0)
+            m, _ = make_model(event_settings({**cfg, "model": name}), (2, 3), 0)
             counts[name] = len(m.simulate(ts, fr.astype(np.float32)))
-        assert isinstance(make_model(cfg, (2, 3), 0)[0], DoubledIdeal)
+        assert isinstance(make_model(event_settings(cfg), (2, 3), 0)[0], DoubledIdeal)
         assert counts["ideal"] == 6 * 12 and counts["doubled_ideal"] == 6 * 6
-        assert log_contrast(cfg)[0] == pytest.approx(0.2)
-        assert bound_log(cfg) == pytest.approx(2 * bound_log({**cfg, "model": "ideal"}))
+        assert log_contrast(event_settings(cfg))[0] == pytest.approx(0.2)
+        ideal = event_settings({**cfg, "model": "ideal"})
+        assert bound_log(event_settings(cfg)) == pytest.approx(2 * bound_log(ideal))
         sig = LogSignal({"model": "doubled_ideal", "theta/on": np.full((2, 3), 0.2),
                          "theta/off": np.full((2, 3), 0.2),
                          "metadata": json.dumps({"config": cfg})}, (2, 3), "toy")

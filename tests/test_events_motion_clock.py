@@ -12,6 +12,7 @@ import pytest
 
 from gs2e.events.models import Events, IdealModel
 from gs2e.events.sampling import SamplerStats, image_luminance, motion_times
+from gs2e.events.settings import event_settings
 from gs2e.splat.forward import ForwardRenderer, image_motion_px
 
 W, H, F = 64, 48, 60.0
@@ -180,7 +181,7 @@ def test_rendered_source_in_motion_mode_renders_at_its_clock(tmp_path):
     def source(px):
         cfg = load_config({"events": {"model": "ideal", "sampling": {
             "mode": "motion", "max_motion_px": px, "dt_max_us": 1_000_000}}})
-        return RenderedSource(model, traj, check_config(cfg)["events"], span_us=None)
+        return RenderedSource(model, traj, event_settings(check_config(cfg)["events"]), span_us=None)
 
     runs = {}
     for px in (0.25, 1.0):
@@ -219,14 +220,14 @@ def test_fixed_clock_reports_how_far_the_image_moves_per_sample(tmp_path, caplog
         cfg = check_config(load_config({"events": {
             "model": "ideal", "preview": False, "max_duration_s": span_s,
             "sampling": {"mode": "fixed", "fixed_fps": fps}}}))
-        src = RenderedSource(model, traj, cfg["events"])
+        src = RenderedSource(model, traj, event_settings(cfg["events"]))
         step_us = int(round(1e6 / fps))
         t_mid = (src.t0_us + src.t1_us - step_us) // 2
         dx = src.pose_at(t_mid + step_us)[0, 3] - src.pose_at(t_mid)[0, 3]
         expected = PLANE_F * abs(dx) / PLANE_DEPTH
         caplog.clear()
         with caplog.at_level(logging.INFO, logger="gs2e.events"):
-            stats = simulate_to_folder(src, cfg["events"], tmp_path / f"ev{int(fps)}", seed=0)
+            stats = simulate_to_folder(src, event_settings(cfg["events"]), tmp_path / f"ev{int(fps)}", seed=0)
         on_disk = json.loads((tmp_path / f"ev{int(fps)}" / "stats.json").read_text())["stats"]
         p50, mx = on_disk["sampling_step_motion_px_p50"], on_disk["sampling_step_motion_px_max"]
         assert (p50, mx) == (stats["sampling_step_motion_px_p50"], stats["sampling_step_motion_px_max"])

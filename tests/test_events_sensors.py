@@ -12,16 +12,17 @@ import h5py
 import numpy as np
 import pytest
 
+from gs2e.common.camera import fit_camera
 from gs2e.common.errors import ConfigError, InputError
 from gs2e.config import load_config
-from gs2e.common.camera import fit_camera
 from gs2e.events.sensors import SENSORS, fit_frame, get_sensor, load_sensor_file, resolve_noise
+from gs2e.events.settings import EventSettings, event_settings
 
 sys.path.insert(0, str(Path(__file__).parent))
 
 
-def _events_cfg(**kw) -> dict:
-    return load_config({"events": kw})["events"]
+def _events_cfg(**kw) -> EventSettings:
+    return event_settings(load_config({"events": kw})["events"])
 
 
 def _project(K, pts):

@@ -21,6 +21,7 @@ import pytest
 
 from gs2e.common.errors import InputError
 from gs2e.export.run import export_trajectory
+from gs2e.export.settings import ExportSettings
 from gs2e.export.source import TrajectorySource
 from tests.conftest import run_cli
 from tests.test_export_loaders import (EVENTNERF_ARG_DEFAULTS, e2gs_test_entries, e2nerf_test_entries,
@@ -65,7 +66,8 @@ def source(export_scene):
 
 def _export(export_scene, tmp_path_factory, fmt, **over):
     out = tmp_path_factory.mktemp(f"exp_{fmt}") / "scene"
-    man = export_trajectory(export_scene, TRAJ, fmt, out, {**DEFAULTS, **over}, scene_id="tiny")
+    man = export_trajectory(export_scene, TRAJ, fmt, out, ExportSettings.defaults(**{**DEFAULTS, **over}),
+                            scene_id="tiny")
     assert json.loads((out / "gs2e_export.json").read_text())["format"] == fmt
     return out, man
 
@@ -213,7 +215,8 @@ def test_e2nerf_e2gs_reads_back(export_scene, source, tmp_path_factory):
 
 def test_e2nerf_strict_loader_names_the_hard_coded_size(export_scene, tmp_path):
     with pytest.raises(InputError, match="800x800"):
-        export_trajectory(export_scene, TRAJ, "e2nerf", tmp_path / "x", {**DEFAULTS, "e2nerf_loader": "e2nerf"})
+        export_trajectory(export_scene, TRAJ, "e2nerf", tmp_path / "x",
+                          ExportSettings.defaults(**{**DEFAULTS, "e2nerf_loader": "e2nerf"}))
     assert not (tmp_path / "x").exists()
 
 

@@ -14,8 +14,8 @@ import pytest
 import yaml
 
 from gs2e.cli import main
-from gs2e.config import load_section
 from gs2e.export.run import export_trajectory
+from gs2e.export.settings import ExportSettings
 from gs2e.export.source import TrajectorySource
 
 TRAJ = "pan"
@@ -48,7 +48,7 @@ def scene(tmp_path_factory):
 
 
 def _export(scene, tmp_path, fmt, seed=0, **over):
-    cfg = {**load_section("export"), **over}
+    cfg = ExportSettings.defaults(**over)
     out = tmp_path / fmt
     man = export_trajectory(scene, TRAJ, fmt, out, cfg, scene_id="plane", seed=seed)
     return out, man
@@ -231,7 +231,7 @@ def test_unknown_format_is_one_line_before_any_output(scene, tmp_path):
     from gs2e.common.errors import ConfigError
 
     with pytest.raises(ConfigError, match="not one of .*rosbag2"):
-        export_trajectory(scene, TRAJ, "rosbag3", tmp_path / "x", load_section("export"))
+        export_trajectory(scene, TRAJ, "rosbag3", tmp_path / "x", ExportSettings.defaults())
     assert not (tmp_path / "x").exists()
 
 
@@ -303,7 +303,7 @@ def test_one_frame_flow_export(scene, tmp_path):
     src = TrajectorySource(scene, TRAJ)
     src.frames = src.frames.iloc[:1]
     out = ExportOut(tmp_path, "flow")
-    export_flow(src, out, {**load_section("export"), "flow_per_event": True})
+    export_flow(src, out, ExportSettings.defaults(flow_per_event=True))
     with h5py.File(tmp_path / "flow.h5") as f:
         assert f["forward_flow_px"].shape[0] == 0 and f["flow_px_per_s"].shape[0] == 1
         assert f["flow_px_per_s_valid"][0].mean() > 0.9

@@ -21,6 +21,7 @@ from gs2e.events.models import Events
 from gs2e.export.common import ExportOut, times_in_loader_windows
 from gs2e.export.eventnerf import choose_winsize, loader_bounds_s, loader_events
 from gs2e.export.inceventgs import floored_ray_error_px, pose_times_s
+from gs2e.export.settings import ExportSettings
 from gs2e.export.windows import compute_windows, exposure_bounds_us
 
 
@@ -327,9 +328,9 @@ class _TinySource:
         return xyz, np.full((3, 3), 128, np.uint8)
 
 
-EXPORT_CFG = {"eventnerf_fit": "pad", "eventnerf_holdout_every": 4, "eventnerf_winsize": None,
-              "e2nerf_loader": "e2gs", "evdeblurnerf_llffhold": 4, "evdeblurnerf_pose_rate_hz": 1000.0,
-              "inceventgs_jpeg_quality": 95}
+EXPORT_CFG = ExportSettings.defaults(eventnerf_fit="pad", eventnerf_holdout_every=4, eventnerf_winsize=None,
+                                     e2nerf_loader="e2gs", evdeblurnerf_llffhold=4,
+                                     evdeblurnerf_pose_rate_hz=1000.0, inceventgs_jpeg_quality=95)
 
 
 def _export(fn, fmt: str, tmp_path, src=None) -> tuple:

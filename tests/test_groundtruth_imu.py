@@ -8,18 +8,18 @@ import numpy as np
 import pytest
 
 from gs2e.common.errors import ConfigError
-from gs2e.config import load_config
 from gs2e.groundtruth.imu import (IMU_PRESETS, STANDARD_GRAVITY, add_noise, allan_noise_fit,
                                   gravity_from_poses, ideal_imu, imu_noise, imu_times_us,
                                   integrate_imu)
 from gs2e.testing import make_scene, ring
 from gs2e.trajectory.kinematics import kinematics_at
+from gs2e.trajectory.settings import TrajectorySettings
 from gs2e.trajectory.stage import generate
 
 
 @pytest.fixture(scope="module")
 def trajectories():
-    cfg = load_config({"trajectory": {"plot": False}})["trajectory"]
+    cfg = TrajectorySettings.defaults(plot=False)
     return generate(make_scene(ring(20, noise=0.05)), cfg, seed=0).trajectories
 
 

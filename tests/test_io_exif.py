@@ -11,6 +11,7 @@ import pytest
 from PIL import Image, ImageOps
 
 from gs2e.io.images import EXIF_ORIENTATION_TAG, apply_orientation, exif_orientation, read_image
+from gs2e.io.settings import IngestSettings
 
 
 def _jpeg(path, rgb, orientation):
@@ -45,7 +46,7 @@ def test_folder_of_rotated_phone_photos_is_ingested_upright(tmp_path):
         stored.append(rgb)
         _jpeg(src / f"p{i}.jpg", rgb, 6)
     assert exif_orientation(src / "p0.jpg") == 6
-    scene = ingest_scene(src, "folder", tmp_path / "ingest", {"max_side": None})
+    scene = ingest_scene(src, "folder", tmp_path / "ingest", IngestSettings.defaults(max_side=None))
     assert (scene.width, scene.height) == (60, 80)  # portrait, as the phone showed it
     out = read_image(tmp_path / "ingest" / "images" / scene.frames[0].name)
     up, wrong = apply_orientation(stored[0], 6), apply_orientation(stored[0], 8)

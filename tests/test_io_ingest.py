@@ -15,6 +15,7 @@ import pytest
 
 from _io_synth import (DATA, make_scene, project, random_image, write_images, write_rgb,
                        write_transforms_gl)
+from gs2e.io.settings import IngestSettings
 from gs2e.common.errors import ConfigError, InputError
 from gs2e.io.colmap import reconstruction_from_scene, write_colmap_model
 from gs2e.io.images import encode_png, read_image
@@ -36,7 +37,7 @@ def _colmap_project(root: Path, scene: Scene, binary=True, sparse="sparse/0", ex
 
 def _assert_fails(src, layout, out, cfg, *must_name):
     with pytest.raises(InputError) as ei:
-        ingest_scene(src, layout, out, cfg)
+        ingest_scene(src, layout, out, IngestSettings.defaults(**cfg))
     msg = str(ei.value)
     for name in must_name:
         assert str(name) in msg, (name, msg)
@@ -76,7 +77,7 @@ def test_folder_layout(tmp_path):
     imgs = write_images(src, names, 40, 30)
     (src / "notes.txt").write_text("not an image")
     out = tmp_path / "out"
-    scene = ingest_scene(src, "folder", out, {})
+    scene = ingest_scene(src, "folder", out)
     assert [f.name for f in scene.frames] == ["f1.png", "f2.png", "f3.png", "f10.png"]
     assert scene.extra["intrinsics_guess"] is True and not scene.has_poses
     assert scene.frames[0].camera == Camera(48.0, 48.0, 20.0, 15.0, "PINHOLE", [])
@@ -87,7 +88,7 @@ def test_folder_layout(tmp_path):
     # src/images is found too, and the output is byte-identical on a second run
     (tmp_path / "src2").mkdir()
     os.rename(src, tmp_path / "src2" / "images")
-    ingest_scene(tmp_path / "src2", "folder", tmp_path / "out2", {})
+    ingest_scene(tmp_path / "src2", "folder", tmp_path / "out2")
     for n in ["f1.png", "f2.png", "f3.png", "f10.png"]:
         assert (out / "images" / n).read_bytes() == (tmp_path / "out2" / "images" / n).read_bytes()
 
@@ -97,7 +98,7 @@ def test_folder_layout(tmp_path):
 def test_colmap_layout(tmp_path, binary, sparse):
     ref, imgs = _colmap_project(tmp_path / "src", make_scene(5), binary, sparse)
     write_rgb(tmp_path / "src" / "images" / "zz_extra.jpg", random_image(np.random.default_rng(9), 48, 32))
-    scene = ingest_scene(tmp_path / "src", "colmap", tmp_path / "out", {})
+    scene = ingest_scene(tmp_path / "src", "colmap", tmp_path / "out")
     assert [f.name for f in scene.frames] == [f"{i:03d}.png" for i in range(5)]
     for a, b in zip(ref.frames, scene.frames):
         assert b.camera == a.camera
@@ -117,7 +118,7 @@ def test_mvimgnet_layout_subsampled_and_downscaled(tmp_path):
     # MVImgNet models predate COLMAP's rigs/frames files
     for f in ("rigs.bin", "frames.bin"):
         (tmp_path / "clip" / "sparse" / "0" / f).unlink()
-    cfg = {"max_views": 4, "downscale": 2}
+    cfg = IngestSettings.defaults(max_views=4, downscale=2)
     scene = ingest_scene(tmp_path / "clip", "mvimgnet", tmp_path / "out", cfg)
     assert scene.extra["sequential"] is True
     assert [f.name for f in scene.frames] == ["000.png", "004.png", "007.png", "011.png"]
@@ -154,7 +155,7 @@ def _dl3dv(root: Path, n=6, full=(96, 64), with_colmap=True):
 
 def test_dl3dv_layout(tmp_path):
     ref = _dl3dv(tmp_path / "scene")
-    scene = ingest_scene(tmp_path / "scene", "dl3dv", tmp_path / "out", {})
+    scene = ingest_scene(tmp_path / "scene", "dl3dv", tmp_path / "out")
     assert scene.extra["sequential"] is True
     assert scene.extra["ingest"]["images_subdir"] == "images_2"
     assert (scene.width, scene.height) == (48, 32)
@@ -167,12 +168,14 @@ def test_dl3dv_layout(tmp_path):
     assert info["used"] and info["matched_cameras"] == 6 and abs(info["scale"] - 1) < 1e-9
     np.testing.assert_allclose(scene.points_xyz, ref.points_xyz, atol=1e-9)
     # explicit subfolder, and max_side picks the smallest folder still large enough
-    s4 = ingest_scene(tmp_path / "scene", "dl3dv", tmp_path / "out4", {"images_subdir": "images_4"})
+    s4 = ingest_scene(tmp_path / "scene", "dl3dv", tmp_path / "out4",
+                      IngestSettings.defaults(images_subdir="images_4"))
     assert (s4.width, s4.height) == (24, 16) and s4.frames[0].camera == ref.frames[0].camera.scaled(0.25, 0.25)
-    s20 = ingest_scene(tmp_path / "scene", "dl3dv", tmp_path / "out20", {"max_side": 20})
+    s20 = ingest_scene(tmp_path / "scene", "dl3dv", tmp_path / "out20", IngestSettings.defaults(max_side=20))
     assert s20.extra["ingest"]["images_subdir"] == "images_4" and (s20.width, s20.height) == (20, 13)
     with pytest.raises(ConfigError, match="images_subdir"):
-        ingest_scene(tmp_path / "scene", "dl3dv", tmp_path / "out8", {"images_subdir": "images_8"})
+        ingest_scene(tmp_path / "scene", "dl3dv", tmp_path / "out8",
+                     IngestSettings.defaults(images_subdir="images_8"))
     assert not (tmp_path / "out8").exists()
 
 
@@ -192,7 +195,7 @@ def test_dl3dv_benchmark_layout_and_mismatched_colmap(tmp_path):
         T[:3, 3] = s * (R @ f.c2w[:3, 3]) + t
         moved.frames.append(Frame(f.name, f.camera, T))
     write_colmap_model(moved, tmp_path / "s" / "gaussian_splat" / "sparse" / "0")
-    scene = ingest_scene(tmp_path / "s", "dl3dv", tmp_path / "out", {})
+    scene = ingest_scene(tmp_path / "s", "dl3dv", tmp_path / "out")
     info = scene.extra["ingest"]["colmap_points"]
     assert info["used"] and abs(info["scale"] - 1 / s) < 1e-9
     np.testing.assert_allclose(scene.points_xyz, ref.points_xyz, atol=1e-9)
@@ -201,7 +204,7 @@ def test_dl3dv_benchmark_layout_and_mismatched_colmap(tmp_path):
     perm = rng.permutation(len(moved.frames))
     moved.frames = [Frame(f.name, f.camera, moved.frames[j].c2w) for f, j in zip(moved.frames, perm)]
     write_colmap_model(moved, tmp_path / "s" / "gaussian_splat" / "sparse" / "0")
-    scene = ingest_scene(tmp_path / "s", "dl3dv", tmp_path / "out", {})
+    scene = ingest_scene(tmp_path / "s", "dl3dv", tmp_path / "out")
     assert scene.points_xyz is None and not scene.extra["ingest"]["colmap_points"]["used"]
 
 
@@ -219,7 +222,7 @@ def test_nerf_layout_synthetic(tmp_path):
         frames.append({"file_path": f"./train/r_{i}", "transform_matrix": opencv_to_opengl(f.c2w).tolist()})
     (tmp_path / "src" / "transforms_train.json").write_text(json.dumps(
         {"camera_angle_x": 2 * np.arctan(20 / 50.0), "frames": frames}))
-    scene = ingest_scene(tmp_path / "src", "nerf", tmp_path / "out", {})
+    scene = ingest_scene(tmp_path / "src", "nerf", tmp_path / "out")
     assert [f.name for f in scene.frames] == [f"r_{i}.png" for i in range(4)]
     for a, b in zip(ref.frames, scene.frames):
         assert b.camera.fx == pytest.approx(50.0, rel=1e-12) and (b.camera.cx, b.camera.cy) == (20.0, 20.0)
@@ -234,14 +237,14 @@ def test_internal_layout(tmp_path, layout):
     (tmp_path / "src" / "images").mkdir(parents=True)
     write_images(tmp_path / "src" / "images", [f.name for f in ref.frames], 64, 48)
     write_scene_json(ref, tmp_path / "src")
-    scene = ingest_scene(tmp_path / "src", layout, tmp_path / "out", {"max_side": 32})
+    scene = ingest_scene(tmp_path / "src", layout, tmp_path / "out", IngestSettings.defaults(max_side=32))
     assert (scene.width, scene.height) == (32, 24)
     assert scene.extra["ground_truth"] == "orbit" and scene.extra["sequential"] is True
     for a, b in zip(ref.frames, scene.frames):
         assert b.camera == a.camera.scaled(0.5, 0.5)
     np.testing.assert_array_equal(read_scene(tmp_path / "out").points_xyz, ref.points_xyz)
     # re-ingesting an ingested scene with defaults changes nothing but provenance
-    again = ingest_scene(tmp_path / "out", "internal", tmp_path / "out2", {})
+    again = ingest_scene(tmp_path / "out", "internal", tmp_path / "out2")
     assert [f.camera for f in again.frames] == [f.camera for f in scene.frames]
     for n in (f.name for f in scene.frames):
         assert (tmp_path / "out" / "images" / n).read_bytes() == (tmp_path / "out2" / "images" / n).read_bytes()
@@ -258,7 +261,8 @@ def test_mixed_resolutions_allowed_keep_their_own_size(tmp_path):
     scene_src, _ = _colmap_project(tmp_path / "src", ref, ext=".png")
     write_images(tmp_path / "src" / "images", ["001.png"], 96, 64, seed=11)
     _assert_fails(tmp_path / "src", "colmap", tmp_path / "out", {}, "001.png", "96x64", "000.png")
-    scene = ingest_scene(tmp_path / "src", "colmap", tmp_path / "out", {"allow_mixed_resolutions": True})
+    scene = ingest_scene(tmp_path / "src", "colmap", tmp_path / "out",
+                         IngestSettings.defaults(allow_mixed_resolutions=True))
     assert (scene.width, scene.height) == (48, 32)  # the most common size
     assert [f.camera for f in scene.frames] == [cam, big, cam]
     assert read_image(tmp_path / "out" / "images" / "001.png").shape == (64, 96, 3)
@@ -267,7 +271,7 @@ def test_mixed_resolutions_allowed_keep_their_own_size(tmp_path):
     assert scene.extra["ingest"]["scale_xy"][1] == [1.0, 1.0]
     # max_side caps each view's longer side: 96x64 -> 72x48 (scale 0.75), 48x32 untouched
     capped = ingest_scene(tmp_path / "src", "colmap", tmp_path / "capped",
-                          {"allow_mixed_resolutions": True, "max_side": 72})
+                          IngestSettings.defaults(allow_mixed_resolutions=True, max_side=72))
     assert [capped.frame_size(i) for i in range(3)] == [(48, 32), (72, 48), (48, 32)]
     assert capped.frames[1].camera == big.scaled(0.75, 0.75)
 
@@ -290,7 +294,7 @@ def test_mixed_orientation_views_keep_their_orientation(tmp_path, layout):
     _colmap_project(tmp_path / "src", ref, ext=".png")
     for i in (1, 3):
         write_images(tmp_path / "src" / "images", [ref.frames[i].name], 32, 48, seed=20 + i)
-    scene = ingest_scene(tmp_path / "src", layout, tmp_path / "out", {})
+    scene = ingest_scene(tmp_path / "src", layout, tmp_path / "out")
     assert (scene.width, scene.height) == (48, 32) and scene.main_frames() == [0, 2, 4]
     assert [list(scene.frame_size(i)) for i in range(5)] == sizes
     assert [f.camera for f in scene.frames] == [land, port, land, port, land]
@@ -349,12 +353,12 @@ def test_mixed_resolution_folder(tmp_path):
     write_images(src, ["a.png", "b.png"], 32, 24)
     write_images(src, ["c.png"], 30, 24)
     _assert_fails(src, "folder", tmp_path / "out", {}, "c.png", "30x24")
-    scene = ingest_scene(src, "folder", tmp_path / "out", {"allow_mixed_resolutions": True})
+    scene = ingest_scene(src, "folder", tmp_path / "out", IngestSettings.defaults(allow_mixed_resolutions=True))
     assert read_image(tmp_path / "out" / "images" / "c.png").shape == (24, 30, 3)
     assert scene.frames[2].camera == guess_camera(30, 24)  # each view's own guess
     # a rotated view is no mixed resolution
     write_images(src, ["c.png"], 24, 32)
-    rot = ingest_scene(src, "folder", tmp_path / "rot", {})
+    rot = ingest_scene(src, "folder", tmp_path / "rot")
     assert [rot.frame_size(i) for i in range(3)] == [(32, 24), (32, 24), (24, 32)]
 
 
@@ -395,11 +399,11 @@ def test_failure_keeps_previous_output(tmp_path):
     src = tmp_path / "src"
     write_images(src, ["a.png", "b.png"], 32, 24)
     out = tmp_path / "out"
-    ingest_scene(src, "folder", out, {})
+    ingest_scene(src, "folder", out)
     before = (out / "scene.json").read_bytes()
     (src / "b.png").write_bytes(b"")
     with pytest.raises(InputError, match="b.png"):
-        ingest_scene(src, "folder", out, {})
+        ingest_scene(src, "folder", out)
     assert (out / "scene.json").read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "src"]
 
@@ -407,11 +411,11 @@ def test_failure_keeps_previous_output(tmp_path):
 def test_bad_config(tmp_path):
     write_images(tmp_path / "src", ["a.png", "b.png"], 32, 24)
     with pytest.raises(ConfigError, match="max_views"):
-        ingest_scene(tmp_path / "src", "folder", tmp_path / "out", {"max_views": 1})
+        ingest_scene(tmp_path / "src", "folder", tmp_path / "out", IngestSettings.defaults(max_views=1))
     with pytest.raises(ConfigError, match="bogus"):
-        ingest_scene(tmp_path / "src", "folder", tmp_path / "out", {"bogus": 1})
+        ingest_scene(tmp_path / "src", "folder", tmp_path / "out", IngestSettings.defaults(bogus=1))
     with pytest.raises(InputError, match="source"):
-        ingest_scene(tmp_path / "src", "folder", tmp_path / "src" / "out", {})
+        ingest_scene(tmp_path / "src", "folder", tmp_path / "src" / "out")
     assert not (tmp_path / "out").exists()
 
 
@@ -425,13 +429,13 @@ def test_real_folders(tmp_path, name, n, size, glob):
     src = DATA / name
     if not src.is_dir():
         pytest.skip(f"real data {src} is absent")
-    scene = ingest_scene(src, "folder", tmp_path / "out", {})
+    scene = ingest_scene(src, "folder", tmp_path / "out")
     assert len(scene.frames) == n and (scene.width, scene.height) == size
     files = sorted((src / glob).glob("*.png"))
     assert [f.name for f in scene.frames] == [p.name for p in files]
     np.testing.assert_array_equal(read_image(tmp_path / "out" / "images" / files[3].name),
                                   cv2.imread(str(files[3]))[:, :, ::-1])
-    small = ingest_scene(src, "folder", tmp_path / "small", {"max_views": 10, "max_side": 200})
+    small = ingest_scene(src, "folder", tmp_path / "small", IngestSettings.defaults(max_views=10, max_side=200))
     assert len(small.frames) == 10 and max(small.width, small.height) == 200
     assert small.frames[0].name == files[0].name and small.frames[-1].name == files[-1].name
 

@@ -145,6 +145,7 @@ def test_per_frame_intrinsics_of_mixed_orientations_without_sizes(tmp_path):
 
     from gs2e.io.ingest import ingest_scene
     from gs2e.io.scene import opencv_to_opengl
+    from gs2e.io.settings import IngestSettings
 
     src = tmp_path / "src"
     (src / "images").mkdir(parents=True)
@@ -159,5 +160,5 @@ def test_per_frame_intrinsics_of_mixed_orientations_without_sizes(tmp_path):
     scene = read_transforms(src / "transforms.json")
     sizes = {f.name: (f.camera.cx * 2, f.camera.cy * 2) for f in scene.frames}
     assert sizes["images/b0.png"] == (60, 80) and sizes["images/a0.png"] == (80, 60)
-    out = ingest_scene(src, "nerf", tmp_path / "ingest", {"allow_mixed_resolutions": True})
+    out = ingest_scene(src, "nerf", tmp_path / "ingest", IngestSettings.defaults(allow_mixed_resolutions=True))
     assert {(f.camera.cx * 2, f.camera.cy * 2) for f in out.frames} == {(80, 60), (60, 80)}

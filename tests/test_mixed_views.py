@@ -9,10 +9,10 @@ import json
 import numpy as np
 import pytest
 
-from gs2e.config import load_section
 from gs2e.io.images import read_image
 from gs2e.io.ingest import ingest_scene
 from gs2e.io.scene import IMAGES_DIR, read_scene
+from gs2e.io.settings import IngestSettings
 from tests.conftest import shared_data
 
 
@@ -26,11 +26,12 @@ def mouse(tmp_path_factory):
     """mouse_colmap ingested (320 px: fast) in the colmap layout, and its SfM
     output from the capture's own cameras and points."""
     from gs2e.sfm.colmap_sfm import run_sfm
+    from gs2e.sfm.settings import SfmSettings
 
     src = shared_data("mouse_colmap")
     root = tmp_path_factory.mktemp("mouse")
-    scene = ingest_scene(src, "colmap", root / "ingest", {"max_side": 320})
-    run_sfm(root / "ingest", root / "sfm", dict(load_section("sfm"), reuse_poses=True), threads=2)
+    scene = ingest_scene(src, "colmap", root / "ingest", IngestSettings.defaults(max_side=320))
+    run_sfm(root / "ingest", root / "sfm", SfmSettings.defaults(reuse_poses=True), threads=2)
     return src, root, scene
 
 
@@ -42,7 +43,7 @@ def test_both_layouts_keep_each_views_orientation(mouse, tmp_path):
                                   else str(src / "sparse"))
     truth = {im.name: ("portrait" if rec.cameras[im.camera_id].height > rec.cameras[im.camera_id].width
                        else "landscape") for im in rec.images.values() if im.has_pose}
-    mv = ingest_scene(src, "mvimgnet", tmp_path / "mv", {"max_side": 320})
+    mv = ingest_scene(src, "mvimgnet", tmp_path / "mv", IngestSettings.defaults(max_side=320))
     for s, folder in ((scene, root / "ingest"), (mv, tmp_path / "mv")):
         orient = _orientations(s)
         names = s.extra["ingest"]["original_names"]
@@ -64,14 +65,15 @@ def test_both_layouts_keep_each_views_orientation(mouse, tmp_path):
 
 def test_sfm_training_and_evaluation_keep_each_views_size(mouse, tmp_path):
     from gs2e.splat.evaluate import render_views
+    from gs2e.splat.settings import SplatSettings
     from gs2e.splat.train import train
 
     _, root, scene = mouse
     sfm = read_scene(root / "sfm")
     assert [sfm.frame_size(i) for i in range(len(sfm.frames))] == \
         [scene.frame_size(i) for i in range(len(scene.frames))]
-    cfg = dict(load_section("splat"), max_iterations=30, min_iterations=0, eval_every=15,
-               sh_degree=0, resolution_schedule=[[0, 2], [15, 1]], test_every=8)
+    cfg = SplatSettings.defaults(max_iterations=30, min_iterations=0, eval_every=15, sh_degree=0,
+                                 resolution_schedule=[[0, 2], [15, 1]], test_every=8)
     st = train(root / "sfm", tmp_path / "splat", cfg, threads=2, target_size=(160, 120))
     assert (st["train_width"], st["train_height"]) == (160, 120)
     sizes = json.loads((tmp_path / "splat" / "model.json").read_text())["view_sizes"]

@@ -14,6 +14,7 @@ from gs2e.common.errors import InputError
 from gs2e.events.models import Events, make_model
 from gs2e.events.readout import (HOT_BLOCK_US, Photoreceptor, Readout, SensorChain, hot_pixel_events,
                                  hot_pixels, lowpass_step, resolve_readout)
+from gs2e.events.settings import event_settings
 
 H, W = 32, 48
 
@@ -27,7 +28,7 @@ def _frames(n=201, dt_us=500, lum=0.3, amp=0.2, freq_hz=20.0):
 
 
 def _sim(extra, ts, fr, seed=3, batch=None):
-    s = {"model": "ideal", "theta_on": 0.2, "theta_off": 0.2, **extra}
+    s = event_settings({"model": "ideal", "theta_on": 0.2, "theta_off": 0.2, **extra})
     m, _ = make_model(s, fr.shape[1:], seed)
     chain = SensorChain(m, resolve_readout(s)[0], seed)
     if batch is None:
@@ -44,8 +45,8 @@ def _same(a: Events, b: Events) -> bool:
 def test_chain_checks_before_it_runs():
     ts, fr = _frames(n=5)
     s = {"model": "ideal", "hot_pixel_fraction": 0.1, "hot_pixel_rate_hz": 5.0}
-    m, _ = make_model(s, (H, W), 0)
-    chain = SensorChain(m, resolve_readout(s)[0], 0)
+    m, _ = make_model(event_settings(s), (H, W), 0)
+    chain = SensorChain(m, resolve_readout(event_settings(s))[0], 0)
     with pytest.raises(InputError, match="start"):
         chain.process_batch(ts[1:], fr[1:])
     chain.start(int(ts[0]), fr[0])
@@ -56,11 +57,11 @@ def test_chain_checks_before_it_runs():
 
 def test_chain_off_is_the_model():
     ts, fr = _frames()
-    m, _ = make_model({"model": "ideal", "theta_on": 0.2, "theta_off": 0.2}, (H, W), 3)
+    m, _ = make_model(event_settings({"model": "ideal", "theta_on": 0.2, "theta_off": 0.2}), (H, W), 3)
     bare = m.simulate(ts, fr)
     assert len(bare) > 1000
     assert _same(_sim({}, ts, fr), bare)
-    r, src = resolve_readout({})
+    r, src = resolve_readout(event_settings({}))
     assert not r.any_on and src["readout_rate_meps"].startswith("default")
 
 
@@ -207,16 +208,16 @@ def test_readout_from_a_sensor_file(tmp_path):
     f.write_text("width: 48\nheight: 32\nhot_pixel_fraction: 0.01\nhot_pixel_rate_hz: {value: 5, source: me}\n"
                  "readout_rate_meps: 2\n")
     s = {"sensor": "custom", "sensor_file": str(f)}
-    r, src = resolve_readout(s)
+    r, src = resolve_readout(event_settings(s))
     assert r.hot_pixel_fraction == 0.01 and r.hot_pixel_rate_hz == 5 and r.readout_rate_meps == 2
     assert "me" in src["hot_pixel_rate_hz"] and src["readout_latency_us"].startswith("default")
-    assert get_sensor(s).to_dict()["readout"]["hot_pixel_fraction"]["value"] == 0.01
+    assert get_sensor(event_settings(s)).to_dict()["readout"]["hot_pixel_fraction"]["value"] == 0.01
     # config wins over the sensor
-    r2, src2 = resolve_readout({**s, "hot_pixel_rate_hz": 9.0})
+    r2, src2 = resolve_readout(event_settings({**s, "hot_pixel_rate_hz": 9.0}))
     assert r2.hot_pixel_rate_hz == 9.0 and src2["hot_pixel_rate_hz"] == "config"
     f.write_text("width: 48\nheight: 32\nhot_pixel_fraction: 3\n")
     with pytest.raises(InputError, match="hot_pixel_fraction"):
-        get_sensor(s)
+        get_sensor(event_settings(s))
 
 
 def test_event_stage_records_the_readout(tmp_path):
@@ -232,7 +233,7 @@ def test_event_stage_records_the_readout(tmp_path):
     settings = {"model": "ideal", "theta_on": 0.2, "theta_off": 0.2, "hot_pixel_fraction": 0.01,
                 "hot_pixel_rate_hz": 100.0, "readout_rate_meps": 1.0, "readout_latency_us": 5.0,
                 "preview": False}
-    stats = simulate_to_folder(frames, settings, tmp_path / "ev", seed=2)
+    stats = simulate_to_folder(frames, event_settings(settings), tmp_path / "ev", seed=2)
     ev, attrs = read_h5(tmp_path / "ev" / "events.h5")
     hot = set(hot_pixels((H, W), 0.01, 2).tolist())
     assert len(ev) == stats["n_events"] > 0

@@ -13,6 +13,7 @@ from gs2e.common.errors import ConfigError, InputError
 from gs2e.config import load_config
 from gs2e.io.scene import Camera, Frame, Scene
 from gs2e.render.blur import average_srgb, subframe_times_us, subframes_needed
+from gs2e.render.settings import RenderSettings
 
 from gs2e.testing import PLANE_DEPTH as DEPTH, PLANE_F as F, PLANE_H as H, PLANE_W as W  # noqa: E402
 from gs2e.testing import plane_model, straight_trajectory  # noqa: E402
@@ -46,7 +47,7 @@ def test_static_camera_blur_equals_sharp(plane, tmp_path):
 
     model, _ = plane
     traj = straight_trajectory(tmp_path, dx=1e-9)  # degenerate path: the camera does not move
-    cfg = load_config({"render": {"fps": 10.0, "exposure_us": 50_000.0, "write_depth": False}})["render"]
+    cfg = RenderSettings.defaults(fps=10.0, exposure_us=50_000.0, write_depth=False)
     render_dataset(model, traj, tmp_path / "out", cfg)
     import imageio.v3 as iio
 
@@ -113,7 +114,7 @@ def test_dataset_records_round_trip(plane, tmp_path):
 
     model, _ = plane
     traj_path = straight_trajectory(tmp_path, dx=0.3)
-    cfg = load_config({"render": {"fps": 20.0, "exposure_us": 10_000.0}})["render"]
+    cfg = RenderSettings.defaults(fps=20.0, exposure_us=10_000.0)
     stats = render_dataset(model, traj_path, tmp_path / "out", cfg, scene_id="plane")
     df = read_frames_table(tmp_path / "out")
     tr = load_trajectory(traj_path)
@@ -135,10 +136,10 @@ def test_exposure_longer_than_frame_interval_rejected(plane, tmp_path):
     # The config check rejects it before any job runs ...
     with pytest.raises(ConfigError, match="render.exposure_us"):
         load_config({"render": {"fps": 100.0, "exposure_us": 20_000.0}})
-    # ... and the render stage still refuses a section that skipped that check.
-    cfg = dict(load_config({"render": {"fps": 100.0, "exposure_us": 5_000.0}})["render"], exposure_us=20_000.0)
+    # ... and so do the render stage's settings, however they are changed
+    cfg = RenderSettings.defaults(fps=100.0, exposure_us=5_000.0)
     with pytest.raises(ConfigError, match="render.exposure_us"):
-        render_dataset(model, traj, tmp_path / "out", cfg)
+        render_dataset(model, traj, tmp_path / "out", cfg.replace(exposure_us=20_000.0))
     assert not (tmp_path / "out").exists()
 
 
@@ -146,6 +147,7 @@ def test_empty_view_rejected(plane, tmp_path):
     """A camera looking away from the model: clear error, no output."""
     from gs2e.render.dataset import render_dataset
     from gs2e.trajectory.io import save_trajectory
+    from gs2e.trajectory.settings import TrajectorySettings
     from gs2e.trajectory.stage import generate
 
     model, _ = plane
@@ -155,11 +157,10 @@ def test_empty_view_rejected(plane, tmp_path):
         T[:3, :3] = np.diag([-1.0, 1.0, -1.0])  # turned around: looks at -z
         T[0, 3] = 0.1 * i
         frames.append(Frame(f"{i}.png", Camera(F, F, W / 2, H / 2), T))
-    cfg_t = load_config({"trajectory": {"speed_presets": ["medium"], "mini_groups": 0, "plot": False,
-                                        "view_order": "sequence"}})["trajectory"]
+    cfg_t = TrajectorySettings.defaults(speed_presets=["medium"], mini_groups=0, plot=False, view_order="sequence")
     tr = generate(Scene(W, H, frames, "t"), cfg_t, seed=0).trajectories["base_medium"]
     save_trajectory(tmp_path / "away.npz", tr)
-    cfg = load_config({})["render"]
+    cfg = RenderSettings.defaults()
     with pytest.raises(InputError, match="empty"):
         render_dataset(model, tmp_path / "away.npz", tmp_path / "out", cfg)
     assert not (tmp_path / "out").exists()

@@ -100,7 +100,7 @@ def test_render_stage_adaptive_against_fixed_rule_on_a_panned_plane(tmp_path):
     import imageio.v3 as iio
     import pandas as pd
 
-    from gs2e.config import load_config
+    from gs2e.render.settings import RenderSettings
     from gs2e.render.dataset import render_dataset
     from gs2e.testing import plane_model, straight_trajectory
 
@@ -109,8 +109,7 @@ def test_render_stage_adaptive_against_fixed_rule_on_a_panned_plane(tmp_path):
     out = {}
     for name, extra in (("adaptive", {"blur_tolerance_db": 55.0}),
                         ("fixed", {"blur_tolerance_db": None, "blur_max_step_px": 0.25, "blur_max_subframes": 256})):
-        cfg = load_config({"render": {"fps": 1.0, "exposure_us": 900_000.0, "write_depth": False,
-                                      **extra}})["render"]
+        cfg = RenderSettings.defaults(fps=1.0, exposure_us=900_000.0, write_depth=False, **extra)
         st = render_dataset(model, traj, tmp_path / name, cfg)
         df = pd.read_parquet(tmp_path / name / "frames.parquet")
         out[name] = (st, df)

@@ -20,6 +20,7 @@ from gs2e.report import html as H
 from gs2e.report import plots as P
 from gs2e.report.build import build_report, n_images
 from gs2e.report.io import read_benchmarks, read_real_events
+from gs2e.report.settings import MetricsSettings
 from tests.conftest import run_cli, run_snakemake, shared_data
 
 
@@ -207,7 +208,7 @@ def test_report_of_synthetic_tree_shows_sections_images_and_missing(tmp_path):
     assert list(read_benchmarks(res / "a" / "benchmarks")["rule"]) == ["sfm", "train", "render_t1"]
     # a subset of scenes; an unknown scene is an error naming it
     assert _Parsed(build_report(res, scenes=["b"])).h2[-1] == "Scene b"
-    capped = build_report(res, cfg={"max_scene_sections": 1})
+    capped = build_report(res, cfg=MetricsSettings.defaults(max_scene_sections=1))
     assert _Parsed(capped).h2[-1] == "Scene a" and "the first 1 of 2 scenes" in capped
     with pytest.raises(InputError, match="nope"):
         build_report(res, scenes=["nope"])

@@ -4,10 +4,11 @@ enums the schema lists are the registries' and presets' names."""
 
 from __future__ import annotations
 
-from dataclasses import fields
+from dataclasses import MISSING, FrozenInstanceError, fields
 
 import pytest
 
+from gs2e.common.errors import ConfigError
 from gs2e.config import load_schema, load_section
 
 
@@ -58,12 +59,72 @@ def test_bench_config_reads_every_key_a_job_computes_with():
     assert rest <= sec.read, f"keys no field reads: {rest - sec.read}"
 
 
+class _ReadsAttrs:
+    """Typed settings that record which fields were read."""
+
+    def __init__(self, obj):
+        self._obj, self.read = obj, set()
+
+    def __getattr__(self, k):
+        self.read.add(k)
+        return getattr(self._obj, k)
+
+
 def test_imu_settings_read_every_imu_key():
     from gs2e.export.imu import imu_settings
+    from gs2e.export.settings import ExportSettings
 
-    sec = _Reads(load_section("export"))
+    sec = _ReadsAttrs(ExportSettings.defaults())
     imu_settings(sec)
     assert {k for k in _keys("export") if k.startswith("imu_")} | {"metres_per_unit"} <= sec.read
+
+
+def _sections() -> list[str]:
+    p = load_schema()["properties"]
+    return [k for k, v in p.items() if v.get("type") == "object" and "properties" in v]
+
+
+# section -> its stage's typed settings (events: EventSettings, bench: BenchConfig, above)
+SETTINGS = {"demo": "gs2e.demo.settings:DemoSettings", "ingest": "gs2e.io.settings:IngestSettings",
+            "sfm": "gs2e.sfm.settings:SfmSettings", "splat": "gs2e.splat.settings:SplatSettings",
+            "trajectory": "gs2e.trajectory.settings:TrajectorySettings",
+            "render": "gs2e.render.settings:RenderSettings", "metrics": "gs2e.report.settings:MetricsSettings",
+            "export": "gs2e.export.settings:ExportSettings"}
+
+
+def test_every_section_has_typed_settings_with_a_field_per_key():
+    """Every section resolves into typed settings: those of SETTINGS hold one
+    field per key (no defaults of their own: the schema's fill the section),
+    events and bench have the tests above."""
+    from gs2e.common.registry import resolve
+
+    assert set(SETTINGS) | {"events", "bench"} == set(_sections())
+    for section, where in SETTINGS.items():
+        cls = resolve(where)
+        assert cls.SECTION == section
+        names = [f.name for f in fields(cls)]
+        assert set(names) == _keys(section), f"{section}: {set(names) ^ _keys(section)}"
+        assert all(f.default is MISSING and f.default_factory is MISSING for f in fields(cls)), section
+        cfg = cls.defaults()
+        assert cfg.as_dict() == dict(sorted(load_section(section).items()))
+        with pytest.raises(FrozenInstanceError):
+            setattr(cfg, names[0], None)
+
+
+def test_typed_settings_refuse_a_key_without_a_field_or_a_field_without_a_key():
+    from gs2e.splat.settings import SplatSettings
+
+    sec = load_section("splat")
+    with pytest.raises(ConfigError, match="'splat.max_iteratons': not a setting of SplatSettings"):
+        SplatSettings.from_section({**sec, "max_iteratons": 10})
+    with pytest.raises(ConfigError, match="'splat.window' is missing"):
+        SplatSettings.from_section({k: v for k, v in sec.items() if k != "window"})
+    # defaults() and replace() validate and check as the CLI does
+    with pytest.raises(ConfigError, match="splat.max_iteratons"):
+        SplatSettings.defaults(max_iteratons=10)
+    with pytest.raises(ConfigError, match="splat.max_iterations"):
+        SplatSettings.defaults().replace(max_iterations=-1)
+    assert SplatSettings.defaults().replace(max_iterations=7).max_iterations == 7
 
 
 def test_enums_are_the_registries_and_presets():
@@ -83,3 +144,20 @@ def test_enums_are_the_registries_and_presets():
     assert bench["tasks"]["items"]["enum"] == list(TASKS)
     assert exp["formats"]["items"]["enum"] == list(FORMATS)
     assert set(exp["imu_preset"]["enum"]) == set(IMU_PRESETS)
+
+
+def test_a_stage_takes_its_settings_typed_not_a_dict(tmp_path):
+    """A section is resolved once: the stages' functions refuse a dict with a
+    TypeError naming the function, before reading or writing anything."""
+    from gs2e.events.models import make_model
+    from gs2e.events.settings import event_settings
+    from gs2e.splat.train import train
+
+    with pytest.raises(TypeError, match="train takes SplatSettings, not dict"):
+        train(tmp_path / "no_scene", tmp_path / "out", load_section("splat"))
+    with pytest.raises(TypeError, match="make_model takes EventSettings, not dict"):
+        make_model(load_section("events"), (2, 3), 0)
+    with pytest.raises(TypeError, match="resolved once"):
+        event_settings(event_settings({}))
+    assert not (tmp_path / "out").exists()
+

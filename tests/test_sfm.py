@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from gs2e.common.errors import InputError
-from gs2e.config import load_config
 from gs2e.io.scene import Camera, Frame, Scene, read_scene, write_scene_json
 from gs2e.sfm.align import alignment_errors
 from gs2e.sfm.colmap_sfm import choose_matcher, run_sfm
+from gs2e.sfm.settings import SfmSettings
 from tests.conftest import run_cli, shared_data
 
 
@@ -33,8 +33,8 @@ def read_middlebury_par(path: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     return out
 
 
-def sfm_cfg(**over):
-    return load_config({"sfm": over})["sfm"]
+def sfm_cfg(**over) -> SfmSettings:
+    return SfmSettings.defaults(**over)
 
 
 def ingest_folder(src: Path, out: Path) -> Path:
@@ -294,13 +294,14 @@ def test_mixed_orientation_capture_gets_one_camera_per_view_size(tmp_path):
     import pycolmap
 
     from gs2e.io.ingest import ingest_scene
+    from gs2e.io.settings import IngestSettings
     from gs2e.sfm.colmap_sfm import _import_images, _one_camera_per_size
 
     photos = tmp_path / "photos"  # the capture's first 16 photos by name: neighbours in time
     photos.mkdir()
     for f in sorted((shared_data("mouse_colmap") / "images").iterdir())[:16]:
         shutil.copy(f, photos / f.name)
-    scene = ingest_scene(photos, "folder", tmp_path / "ingest", {"max_side": 800})
+    scene = ingest_scene(photos, "folder", tmp_path / "ingest", IngestSettings.defaults(max_side=800))
     sizes = [scene.frame_size(i) for i in range(len(scene.frames))]
     assert len(set(sizes)) == 2  # landscape and portrait
     stats = run_sfm(tmp_path / "ingest", tmp_path / "sfm", sfm_cfg(min_registered_fraction=0.5), threads=2)

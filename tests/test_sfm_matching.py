@@ -146,13 +146,13 @@ def fern_features(tmp_path_factory):
     """A COLMAP database with gs2e's SIFT features of four llff_fern photos."""
     import pycolmap
 
-    from gs2e.config import load_config
     from gs2e.sfm import colmap_sfm
+    from gs2e.sfm.settings import SfmSettings
 
     src = shared_data("llff_fern", "images")
     names = sorted(p.name for p in src.iterdir())[:4]
     db = tmp_path_factory.mktemp("fern") / "features.db"
-    colmap_sfm._extract(db, src, names, load_config({})["sfm"], 2, pycolmap.CameraMode.SINGLE, "SIMPLE_RADIAL")
+    colmap_sfm._extract(db, src, names, SfmSettings.defaults(), 2, pycolmap.CameraMode.SINGLE, "SIMPLE_RADIAL")
     return db
 
 
@@ -162,10 +162,10 @@ def test_gemm_matching_leaves_the_database_colmaps_brute_force_matcher_leaves(fe
     geometries equal those of COLMAP's own brute-force matcher, for both pairings."""
     import pycolmap
 
-    from gs2e.config import load_config
     from gs2e.sfm import colmap_sfm
+    from gs2e.sfm.settings import SfmSettings
 
-    cfg = load_config({"sfm": {"sequential_overlap": 1}})["sfm"]  # sequential: not every pair
+    cfg = SfmSettings.defaults(sequential_overlap=1)  # sequential: not every pair
     theirs, ours = tmp_path / "colmap.db", tmp_path / "gs2e.db"
     shutil.copy(fern_features, theirs)
     shutil.copy(fern_features, ours)

@@ -14,6 +14,7 @@ import pytest
 from gs2e.bench import sim2real as S
 from gs2e.common.errors import ConfigError, InputError
 from gs2e.events.models import Events
+from gs2e.events.settings import event_settings
 from tests.conftest import planned_jobs, run_cli, shared_data
 
 
@@ -106,7 +107,7 @@ def test_variant_settings():
     ideal = S.variant_settings("ideal", base)
     assert ideal["model"] == "ideal" and ideal["sensor"] is None and ideal["refractory_us"] is None
     # a per-sequence threshold draw in the scene does not leak into a variant
-    _, info = make_model(ideal, (8, 8), 0)
+    _, info = make_model(event_settings(ideal), (8, 8), 0)
     assert info["theta_on_nominal"] == info["theta_off_nominal"] == 0.2
     assert S.variant_settings("voltmeter", base)["k3"] is None
     d240 = S.variant_settings("davis240", base)
@@ -115,7 +116,7 @@ def test_variant_settings():
         (m["value"], m["preset"], m["theta_on"], m["theta_off"])
     assert d240["sensor"] == "davis240" and d240["k3"] is None and d240["refractory_us"] is None
     # the sensor's relative mismatch applies per polarity, as in the event stage
-    _, info = make_model(d240, (8, 8), 0)
+    _, info = make_model(event_settings(d240), (8, 8), 0)
     rel = SENSORS["davis240"].theta_mismatch_rel.value
     assert info["theta_mismatch_sigma"] == pytest.approx(rel * m["theta_on"])
     assert info["theta_mismatch_sigma_off"] == pytest.approx(rel * m["theta_off"])
@@ -132,7 +133,7 @@ def test_fit_settings_and_fit_without_edges():
     scene = {"model": "voltmeter", "theta_sampling": "loguniform", "shot_noise_rate_hz": 3.0,
              "theta_mismatch_sigma": 0.4, "sensor": "davis346", "preset": "gs2e_paper"}
     s = S.fit_settings(scene, "voltmeter", 1.2, 0.8, 0.1, 50.0)
-    _, info = make_model(s, (8, 8), 0)
+    _, info = make_model(event_settings(s), (8, 8), 0)
     assert (info["theta_on_nominal"], info["theta_off_nominal"]) == (1.2, 0.8)
     assert info["theta_mismatch_sigma"] == pytest.approx(0.12)
     assert info["theta_mismatch_sigma_off"] == pytest.approx(0.08)
@@ -378,8 +379,8 @@ def test_refitted_davis346_matches_the_street_background():
     # the ideal model: no events of its own on a still scene, only the preset's noise
     # (DVS-Voltmeter's diffusion fires on still scenes by itself; bench_sim2real.py measures it)
     s = {"sensor": "davis346", "model": "ideal", "theta_on": 0.2, "theta_off": 0.2}
-    model, _ = make_model(s, rec.shape, 11)
-    ev = SensorChain(model, resolve_readout(s)[0], 11).simulate(ts, frames)
+    model, _ = make_model(event_settings(s), rec.shape, 11)
+    ev = SensorChain(model, resolve_readout(event_settings(s))[0], 11).simulate(ts, frames)
     ev = Events(ev.t, ev.x, ev.y, ev.p)
     sim = still_background(ev, rec.shape, rec.frames, mask=real["_mask"])
     assert sim["ba_rate_hz"] == pytest.approx(real["ba_rate_hz"], rel=0.25)

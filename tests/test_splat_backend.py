@@ -3,6 +3,7 @@ selected by config, and refused with a clear error where it cannot run."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import pytest
@@ -12,6 +13,7 @@ from gs2e.common.errors import ConfigError, InputError
 from gs2e.config import load_section
 from gs2e.splat.backend import gsplat_status, resolve_backend
 from gs2e.splat.rasterize import rasterize
+from gs2e.splat.settings import SplatSettings
 from tests.splat_scenes import look_at_camera, random_scene
 
 GSPLAT_OK, GSPLAT_WHY = gsplat_status()
@@ -46,7 +48,7 @@ def test_gsplat_refused_where_it_cannot_run(tmp_path):
     # train fails before reading anything or writing output
     from gs2e.splat.train import train
 
-    cfg = dict(load_section("splat"), backend="gsplat")
+    cfg = dataclasses.replace(SplatSettings.defaults(), backend="gsplat")  # past the config check
     with pytest.raises(ConfigError, match="splat.backend"):
         train(tmp_path / "no_scene", tmp_path / "out", cfg)
     assert not (tmp_path / "out").exists()

@@ -13,12 +13,13 @@ from gs2e.splat.init import init_from_points
 from gs2e.splat.loss import photometric_loss
 from gs2e.splat.model import render, to_params
 from gs2e.splat.optimise import Schedule, Step, make_optimizer, optimise
+from gs2e.splat.settings import SplatSettings
 from gs2e.splat.rasterize import NonFiniteError
 from gs2e.splat.strategy import DensifyConfig, DensifyStrategy
 from splat_scenes import look_at_camera
 
-LRS = {"lr_rotation": 1e-3, "lr_scaling": 5e-3, "lr_opacity": 0.025, "lr_sh_dc": 2.5e-3,
-       "lr_sh_rest": 1.25e-4}
+LRS = SplatSettings.defaults(lr_rotation=1e-3, lr_scaling=5e-3, lr_opacity=0.025, lr_sh_dc=2.5e-3,
+                             lr_sh_rest=1.25e-4)
 
 
 def _model(n=200, seed=0, grey=128):

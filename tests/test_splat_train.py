@@ -8,6 +8,7 @@ well under two minutes on 2 cores.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -22,12 +23,12 @@ import pytest
 import torch
 
 from gs2e.common.errors import ConfigError, InputError
-from gs2e.config import load_section
 from gs2e.io.scene import read_scene, write_scene_json
 from gs2e.splat.init import init_from_points
 from gs2e.splat.ply import read_ply, write_ply
 from gs2e.splat.rasterize import NonFiniteError
 from gs2e.splat.scene_stats import choose_sh_degree, detail_budget
+from gs2e.splat.settings import SplatSettings
 from gs2e.splat.strategy import (PARAMS, Adam, DensifyConfig, DensifyStrategy, GradStats,
                                  densify_and_prune, reset_opacity)
 from gs2e.splat.model import to_params
@@ -40,22 +41,22 @@ pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 BG = torch.zeros(3)
 
 
-def cfg(**kw) -> dict:
-    """A validated splat config for tiny scenes (short schedule)."""
+def cfg(**kw) -> SplatSettings:
+    """Validated splat settings for tiny scenes (short schedule)."""
     base = {"max_iterations": 150, "min_iterations": 0, "eval_every": 50, "sh_degree": 0,
             "resolution_schedule": [[0, 2], [50, 1]], "densify_from": 20, "densify_every": 30,
             "densify_until": 120, "opacity_reset_every": 10000, "checkpoint_every": 0,
             "budget": 4000}
-    return load_section("splat", json.dumps({**base, **kw}))
+    return SplatSettings.defaults(**{**base, **kw})
 
 
 @pytest.fixture(scope="module")
 def tiny_scene(tmp_path_factory) -> Path:
     from gs2e.demo.io import generate_demo_scene
+    from gs2e.demo.settings import DemoSettings
 
     out = tmp_path_factory.mktemp("splat_train") / "tiny"
-    generate_demo_scene(out, load_section("demo", json.dumps(
-        {"n_views": 12, "width": 96, "height": 72, "n_points": 2000})))
+    generate_demo_scene(out, DemoSettings.defaults(n_views=12, width=96, height=72, n_points=2000))
     return out
 
 
@@ -74,7 +75,7 @@ def test_training_improves_heldout_psnr(tiny_scene, tmp_path):
     c = cfg(max_iterations=200)
     scene = read_scene(tiny_scene)
     views = load_views(tiny_scene, scene, [1])
-    _, test_v = split_views(views, c["test_every"])
+    _, test_v = split_views(views, c.test_every)
     assert len(test_v) == 2
     g0 = init_from_points(scene.points_xyz, scene.points_rgb, sh_degree=0)
     before = evaluate(to_params(g0), test_v, BG, 0)
@@ -98,7 +99,7 @@ def test_training_improves_heldout_psnr(tiny_scene, tmp_path):
     assert m.loc[0, "test_lpips"] is None or pd.isna(m.loc[0, "test_lpips"])  # recorded as missing
 
     # the written model renders to the same held-out figures
-    rows = render_views(out, tiny_scene, tmp_path / "renders", "test", c["test_every"])
+    rows = render_views(out, tiny_scene, tmp_path / "renders", "test", c.test_every)
     assert len(rows) == 2 and len(list((tmp_path / "renders").glob("*.png"))) == 2
     assert np.mean([r["psnr"] for r in rows]) == pytest.approx(st["test_psnr"], abs=0.05)
 
@@ -149,7 +150,7 @@ def test_resume_gives_identical_bytes(tiny_scene, tmp_path):
 
     # a checkpoint of another seed (or config) is ignored, not resumed
     train(tiny_scene, tmp_path / "c", c, seed=4, interrupt_after=45)
-    for d, seed, other in (("d", 3, c), ("e", 4, {**c, "lr_opacity": 0.02}), ("f", 4, c)):
+    for d, seed, other in (("d", 3, c), ("e", 4, c.replace(lr_opacity=0.02)), ("f", 4, c)):
         shutil.copytree(tmp_path / "c.ckpt", tmp_path / f"{d}.ckpt")
         r = train(tiny_scene, tmp_path / d, other, seed=seed, interrupt_after=5)
         assert r["iteration"] == (46 if d == "f" else 5)  # only the matching one resumes
@@ -167,13 +168,13 @@ def test_plateau_stop_on_converged_scene(tiny_scene, tmp_path):
     # evaluations at 10 (best), 20 (coarse: does not count), 30, 40 (stalled)
     assert st["iterations"] == 40
     # min_iterations holds the stop back
-    st = train(tiny_scene, tmp_path / "m2", {**c, "min_iterations": 80})
+    st = train(tiny_scene, tmp_path / "m2", c.replace(min_iterations=80))
     assert st["stop_reason"] == "plateau" and st["iterations"] == 80
     # an opacity reset at step 30 (after that step's evaluation, which sees the
     # model as trained) drops the PSNR at 40: tracking restarts there instead of
     # counting the dip as stalls (40 sets the new best, 50 and 60 stall)
-    st = train(tiny_scene, tmp_path / "m3", {**c, "opacity_reset_every": 30, "densify_until": 100,
-                                              "densify_every": 1000})
+    st = train(tiny_scene, tmp_path / "m3", c.replace(opacity_reset_every=30, densify_until=100,
+                                                       densify_every=1000))
     assert st["stop_reason"] == "plateau" and st["iterations"] == 60
     curve = pd.read_parquet(tmp_path / "m3" / "curve.parquet")
     assert curve["psnr"].iloc[3] < curve["psnr"].iloc[2] - 1.0  # the reset's dip, at 40
@@ -193,7 +194,7 @@ def test_ply_import_renders_and_evaluates(tiny_scene, tmp_path):
     assert st["source"] == "ply" and st["iterations"] == 7000 and st["sh_degree"] == 1
     assert st["ply_path"].endswith("iteration_7000/point_cloud.ply")
     views = load_views(tiny_scene, scene, [1])
-    _, test_v = split_views(views, c["test_every"])
+    _, test_v = split_views(views, c.test_every)
     ref = evaluate(to_params(g), test_v, torch.tensor(bg), 1)
     assert ref["psnr"] < evaluate(to_params(g), test_v, BG, 1)["psnr"] - 0.5  # bg matters
     assert st["test_psnr"] == pytest.approx(ref["psnr"], abs=1e-4)
@@ -257,13 +258,13 @@ def test_bad_ply_model(tiny_scene, tmp_path, damage):
         pattern = "missing vertex attributes opacity"
     else:
         pattern = "ply_path is not set"
-        # The config check catches it before any job; train still refuses a
-        # section that skipped that check.
+        # The config check catches it before any job; train still refuses
+        # settings built past that check.
         with pytest.raises(ConfigError, match="splat.ply_path: must be set"):
             cfg(model_source="ply", ply_path=None)
     c = cfg(model_source="ply", ply_path=str(path))
     if damage == "no_path":
-        c = dict(c, ply_path=None)
+        c = dataclasses.replace(c, ply_path=None)
     with pytest.raises(InputError, match=pattern):
         train(tiny_scene, tmp_path / "m", c)
     assert not (tmp_path / "m").exists()
@@ -378,7 +379,7 @@ def test_strategy_owns_the_schedule():
     opt = _adam_with_marked_rows(p)
     c = cfg(densify_from=2, densify_every=2, densify_until=7, opacity_reset_every=4)
     strategy = DensifyStrategy.from_config(c, budget=1000, extent=1.0)
-    assert (strategy.ops.grad_threshold, strategy.ops.budget) == (c["densify_grad_threshold"], 1000)
+    assert (strategy.ops.grad_threshold, strategy.ops.budget) == (c.densify_grad_threshold, 1000)
     gen = torch.Generator().manual_seed(0)
     sizes, resets = [], []
     for step in range(1, 10):

@@ -7,15 +7,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gs2e.config import load_config
 from gs2e.testing import make_scene, ring
 from gs2e.trajectory.kinematics import acceleration_jumps, kinematics_at, knot_times_us
+from gs2e.trajectory.settings import TrajectorySettings
 from gs2e.trajectory.stage import generate
 
 
 @pytest.fixture(scope="module")
 def trajectories():
-    cfg = load_config({"trajectory": {"plot": False, "min_duration_s": 1.5}})["trajectory"]
+    cfg = TrajectorySettings.defaults(plot=False, min_duration_s=1.5)
     return generate(make_scene(ring(20, noise=0.05)), cfg, seed=0).trajectories
 
 

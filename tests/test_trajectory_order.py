@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from gs2e.config import load_config
 from gs2e.trajectory.order import tour_order
+from gs2e.trajectory.settings import TrajectorySettings
 
 
 def _ring(n: int, radius: float = 3.0) -> np.ndarray:
@@ -48,7 +48,7 @@ def test_stage_orders_unordered_views_and_windows_minis():
     perm = np.random.default_rng(1).permutation(n)
     frames = [Frame(f"{i:03d}.png", Camera(300, 300, 160, 120), ring[p]) for i, p in enumerate(perm)]
     scene = Scene(320, 240, frames, "folder")
-    cfg = load_config({"trajectory": {"speed_presets": ["medium"], "plot": False}})["trajectory"]
+    cfg = TrajectorySettings.defaults(speed_presets=["medium"], plot=False)
     res = generate(scene, cfg, seed=0)
     base = res.trajectories["base_medium"]
     assert base.meta["view_order"] == "tour"
@@ -60,9 +60,9 @@ def test_stage_orders_unordered_views_and_windows_minis():
     for name, tr in res.trajectories.items():
         if name.startswith("mini"):
             kf = tr.meta["keyframes"]
-            assert max(kf) - min(kf) < round(cfg["mini_window"] * M) + 1
+            assert max(kf) - min(kf) < round(cfg.mini_window * M) + 1
     # explicit sequence order keeps the given (shuffled) order
-    cfg_seq = dict(cfg, view_order="sequence")
+    cfg_seq = cfg.replace(view_order="sequence")
     assert generate(scene, cfg_seq, seed=0).trajectories["base_medium"].meta["view_order"] == "sequence"
 
 
@@ -84,8 +84,8 @@ def test_minis_drawn_from_anywhere_on_a_ring_keep_the_object_in_view():
     K = np.array([[300.0, 0, 160], [0, 300, 120], [0, 0, 1]])
     worst = {}
     for min_view in (0.0, 0.5):
-        cfg = load_config({"trajectory": {"speed_presets": ["medium"], "plot": False, "mini_window": 1.0,
-                                          "mini_groups": 6, "mini_min_view": min_view}})["trajectory"]
+        cfg = TrajectorySettings.defaults(speed_presets=["medium"], plot=False, mini_window=1.0, mini_groups=6,
+                                          mini_min_view=min_view)
         res = generate(scene, cfg, seed=3)
         base_min = points_in_view_fraction(pts, res.trajectories["base_medium"].c2w, K, 320, 240).min()
         minis = [tr for name, tr in res.trajectories.items() if name.startswith("mini")]

@@ -8,19 +8,17 @@ import pytest
 from gs2e.testing import TEMPLE, fine_steps, look_at, ring, temple_c2w
 from gs2e.common.errors import InputError
 from gs2e.common.so3 import geodesic_angle, quat_exp, quat_to_rotmat, rotmat_to_quat
-from gs2e.config import load_section
 from gs2e.trajectory.curve import (arc_length_table, curve_speed, curve_speed_numpy, fit_curve,
                                    smooth_poses, split_c2w)
+from gs2e.trajectory.settings import TrajectorySettings
 from gs2e.trajectory.trajectory import build_base_path, timed_trajectory, timestamps_us
 from gs2e.trajectory.velocity import parse_velocity_expression, speed_list_profile
 
 V_DEFAULT = parse_velocity_expression("0.25*sin(t)+1.1")
 
 
-def cfg(**kw):
-    c = load_section("trajectory")
-    c.update(kw)
-    return c
+def cfg(**kw) -> TrajectorySettings:
+    return TrajectorySettings.defaults(**kw)
 
 
 def timed(path, dur_s=2.0):

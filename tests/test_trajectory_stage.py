@@ -15,15 +15,14 @@ from gs2e.common.so3 import geodesic_angle
 from gs2e.config import load_section
 from gs2e.io.scene import write_scene_json
 from gs2e.trajectory.io import load_trajectory, read_index, write_outputs
+from gs2e.trajectory.settings import TrajectorySettings
 from gs2e.trajectory.stage import generate
 
 REPO = Path(__file__).resolve().parents[1]
 
 
-def cfg(**kw):
-    c = load_section("trajectory")
-    c.update(kw)
-    return c
+def cfg(**kw) -> TrajectorySettings:
+    return TrajectorySettings.defaults(**kw)
 
 
 def _hashes(folder: Path) -> dict:
@@ -129,7 +128,7 @@ def test_files_roundtrip(tmp_path):
 
 def test_config_errors():
     scene = make_scene(ring(8))
-    with pytest.raises(ConfigError, match="preset 'fast'"):
+    with pytest.raises(ConfigError, match="trajectory.speed_presets.0': 'fast' is not one of"):
         generate(scene, cfg(speed_presets=["fast"]), 0)
     with pytest.raises(ConfigError, match="alpha"):
         generate(scene, cfg(alpha=0.0, beta=0.0), 0)
@@ -223,6 +222,6 @@ def test_presets_set_the_typical_image_speed_when_the_scene_has_points():
         speed = steps / (np.diff(tr.t_us) * 1e-6)
         assert np.median(speed) == pytest.approx(want, rel=2e-3), name
     d = {p: res.trajectories[f"base_{p}"].duration_us for p in ("mild", "medium", "strong")}
-    v = {p: c["presets"][p]["image_speed_width_s"] for p in d}
+    v = {p: c.presets[p]["image_speed_width_s"] for p in d}
     assert d["mild"] / d["strong"] == pytest.approx(v["strong"] / v["mild"], rel=1e-3)
     assert res.trajectories["base_mild"].meta["image_step_width_median"] > 0

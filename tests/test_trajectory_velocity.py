@@ -75,7 +75,7 @@ def test_speed_list_rejects_bad_values():
 
 
 def test_make_profile_prefers_speed_list():
-    v = make_profile({"velocity": "t - 10", "speed_list": [2.0], "speed_list_tau": 0.1})
+    v = make_profile("t - 10", [2.0], 0.1)
     np.testing.assert_allclose(v(np.array([0.3])), [2.0])
 
 

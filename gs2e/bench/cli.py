@@ -78,6 +78,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_args(m)
     m.set_defaults(func=run_sim2real)
 
+    _register_finetune(sub)
+
+
+def _register_finetune(sub: argparse._SubParsersAction) -> None:
     # (defaults from FinetuneSettings when run, not imported here: every bench
     # rule's code version follows what register() imports)
     f = sub.add_parser(

@@ -78,11 +78,11 @@ from gs2e.bench.dataset import Dataset, grey, intrinsics, motion_px, pooled_psnr
 from gs2e.common.color import linear_to_srgb, luminance, srgb_to_linear
 from gs2e.common.errors import InputError
 from gs2e.common.log import get_logger
-from gs2e.config import load_section
 from gs2e.splat.init import init_from_points
 from gs2e.splat.loss import photometric_loss
 from gs2e.splat.model import render, to_params
 from gs2e.splat.rasterize import SplatCamera
+from gs2e.splat.settings import SplatSettings
 from gs2e.splat.optimise import Schedule, Step, make_optimizer, optimise, training_dtype
 from gs2e.splat.strategy import DensifyConfig, DensifyStrategy
 from gs2e.splat.views import downscale_area
@@ -416,7 +416,7 @@ def train_variant(variant: str, data: Recon3dData, s: Recon3dSettings,
     extent = _extent(train_c2w, look_at_distance(train_c2w))
     sched = Schedule(s.steps, POSITION_LR["lr_position_init"], POSITION_LR["lr_position_final"],
                      tuple(tuple(x) for x in s.resolution_schedule))
-    opt = make_optimizer(load_section("splat"), sched, extent)
+    opt = make_optimizer(SplatSettings.defaults(), sched, extent)
     strategy = DensifyStrategy(DensifyConfig(grad_threshold=s.densify_grad_threshold, budget=s.budget),
                                extent, densify_from=s.densify_from, densify_until=int(0.8 * s.steps),
                                densify_every=s.densify_every, opacity_reset_every=10 ** 9)

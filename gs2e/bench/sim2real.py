@@ -222,9 +222,11 @@ def simulate_frames(settings: dict, ts_us: np.ndarray, frames: np.ndarray, seed:
     """All events of an in-memory frame sequence ((N,) int us, (N, H, W)
     linear luminance) under an ``events`` section (a dict)."""
     from gs2e.events.readout import SensorChain, resolve_readout
+    from gs2e.events.settings import event_settings
 
-    model, _ = make_model(settings, frames.shape[1:], int(seed), source="sim2real")
-    return SensorChain(model, resolve_readout(settings)[0], int(seed)).simulate(ts_us, frames)
+    cfg = event_settings(settings)
+    model, _ = make_model(cfg, frames.shape[1:], int(seed), source="sim2real")
+    return SensorChain(model, resolve_readout(cfg)[0], int(seed)).simulate(ts_us, frames)
 
 
 # what every variant other than the scene's own sets: one threshold each, as given
@@ -245,7 +247,7 @@ def variant_settings(name: str, scene_events: dict) -> dict:
     pixel array changes nothing here: the comparison is pixel by pixel in
     the recording's camera.
     """
-    from gs2e.events.sensors import NOISE_KEYS, READOUT_KEYS, SENSORS, get_sensor
+    from gs2e.events.sensors import NOISE_KEYS, READOUT_KEYS, SENSORS
 
     base = {k: v for k, v in copy.deepcopy(scene_events).items() if k != "max_duration_s"}
     if name == "scene":
@@ -262,7 +264,7 @@ def variant_settings(name: str, scene_events: dict) -> dict:
                           f"ideal, voltmeter, {', '.join(SENSORS)})")
     # the sensor's own values: config keys that would win over them are cleared
     out = {**base, **quiet, "sensor": name}
-    model = get_sensor({"sensor": name}).extra.get("model")
+    model = SENSORS[name].extra.get("model")
     if model:
         out.update(model=model["value"], theta_on=model["theta_on"], theta_off=model["theta_off"])
         if model["value"] == "voltmeter":
@@ -409,8 +411,10 @@ def render_path(model_dir, traj_path, t0_us: int, t1_us: int, fps: float, aps_li
     ``aps_linear``: the model's grey values are linear (an APS), not sRGB."""
     from gs2e.common.color import linear_to_srgb
     from gs2e.events.rendered import RenderedSource
+    from gs2e.events.settings import event_settings
 
-    src = RenderedSource(model_dir, traj_path, {"sampling": {"mode": "fixed", "fixed_fps": float(fps)}},
+    cfg = event_settings({"sampling": {"mode": "fixed", "fixed_fps": float(fps)}})
+    src = RenderedSource(model_dir, traj_path, cfg,
                          background=background, span_us=(int(t0_us), int(t1_us)))
     t_first, f_first = src.start()
     ts, fr = [int(t_first)], [np.array(f_first)]

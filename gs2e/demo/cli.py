@@ -24,9 +24,9 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from gs2e.config import load_section
     from gs2e.demo.io import generate_demo_scene
+    from gs2e.demo.settings import DemoSettings
 
-    cfg = load_section("demo", text=args.config_json, path=args.config)
+    cfg = DemoSettings.load(args.config_json, args.config)
     generate_demo_scene(args.out, cfg)
     return 0

@@ -18,6 +18,7 @@ import numpy as np
 
 from gs2e.common.errors import ConfigError
 from gs2e.demo.geometry import F32, Box, Ceiling, Cylinder, Ground, Sphere, Wall
+from gs2e.demo.settings import DemoSettings
 from gs2e.demo.textures import COLOUR_PHOTOS, GREY_PHOTOS, Atlas, build_atlas
 
 LIGHT_DIR = np.array([0.45, 0.3, 1.0], F32) / np.float32(np.linalg.norm([0.45, 0.3, 1.0]))
@@ -146,20 +147,20 @@ def intrinsics(width: int, height: int, fov_deg: float) -> tuple[float, float, f
     return fx, fx, width / 2, height / 2
 
 
-def check_orbit(cfg: dict) -> None:
+def check_orbit(cfg: DemoSettings) -> None:
     """Reject orbits whose cameras leave the world (below the ground, outside the wall)
     or look straight down (look-at with world-up is undefined there)."""
-    el_max = abs(cfg["orbit_elevation_deg"]) + cfg["elevation_wobble_deg"]
+    el_max = abs(cfg.orbit_elevation_deg) + cfg.elevation_wobble_deg
     if el_max >= 85:
         raise ConfigError(f"demo.elevation_wobble_deg: |orbit_elevation_deg| + elevation_wobble_deg "
                           f"= {el_max:g} deg must be below 85 deg")
-    z_min = TARGET[2] + cfg["orbit_radius"] * math.sin(
-        math.radians(cfg["orbit_elevation_deg"] - cfg["elevation_wobble_deg"]))
+    z_min = TARGET[2] + cfg.orbit_radius * math.sin(
+        math.radians(cfg.orbit_elevation_deg - cfg.elevation_wobble_deg))
     if z_min < 0.05:
         raise ConfigError(f"demo.orbit_elevation_deg: the lowest camera would be at height {z_min:.3f}, "
                           f"below the ground plane; raise orbit_elevation_deg or lower elevation_wobble_deg")
-    if cfg["orbit_radius"] < 1.2:
-        raise ConfigError(f"demo.orbit_radius: {cfg['orbit_radius']:g} units puts cameras inside the objects "
+    if cfg.orbit_radius < 1.2:
+        raise ConfigError(f"demo.orbit_radius: {cfg.orbit_radius:g} units puts cameras inside the objects "
                           f"(need >= 1.2)")
 
 

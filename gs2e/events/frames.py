@@ -32,7 +32,7 @@ from gs2e.common.color import REC709 as _REC709, srgb_to_linear
 from gs2e.io.images import list_images
 from gs2e.common.camera import fit_scale
 from gs2e.events.sensors import fit_frame, get_sensor
-from gs2e.events.settings import EventSettings, event_settings
+from gs2e.events.settings import EventSettings, require_settings
 
 _T = TypeVar("_T")
 _R = TypeVar("_R")
@@ -283,8 +283,8 @@ class SensorFrames:
     """A frame source as an ``events.sensor`` sees it: every frame scaled
     about its centre to the sensor's pixel array (:func:`gs2e.events.sensors.fit_frame`)."""
 
-    def __init__(self, frames, settings: "EventSettings | dict"):
-        settings = event_settings(settings)
+    def __init__(self, frames, settings: "EventSettings"):
+        settings = require_settings(settings, "SensorFrames")
         self.src, self.fit = frames, settings.sensor_fit
         self.sensor = get_sensor(settings)
         self.width, self.height = self.sensor.size

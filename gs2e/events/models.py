@@ -79,7 +79,7 @@ from gs2e.common.registry import PluginRegistry, add
 from gs2e.events import _kernels as K
 from gs2e.events.presets import Preset, effective_threshold, get_preset
 from gs2e.events.sensors import resolve_noise
-from gs2e.events.settings import EventSettings, event_settings
+from gs2e.events.settings import EventSettings, require_settings
 
 log = logging.getLogger("gs2e.events")
 
@@ -691,7 +691,7 @@ class IdealModel(_StreamingModel):
         return d
 
 
-def make_model(settings: EventSettings | dict, shape: tuple[int, int], seed: int,
+def make_model(settings: EventSettings, shape: tuple[int, int], seed: int,
                source: str = "frames"):
     """Build a model from the ``events`` settings (or the validated section).
 
@@ -699,7 +699,7 @@ def make_model(settings: EventSettings | dict, shape: tuple[int, int], seed: int
     values) for the metadata. The per-sequence theta, the mismatch maps and
     the model's random streams all derive from ``seed``.
     """
-    cfg = event_settings(settings)
+    cfg = require_settings(settings, "make_model")
     rng = np.random.default_rng([int(seed), 0x7E7A])
     th_on, th_off = sample_sequence_theta(
         rng, cfg.theta_on, cfg.theta_off, cfg.theta_sampling, cfg.theta_range,
@@ -742,7 +742,7 @@ def model_class(name: str) -> type[_StreamingModel]:
     return MODELS[name]
 
 
-def log_contrast(settings: EventSettings | dict, theta_on=None, theta_off=None):
+def log_contrast(settings: EventSettings, theta_on=None, theta_off=None):
     """The event model's contrast in log units: (theta_on, theta_off, eps), the
     log(L + eps) steps that fire an ON / OFF event, L linear luminance in [0, 1].
 
@@ -753,7 +753,7 @@ def log_contrast(settings: EventSettings | dict, theta_on=None, theta_off=None):
     voltage threshold theta is the step theta / k1 of log(L + k2 / scale);
     noise and leak are not part of it.
     """
-    cfg = event_settings(settings)
+    cfg = require_settings(settings, "log_contrast")
     on = np.asarray(cfg.theta_on if theta_on is None else theta_on, np.float64)
     off = np.asarray(cfg.theta_off if theta_off is None else theta_off, np.float64)
     return model_class(cfg.model).log_contrast(cfg, on, off)

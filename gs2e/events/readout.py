@@ -44,6 +44,7 @@ from gs2e.common.errors import InputError
 from gs2e.events import _kernels as K
 from gs2e.events.models import Events, TileBatch
 from gs2e.events.sensors import READOUT_KEYS
+from gs2e.events.settings import EventSettings, require_settings
 
 HOT_BLOCK_US = 100_000
 _SALT_HOT_PICK, _SALT_HOT_EVENTS, _SALT_JITTER = 0x4807, 0x4808, 0x4809
@@ -81,13 +82,12 @@ class ReadoutSettings:
         return self.lowpass_on or self.hot_on or self.readout_on
 
 
-def resolve_readout(settings) -> tuple[ReadoutSettings, dict]:
+def resolve_readout(settings: EventSettings) -> tuple[ReadoutSettings, dict]:
     """(ReadoutSettings, sources): an explicit config value wins, then the
     sensor preset's (``Sensor.extra['readout']``), then off / the default."""
     from gs2e.events.sensors import get_sensor
-    from gs2e.events.settings import event_settings
 
-    cfg = event_settings(settings)
+    cfg = require_settings(settings, "resolve_readout")
     sensor = get_sensor(cfg)
     preset = (sensor.extra.get("readout") or {}) if sensor is not None else {}
     values, sources = {}, {}

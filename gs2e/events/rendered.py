@@ -26,7 +26,7 @@ from gs2e.common.camera import render_camera
 from gs2e.common.errors import ConfigError, InputError
 from gs2e.events.models import TileBatch, log_contrast, model_class
 from gs2e.events.sensors import get_sensor
-from gs2e.events.settings import EventSettings, event_settings
+from gs2e.events.settings import EventSettings, require_settings
 from gs2e.events.sampling import (MODES, SamplerStats, TileSampler, adaptive_samples,
                                   image_luminance, motion_times)
 from gs2e.splat.backend import resolve_backend_for
@@ -44,14 +44,14 @@ STEP_MOTION_PROBES = 64
 STEP_MOTION_WARN_PX = 1.0
 
 
-def bound_log(settings: EventSettings | dict) -> float:
+def bound_log(settings: EventSettings) -> float:
     """The sampling bound on the per-pixel change of log(L + eps), eps the
     model's dark floor (:func:`sampling_log_eps`):
     ``sampling.bound_fraction`` x the smallest contrast threshold the config
     can draw (theta_on / theta_off, or the low end of theta_range), as a
     log-intensity step (voltmeter: log(1 + theta / k1), the bright-pixel
     limit of the voltage threshold)."""
-    cfg = event_settings(settings)
+    cfg = require_settings(settings, "bound_log")
     theta = min(cfg.theta_on, cfg.theta_off)
     if cfg.theta_sampling != "fixed":
         theta = min(theta, min(cfg.theta_range))
@@ -59,7 +59,7 @@ def bound_log(settings: EventSettings | dict) -> float:
     return float(cfg.sampling.bound_fraction) * theta
 
 
-def sampling_log_eps(settings: EventSettings | dict) -> float:
+def sampling_log_eps(settings: EventSettings) -> float:
     """The dark floor of the signal the sampling bound applies to: the event
     model's own log signal (:func:`gs2e.events.models.log_contrast`). Ideal:
     log(L + log_eps). DVS-Voltmeter: its voltage drifts at k1 d/dt log(L *
@@ -159,11 +159,11 @@ class RenderedSource:
     """
 
     def __init__(self, model_dir: str | Path, trajectory_path: str | Path,
-                 settings: EventSettings | dict,
+                 settings: EventSettings,
                  background=(0.0, 0.0, 0.0), scale: float = 1.0, backend: str = "cpu",
                  batch_frames: int = 32, span_us: tuple[int, int] | None = None,
                  order_step_px: float = 2.0):
-        settings = event_settings(settings)
+        settings = require_settings(settings, "RenderedSource")
         sc = settings.sampling
         if sc.mode not in MODES:
             raise ConfigError(f"events.sampling.mode must be one of {MODES}, got {sc.mode!r}")

@@ -43,7 +43,7 @@ import numpy as np
 from gs2e.common.camera import fit_scale, size_problem
 from gs2e.common.errors import ConfigError, InputError
 from gs2e.common.registry import PluginRegistry, add
-from gs2e.events.settings import EventSettings, event_settings
+from gs2e.events.settings import EventSettings, require_settings
 
 # The pixel non-idealities a sensor sets, and their value without a sensor.
 NOISE_KEYS = {"theta_mismatch_sigma": 0.0, "refractory_us": 0.0, "leak_rate_hz": 0.0,
@@ -246,9 +246,9 @@ def read_sensor_file(path: str | Path) -> Sensor:
                   {"readout": readout} if readout else {})
 
 
-def get_sensor(settings: "EventSettings | dict") -> Sensor | None:
+def get_sensor(settings: "EventSettings") -> Sensor | None:
     """The sensor the ``events`` settings (or section) ask for (None: no sensor)."""
-    cfg = event_settings(settings)
+    cfg = require_settings(settings, "get_sensor")
     name = cfg.sensor
     if name is None:
         return None
@@ -263,7 +263,7 @@ def get_sensor(settings: "EventSettings | dict") -> Sensor | None:
                           f"(choose from {', '.join([*SENSORS, 'custom'])})") from None
 
 
-def resolve_noise(settings: "EventSettings | dict", theta_nominal: float) -> tuple[dict, dict]:
+def resolve_noise(settings: "EventSettings", theta_nominal: float) -> tuple[dict, dict]:
     """The pixel non-idealities the models get: an explicit config value wins,
     then the sensor's, then none (0; ON fraction 0.5).
 
@@ -272,7 +272,7 @@ def resolve_noise(settings: "EventSettings | dict", theta_nominal: float) -> tup
     config's, else the config's ``theta_mismatch_rel`` or the sensor's
     relative mismatch x ``theta_nominal``); ``sources`` says where each came from.
     """
-    cfg = event_settings(settings)
+    cfg = require_settings(settings, "resolve_noise")
     sensor = get_sensor(cfg)
     values, sources = {}, {}
     for key, default in NOISE_KEYS.items():

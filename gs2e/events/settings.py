@@ -105,12 +105,14 @@ def _defaults() -> dict:
     return load_section("events")
 
 
-def event_settings(section: "Mapping[str, Any] | EventSettings") -> EventSettings:
-    """The typed settings of an ``events`` section (returned as is when it
-    already is one). Keys the section lacks take the schema's defaults;
-    values are not validated again (``gs2e.config`` did that)."""
+def event_settings(section: "Mapping[str, Any]") -> EventSettings:
+    """The typed settings of an ``events`` section, resolved once (the CLI,
+    :func:`read_settings`, tests) and passed on as the object. Keys the
+    section lacks take the schema's defaults; values are not validated again
+    (``gs2e.config`` did that). TypeError for settings already typed: resolve
+    a section once."""
     if isinstance(section, EventSettings):
-        return section
+        raise TypeError("event_settings: already EventSettings (a section is resolved once)")
     base = copy.deepcopy(_defaults())
     given = copy.deepcopy(dict(section))
     sec = {**base, **given, "sampling": {**base["sampling"], **dict(given.get("sampling") or {})}}
@@ -133,3 +135,13 @@ def read_settings(attrs: Mapping[str, Any], where: str) -> EventSettings:
     except (TypeError, KeyError, json.JSONDecodeError) as exc:
         raise InputError(f"{where}: no events config in its metadata ({exc!r})") from None
     return event_settings(section)
+
+
+def require_settings(settings: Any, where: str) -> EventSettings:
+    """``settings`` if it is :class:`EventSettings`; TypeError naming ``where``
+    otherwise (a dict is resolved once, by :func:`event_settings`, before it
+    reaches the stage's functions)."""
+    if not isinstance(settings, EventSettings):
+        raise TypeError(f"{where} takes EventSettings, not {type(settings).__name__} "
+                        "(gs2e.events.settings.event_settings resolves an events section once)")
+    return settings

@@ -42,7 +42,7 @@ from gs2e.events.io import H5EventWriter, TextEventWriter, read_h5, write_npz
 from gs2e.events.models import Events, TileBatch, make_model
 from gs2e.events.readout import SensorChain, resolve_readout
 from gs2e.events.represent import PreviewWriter
-from gs2e.events.settings import EventSettings, event_settings
+from gs2e.events.settings import EventSettings, require_settings
 from gs2e.events.stats import StatsAccumulator
 
 log = logging.getLogger("gs2e.events")
@@ -113,14 +113,67 @@ class _PreviewWindows:
         self.pw.add(luminance, Events.concat(self.parts))
 
 
-def simulate_to_folder(source, settings: EventSettings | dict, out_dir: str | Path, seed: int,
+def _check_containers(containers: tuple[str, ...], name: str, W: int, H: int, t_first_us: int) -> None:
+    """Before any simulation: ConfigError for a size no chosen container
+    holds, InputError for negative times (containers store unsigned ones)."""
+    for kind in containers:
+        why = container_limits(kind, W, H)
+        if why:
+            raise ConfigError(f"events.containers: {why}")
+    if containers and t_first_us < 0:
+        raise InputError(f"{name}: events.containers {list(containers)} cannot store negative "
+                         f"times (first frame at {t_first_us} us)")
+
+
+def _run_chain(source, chain, emit, bar, t_first_us: int, clock: dict) -> int:
+    """Feed every batch of ``source`` through the sensor ``chain``, passing
+    its events to ``emit(events, horizon_us)``; time spent goes to
+    ``clock['source_s']`` / ``clock['model_s']``, progress (ms) to ``bar``.
+    Returns the time (us) of the last sample."""
+    t_last, done_ms = t_first_us, 0
+    batches = iter(source.batches())
+    while True:
+        a = time.perf_counter()
+        item = next(batches, None)
+        b = time.perf_counter()
+        clock["source_s"] += b - a
+        if item is None:
+            return t_last
+        if isinstance(item, TileBatch):
+            ev = chain.process_tiles(item)
+            t_last = max(t_last, int(item.t1_us.max()))
+        else:
+            ev = chain.process_batch(*item)
+            t_last = int(item[0][-1])
+        clock["model_s"] += time.perf_counter() - b
+        emit(ev, chain.horizon_us)
+        now_ms = max(0, (chain.horizon_us - t_first_us) // 1000)
+        bar.update(now_ms - done_ms)
+        done_ms = now_ms
+
+
+def _write_attrs(hw, model, chain, meta: dict, model_name: str, seed: int) -> dict:
+    """events.h5's attributes: the run's metadata (``meta`` gains the model's
+    and the chain's as ``model_metadata``, which is returned), the per-pixel
+    thresholds and the model's own attributes."""
+    md = model.metadata()
+    md.update(chain.describe())
+    meta["model_metadata"] = md
+    hw.attrs.update({"model": model_name, "seed": seed, "metadata": meta,
+                     "theta/on": model.th_on.astype(np.float32), "theta/off": model.th_off.astype(np.float32)})
+    hw.attrs["theta_on_summary"] = md["theta_on_map"]
+    hw.attrs["theta_off_summary"] = md["theta_off_map"]
+    hw.attrs.update(model.file_attrs())
+    return md
+
+
+def simulate_to_folder(source, settings: EventSettings, out_dir: str | Path, seed: int,
                        extra_meta: dict | None = None) -> dict:
     """Simulate events for ``source`` (a frame source, or an object with
     ``start()``/``batches()`` like :class:`gs2e.events.rendered.RenderedSource`)
-    with the ``events`` settings (:class:`EventSettings`, or the validated
-    section as a dict); write the output folder. Returns the stats dict (also
-    written to stats.json)."""
-    settings = event_settings(settings)
+    with the ``events`` settings (:class:`EventSettings`); write the output
+    folder. Returns the stats dict (also written to stats.json)."""
+    settings = require_settings(settings, "simulate_to_folder")
     if not hasattr(source, "batches"):
         source = FrameBatches(source, settings.batch_frames)
     timings: dict[str, float] = {}
@@ -130,13 +183,7 @@ def simulate_to_folder(source, settings: EventSettings | dict, out_dir: str | Pa
     f_first = np.asarray(f_first)
     shape = tuple(f_first.shape)
     H, W = shape
-    for kind in settings.containers:  # before any simulation: a size no container holds
-        why = container_limits(kind, W, H)
-        if why:
-            raise ConfigError(f"events.containers: {why}")
-    if settings.containers and int(t_first) < 0:
-        raise InputError(f"{name}: events.containers {list(settings.containers)} cannot store negative "
-                         f"times (first frame at {int(t_first)} us)")
+    _check_containers(settings.containers, name, W, H, int(t_first))
     threads = numba.get_num_threads()  # set by the caller (gs2e.common.threads); recorded only
     model_seed = int(seed) + int(settings.seed_offset)
     model, info = make_model(settings, shape, model_seed, source=name)
@@ -147,7 +194,6 @@ def simulate_to_folder(source, settings: EventSettings | dict, out_dir: str | Pa
     meta.update(model.describe(info["theta_on_nominal"]))
     meta["readout"] = {"values": dataclasses.asdict(readout), "sources": readout_sources}
     acc = StatsAccumulator(shape, name=name)
-    t_last = int(t_first)
     span_us = getattr(source, "duration_us", None)
     with atomic_dir(out_dir) as tmp:
         with ExitStack() as stack:
@@ -182,40 +228,13 @@ def simulate_to_folder(source, settings: EventSettings | dict, out_dir: str | Pa
                 clock["stats_s"] += b - a
                 clock["write_s"] += time.perf_counter() - b
 
-            done_ms = 0
-            batches = iter(source.batches())
-            while True:
-                a = time.perf_counter()
-                item = next(batches, None)
-                b = time.perf_counter()
-                clock["source_s"] += b - a
-                if item is None:
-                    break
-                if isinstance(item, TileBatch):
-                    ev = chain.process_tiles(item)
-                    t_last = max(t_last, int(item.t1_us.max()))
-                else:
-                    ev = chain.process_batch(*item)
-                    t_last = int(item[0][-1])
-                clock["model_s"] += time.perf_counter() - b
-                emit(ev, chain.horizon_us)
-                now_ms = max(0, (chain.horizon_us - int(t_first)) // 1000)
-                bar.update(now_ms - done_ms)
-                done_ms = now_ms
+            t_last = _run_chain(source, chain, emit, bar, int(t_first), clock)
             emit(chain.flush(), None)
             if pv:
                 pv.finish(source.luminance)
             timings["simulate_s"] = time.perf_counter() - t_start
             timings.update(clock)
-            md = model.metadata()
-            md.update(chain.describe())
-            meta["model_metadata"] = md
-            hw.attrs.update({"model": settings.model, "seed": model_seed,
-                             "metadata": meta, "theta/on": model.th_on.astype(np.float32),
-                             "theta/off": model.th_off.astype(np.float32)})
-            hw.attrs["theta_on_summary"] = md["theta_on_map"]
-            hw.attrs["theta_off_summary"] = md["theta_off_map"]
-            hw.attrs.update(model.file_attrs())
+            md = _write_attrs(hw, model, chain, meta, settings.model, model_seed)
         timings["close_s"] = time.perf_counter() - t_start - timings["simulate_s"]
         if settings.write_npz:
             ev_all, _ = read_h5(tmp / "events.h5")

@@ -49,10 +49,10 @@ def run_windows(args: argparse.Namespace) -> int:
 
 
 def run_export(args: argparse.Namespace) -> int:
-    from gs2e.config import load_section
     from gs2e.export.run import export_trajectory
+    from gs2e.export.settings import ExportSettings
 
-    cfg = load_section("export", args.config_json, args.config)
+    cfg = ExportSettings.load(args.config_json, args.config)
     export_trajectory(args.scene_dir, args.trajectory, args.fmt, args.out, cfg,
                       windows_file=args.windows, scene_id=args.scene_id, seed=args.seed)
     return 0

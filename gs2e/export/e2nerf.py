@@ -44,6 +44,7 @@ import numpy as np
 from gs2e.common.errors import InputError
 from gs2e.events.represent import event_frame
 from gs2e.export.common import ExportOut, Similarity, angle_x, check_centred_square_pixels
+from gs2e.export.settings import ExportSettings
 from gs2e.io.scene import opencv_to_opengl
 
 N_SUBPOSES = 18          # the loaders index transform_matrix[1 + 4 j], j = 0..4
@@ -65,10 +66,10 @@ def bin_edges_us(ea: int, eb: int) -> np.ndarray:
     return np.ceil(ea + np.arange(N_BINS + 1) * (eb - ea) / N_BINS).astype(np.int64)
 
 
-def export_e2nerf(src, out: ExportOut, cfg: dict) -> None:
+def export_e2nerf(src, out: ExportOut, cfg: ExportSettings) -> None:
     import torch
 
-    strict = cfg["e2nerf_loader"] == "e2nerf"
+    strict = cfg.e2nerf_loader == "e2nerf"
     w = src.windows
     frames = src.covered_frames()
     frames = frames[w["exp_covered"].to_numpy(bool)[frames]]
@@ -128,7 +129,7 @@ def export_e2nerf(src, out: ExportOut, cfg: dict) -> None:
     out.manifest.update({
         "target": "iCVTEAM/E2NeRF load_blender.py + run_nerf_exp.py; deguchihiroyuki/E2GS "
                   "readBlurNerfSyntheticInfo",
-        "loader": cfg["e2nerf_loader"], "gs2e_frames": frames.tolist(), "n_events": n_events,
+        "loader": cfg.e2nerf_loader, "gs2e_frames": frames.tolist(), "n_events": n_events,
         "test_views": "transform_test.json frames[2k] and frames[2k + 1] are gs2e_frames[k]",
         "images": "images/r_{2k}.png = train/r_{2k}.png (the COLMAP model's image names; E2GS's "
                   "render_novel.py reads the frame size from images/r_0.png)",

@@ -43,6 +43,7 @@ import numpy as np
 from gs2e.common.errors import InputError
 from gs2e.export.common import ExportOut, check_centred_square_pixels
 from gs2e.export.conventions import check_polarity01
+from gs2e.export.settings import ExportSettings
 
 LEAD_US = 1_000_000  # time origin: this long before the first exposure start
 EVENTS_N_RAND = 2048  # options.py: events_N_rand default 32 * 32 * 4 // 2
@@ -87,7 +88,7 @@ def llff_rows(c2w: np.ndarray, height: int, width: int, focal: float, bounds: np
     return np.concatenate([m.reshape(n, 15), np.asarray(bounds, np.float64).reshape(n, 2)], 1)
 
 
-def export_evdeblurnerf(src, out: ExportOut, cfg: dict) -> None:
+def export_evdeblurnerf(src, out: ExportOut, cfg: ExportSettings) -> None:
     import h5py
 
     w = src.windows
@@ -98,7 +99,7 @@ def export_evdeblurnerf(src, out: ExportOut, cfg: dict) -> None:
                          "by events (render.write_blur: false, or events too short)")
     K = src.K(int(frames[0]))
     check_centred_square_pixels(K, src.width, src.height, "EvDeblurNeRF (data/loader.py)")
-    hold = int(cfg["evdeblurnerf_llffhold"])
+    hold = int(cfg.evdeblurnerf_llffhold)
     t = src.frames["t_us"].to_numpy()
     ea = w["exp_t0_us"].to_numpy(np.int64)[frames]
     eb = w["exp_t1_us"].to_numpy(np.int64)[frames]
@@ -118,7 +119,7 @@ def export_evdeblurnerf(src, out: ExportOut, cfg: dict) -> None:
     focal = float(K[0, 0])
     np.save(out.path("poses_bounds.npy"), llff_rows(src.c2w(frames), src.height, src.width, focal, bounds))
     # dense poses for the loader's interpolation (Slerp + cubic translation)
-    n_dense = max(4, int(np.ceil((span1 - span0) * 1e-6 * cfg["evdeblurnerf_pose_rate_hz"])) + 1)
+    n_dense = max(4, int(np.ceil((span1 - span0) * 1e-6 * cfg.evdeblurnerf_pose_rate_hz)) + 1)
     t_dense = np.unique(np.concatenate([np.linspace(span0, span1, n_dense).round(), t[frames], ea, eb]))
     t_dense = t_dense[(t_dense >= span0) & (t_dense <= span1)].astype(np.int64)
     all_bounds = np.tile([bounds[:, 0].min(), bounds[:, 1].max()], (len(t_dense), 1))

@@ -42,6 +42,7 @@ from gs2e.events.models import MODELS
 from gs2e.events.represent import event_frame
 from gs2e.events.settings import read_settings
 from gs2e.export.common import ExportOut
+from gs2e.export.settings import ExportSettings
 
 MIN_VIEWS = 7  # train.py L118: index = randint(2, len(views) - 4), and index + 1 (L152)
 HELDOUT_POSITIONS = (5, 25, 45, 65, 85)  # train.py L128-131: never drawn as the training view
@@ -94,7 +95,7 @@ def grey_png(lum: np.ndarray) -> np.ndarray:
     return np.repeat(v[..., None], 3, axis=2)
 
 
-def export_event3dgs(src, out: ExportOut, cfg: dict) -> None:
+def export_event3dgs(src, out: ExportOut, cfg: ExportSettings) -> None:
     from gs2e.io.colmap import write_colmap_model
     from gs2e.io.scene import Camera, Frame, Scene
 
@@ -102,7 +103,7 @@ def export_event3dgs(src, out: ExportOut, cfg: dict) -> None:
     if len(frames) < MIN_VIEWS:
         raise InputError(f"{src.events_file}: events cover {len(frames)} frames; Event-3DGS's train.py "
                          f"needs at least {MIN_VIEWS} views")
-    mode = cfg["event3dgs_intensity"]
+    mode = cfg.event3dgs_intensity
     lum = (integrated_intensity(src, frames) if mode == "integrate"
            else [luminance(srgb_to_linear(src.image("rgb", int(i)) / 255.0)) for i in frames])
     has_blur = (src.frames["exposure_us"].to_numpy() > 0).all()

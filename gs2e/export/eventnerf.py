@@ -60,6 +60,7 @@ from gs2e.events.models import Events
 from gs2e.export.common import (ExportOut, SensorFit, check_increasing_bounds, matrix_text, scene_points,
                                 unit_sphere)
 from gs2e.export.conventions import signed_polarity
+from gs2e.export.settings import ExportSettings
 
 SENSOR_W, SENSOR_H = 346, 260  # data_loader_split.py L137: H, W = 260, 346
 SPLITS = ("train", "validation", "test")
@@ -146,18 +147,18 @@ def loader_events(ev: Events, t_views_us: np.ndarray, lead: int, step_s: float,
             "p": np.append(signed_polarity(ev.p, where), np.int8(0))}
 
 
-def export_eventnerf(src, out: ExportOut, cfg: dict) -> None:
+def export_eventnerf(src, out: ExportOut, cfg: ExportSettings) -> None:
     t_frames = src.frames["t_us"].to_numpy()
     frames = src.covered_frames()
-    fit = SensorFit.centred(src.width, src.height, SENSOR_W, SENSOR_H, cfg["eventnerf_fit"],
+    fit = SensorFit.centred(src.width, src.height, SENSOR_W, SENSOR_H, cfg.eventnerf_fit,
                             "EventNeRF (data_loader_split.py)")
     c2w_all = src.c2w(frames)
     norm = unit_sphere(c2w_all[:, :3, 3], scene_points(src, frames))
-    splits = split_frames(frames, int(cfg["eventnerf_holdout_every"]))
+    splits = split_frames(frames, int(cfg.eventnerf_holdout_every))
     if len(splits["validation"]) == len(frames):
         out.warn(f"{len(frames)} frames: too few to hold one out (EventNeRF validation and test are the "
                  "training frames)")
-    winsize = choose_winsize(len(splits["train"]), cfg["eventnerf_winsize"])
+    winsize = choose_winsize(len(splits["train"]), cfg.eventnerf_winsize)
     step_s = (int(t_frames[frames[-1]]) - int(t_frames[frames[0]])) / (len(frames) - 1) * 1e-6
     info = {}
     for split, real in splits.items():

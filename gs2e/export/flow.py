@@ -30,6 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from gs2e.export.common import ExportOut
+from gs2e.export.settings import ExportSettings
 from gs2e.groundtruth.flow import (FlowSettings, depth_at_time, encode_dsec_png, flow_pair,
                                    motion_field, motion_field_at, surface_depth)
 
@@ -54,7 +55,7 @@ def camera_velocities(src, t_us: np.ndarray):
     return v_c, k.omega_c
 
 
-def export_flow(src, out: ExportOut, cfg: dict) -> None:
+def export_flow(src, out: ExportOut, cfg: ExportSettings) -> None:
     import h5py
 
     from gs2e.common.progress import progress
@@ -62,11 +63,11 @@ def export_flow(src, out: ExportOut, cfg: dict) -> None:
 
     comp = h5_compression("blosc")
     st = FlowSettings()
-    mpu = float(cfg["metres_per_unit"])
+    mpu = float(cfg.metres_per_unit)
     t = src.frames["t_us"].to_numpy().astype(np.int64)
     N, H, W = len(t), src.height, src.width
     v_c, w_c = camera_velocities(src, t)
-    write_png = bool(cfg["flow_png"])
+    write_png = bool(cfg.flow_png)
     png_params = _flow_png_params()
     valid_frac, opaque_valid = [], []
     with h5py.File(out.path("flow.h5"), "w") as f:
@@ -116,7 +117,7 @@ def export_flow(src, out: ExportOut, cfg: dict) -> None:
     out.text("forward_timestamps.txt", header + "".join(f"{a}, {b}\n" for a, b in zip(t[:-1], t[1:])))
     out.text("backward_timestamps.txt", header + "".join(f"{b}, {a}\n" for a, b in zip(t[:-1], t[1:])))
     n_events = None
-    if cfg["flow_per_event"]:
+    if cfg.flow_per_event:
         n_events = _event_flow(src, out, st, mpu, t)
     out.manifest.update({
         "target": "optical flow, depth and per-event flow ground truth (DSEC PNG + HDF5)",

@@ -9,7 +9,8 @@ when it runs.
 
 Adding a format: write ``export_mine(src, out, cfg)`` (src a
 :class:`gs2e.export.source.TrajectorySource`, out a
-:class:`gs2e.export.common.ExportOut`, cfg the ``export`` section; with
+:class:`gs2e.export.common.ExportOut`, cfg the ``export`` settings,
+:class:`gs2e.export.settings.ExportSettings`; with
 ``seeded``, also ``seed=``), then ``register(Format("mine",
 "mypkg.mine:export_mine"))``; for the workflow, add the name to the schema's
 ``export.formats`` enum.

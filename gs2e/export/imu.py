@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gs2e.export.common import ExportOut
+from gs2e.export.settings import ExportSettings
 from gs2e.groundtruth.imu import (ImuNoise, add_noise, gravity_from_poses, ideal_imu, imu_noise,
                                   imu_times_us)
 
@@ -43,14 +44,14 @@ class ImuSettings:
     metres_per_unit: float
 
 
-def imu_settings(cfg: dict) -> ImuSettings:
-    """The ``export`` section (as :func:`gs2e.config.load_section` returns it:
-    T_cam_imu and gravity already checked there) resolved."""
-    T = np.eye(4) if cfg["imu_T_cam_imu"] is None else np.asarray(cfg["imu_T_cam_imu"], np.float64)
-    g = cfg["imu_gravity"]
-    return ImuSettings(float(cfg["imu_rate_hz"]), imu_noise(cfg["imu_preset"]), cfg["imu_preset"],
+def imu_settings(cfg: ExportSettings) -> ImuSettings:
+    """The IMU's settings from the ``export`` settings (T_cam_imu and gravity
+    were checked when those were built)."""
+    T = np.eye(4) if cfg.imu_T_cam_imu is None else np.asarray(cfg.imu_T_cam_imu, np.float64)
+    g = cfg.imu_gravity
+    return ImuSettings(float(cfg.imu_rate_hz), imu_noise(cfg.imu_preset), cfg.imu_preset,
                        g if isinstance(g, str) else tuple(float(v) for v in g), T,
-                       int(cfg["imu_time_offset_us"]), float(cfg["metres_per_unit"]))
+                       int(cfg.imu_time_offset_us), float(cfg.metres_per_unit))
 
 
 @dataclass(frozen=True)
@@ -170,9 +171,9 @@ def continuity_note(out: ExportOut, rd: ImuReadings) -> None:
                  f"acceleration {c['accel_rms_m_s2']:.3g} m/s^2), and the accelerometer with it")
 
 
-def topic_prefix(cfg: dict) -> str:
+def topic_prefix(cfg: ExportSettings) -> str:
     """``export.rosbag_topic_prefix`` without a trailing slash."""
-    return cfg["rosbag_topic_prefix"].rstrip("/")
+    return cfg.rosbag_topic_prefix.rstrip("/")
 
 
 def write_kalibr(src, out: ExportOut, st: ImuSettings, rd: ImuReadings, prefix: str) -> None:
@@ -183,7 +184,7 @@ def write_kalibr(src, out: ExportOut, st: ImuSettings, rd: ImuReadings, prefix: 
     continuity_note(out, rd)
 
 
-def export_imu(src, out: ExportOut, cfg: dict, seed: int = 0) -> None:
+def export_imu(src, out: ExportOut, cfg: ExportSettings, seed: int = 0) -> None:
     st = imu_settings(cfg)
     rd = imu_readings(src.trajectory, st, seed)
     write_imu(out, rd, st)

@@ -39,6 +39,7 @@ import numpy as np
 
 from gs2e.export.common import ExportOut, check_increasing_bounds, times_in_loader_windows
 from gs2e.export.conventions import signed_polarity
+from gs2e.export.settings import ExportSettings
 
 FLOAT32_FINE_US = 8_000_000  # float32 seconds have steps <= 0.5 us below 8 s
 
@@ -61,7 +62,7 @@ def floored_ray_error_px(K: np.ndarray, width: int, height: int) -> float:
     return float(np.hypot(np.abs(ex).max(), np.abs(ey).max()))
 
 
-def export_inceventgs(src, out: ExportOut, cfg: dict) -> None:
+def export_inceventgs(src, out: ExportOut, cfg: ExportSettings) -> None:
     frames = src.covered_frames()
     t_frames = src.frames["t_us"].to_numpy()[frames]
     t0, t1 = int(t_frames[0]), int(t_frames[-1])
@@ -69,7 +70,7 @@ def export_inceventgs(src, out: ExportOut, cfg: dict) -> None:
     for i in frames:
         name = f"frame{int(i):06d}.jpg"
         ok, buf = cv2.imencode(".jpg", src.image("rgb", int(i))[:, :, ::-1],
-                               [cv2.IMWRITE_JPEG_QUALITY, int(cfg["inceventgs_jpeg_quality"])])
+                               [cv2.IMWRITE_JPEG_QUALITY, int(cfg.inceventgs_jpeg_quality)])
         if not ok:
             raise RuntimeError("JPEG encoding failed")
         out.path(f"images/{name}").write_bytes(buf.tobytes())

@@ -42,6 +42,7 @@ from typing import Iterator
 import numpy as np
 
 from gs2e.export.common import ExportOut
+from gs2e.export.settings import ExportSettings
 
 EVENT_MSG = "uint16 x\nuint16 y\ntime ts\nbool polarity\n"
 EVENT_ARRAY_MSG = ("Header header\nuint32 height  # rows\nuint32 width  # columns\n"
@@ -180,7 +181,8 @@ def pose_msg(ts, ros: int, seq: int, t_ns: int, p, q_wxyz):
 
 
 # ---------------------------------------------------------------- the bag
-def _bag_streams(src, cfg: dict, seed: int, ts, ros: int, settings) -> tuple[dict, list[Iterator], object]:
+def _bag_streams(src, cfg: ExportSettings, seed: int, ts, ros: int,
+                 settings) -> tuple[dict, list[Iterator], object]:
     """Connections to open (topic -> msgtype), one time-ordered stream per
     topic of (t_ns, topic, serialized bytes), and the IMU readings."""
     from gs2e.common.so3 import rotmat_to_quat
@@ -191,15 +193,15 @@ def _bag_streams(src, cfg: dict, seed: int, ts, ros: int, settings) -> tuple[dic
     W, H = src.width, src.height
     t_frames = src.frames["t_us"].to_numpy().astype(np.int64)
     K = src.K(0)
-    kind = {"blur": "blur", "sharp": "rgb"}[cfg["rosbag_image"]]
-    enc = cfg["rosbag_image_encoding"]
+    kind = {"blur": "blur", "sharp": "rgb"}[cfg.rosbag_image]
+    enc = cfg.rosbag_image_encoding
     topics = {f"{prefix}/events": EVENT_ARRAY, f"{prefix}/image_raw": "sensor_msgs/msg/Image",
               f"{prefix}/camera_info": "sensor_msgs/msg/CameraInfo", f"{prefix}/imu": "sensor_msgs/msg/Imu",
               f"{prefix}/pose": "geometry_msgs/msg/PoseStamped"}
 
     def events():
         ev = src.events()
-        w = int(cfg["rosbag_event_window_us"])
+        w = int(cfg.rosbag_event_window_us)
         t0 = int(t_frames[0])
         k = (ev.t - t0) // w
         cuts = np.flatnonzero(np.diff(k)) + 1
@@ -233,7 +235,7 @@ def _bag_streams(src, cfg: dict, seed: int, ts, ros: int, settings) -> tuple[dic
         from gs2e.groundtruth.imu import imu_times_us
 
         t = imu_times_us(int(src.trajectory.t_us[0]), int(src.trajectory.t_us[-1]),
-                         float(cfg["rosbag_pose_rate_hz"]))
+                         float(cfg.rosbag_pose_rate_hz))
         c2w = src.trajectory.pose_at(t)
         q = rotmat_to_quat(c2w[:, :3, :3])
         p = c2w[:, :3, 3] * settings.metres_per_unit
@@ -244,7 +246,7 @@ def _bag_streams(src, cfg: dict, seed: int, ts, ros: int, settings) -> tuple[dic
     return topics, [events(), frames(), imu(), poses()], rd
 
 
-def write_bag(src, out: ExportOut, cfg: dict, seed: int, ros: int) -> dict:
+def write_bag(src, out: ExportOut, cfg: ExportSettings, seed: int, ros: int) -> dict:
     """Write the bag (ROS 1 or 2) and the Kalibr files; returns per-topic
     message counts."""
     from gs2e.export.imu import imu_settings, topic_prefix, write_kalibr
@@ -257,7 +259,7 @@ def write_bag(src, out: ExportOut, cfg: dict, seed: int, ros: int) -> dict:
         from rosbags.rosbag1 import Writer
 
         writer = Writer(path)
-        comp = cfg["rosbag_compression"]
+        comp = cfg.rosbag_compression
         if comp != "none":
             writer.set_compression(getattr(Writer.CompressionFormat, comp.upper()))
     else:
@@ -275,19 +277,19 @@ def write_bag(src, out: ExportOut, cfg: dict, seed: int, ros: int) -> dict:
         "target": ("ROS 1 bag" if ros == 1 else "ROS 2 bag (MCAP)") + ", Event Camera Dataset topics",
         "bag": path.name, "topics": topics, "messages": counts,
         "time": "message stamps and bag times: absolute trajectory nanoseconds",
-        "events": f"dvs_msgs/EventArray per {int(cfg['rosbag_event_window_us'])} us window, stamped at its "
+        "events": f"dvs_msgs/EventArray per {int(cfg.rosbag_event_window_us)} us window, stamped at its "
                   "last event; polarity true = ON",
-        "image": f"{cfg['rosbag_image']} frames as {cfg['rosbag_image_encoding']}",
+        "image": f"{cfg.rosbag_image} frames as {cfg.rosbag_image_encoding}",
         "intrinsics": "CameraInfo and camchain.yaml: top-left pixel centre at (0, 0) (ROS, OpenCV)",
         "imu_preset": st.preset, "seed": int(seed), "metres_per_unit": st.metres_per_unit})
     return counts
 
 
-def export_rosbag(src, out: ExportOut, cfg: dict, seed: int = 0) -> None:
+def export_rosbag(src, out: ExportOut, cfg: ExportSettings, seed: int = 0) -> None:
     write_bag(src, out, cfg, seed, 1)
 
 
-def export_rosbag2(src, out: ExportOut, cfg: dict, seed: int = 0) -> None:
+def export_rosbag2(src, out: ExportOut, cfg: ExportSettings, seed: int = 0) -> None:
     write_bag(src, out, cfg, seed, 2)
 
 

@@ -8,21 +8,24 @@ from pathlib import Path
 from gs2e.common.atomic import atomic_dir
 from gs2e.common.log import get_logger
 from gs2e.export.common import ExportOut
+from gs2e.export.settings import ExportSettings
 from gs2e.export.source import TrajectorySource
 
 log = get_logger("gs2e.export")
 
 
-def export_trajectory(scene_dir: str | Path, traj: str, fmt: str, out_dir: str | Path, cfg: dict,
+def export_trajectory(scene_dir: str | Path, traj: str, fmt: str, out_dir: str | Path, cfg: ExportSettings,
                       windows_file: str | Path | None = None, scene_id: str | None = None,
                       seed: int = 0) -> dict:
     """Export trajectory ``traj`` of a scene's results folder in format ``fmt``
     (a name of :data:`gs2e.export.formats.FORMATS`) into ``out_dir`` (replaced
     atomically; nothing is left on error); ``seed`` for the formats that draw
-    random numbers. Returns the manifest (also written as ``gs2e_export.json``)."""
+    random numbers; ``cfg`` the ``export`` settings. Returns the manifest
+    (also written as ``gs2e_export.json``)."""
     from gs2e.common.errors import ConfigError
     from gs2e.export.formats import FORMATS
 
+    cfg = ExportSettings.require(cfg, "export_trajectory")
     if fmt not in FORMATS:
         raise ConfigError(f"export format '{fmt}' is not one of {', '.join(FORMATS)}")
     spec = FORMATS[fmt]

@@ -97,12 +97,12 @@ def run_scenes(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from gs2e.config import load_section
     from gs2e.io.ingest import ingest_scene
+    from gs2e.io.settings import IngestSettings
 
     log = logging.getLogger("gs2e.ingest")
-    cfg = load_section("ingest", text=args.config_json, path=args.config)
-    log.info("ingest config: %s", cfg)
+    cfg = IngestSettings.load(args.config_json, args.config)
+    log.info("ingest config: %s", cfg.as_dict())
     scene = ingest_scene(args.src, args.layout, args.out, cfg)
     log.info("scene %s: %d views %dx%d, poses=%s", args.out, len(scene.frames), scene.width,
              scene.height, scene.has_poses)

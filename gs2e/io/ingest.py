@@ -46,7 +46,7 @@ downscale, re-encode as PNG and write the internal layout atomically. Provenance
 
 from __future__ import annotations
 
-import copy
+import dataclasses
 import hashlib
 import logging
 import os
@@ -67,6 +67,7 @@ from gs2e.io.images import (IMAGE_EXTS, apply_orientation, check_image_size, dec
                             resize_with_camera, scaled_size, write_png)
 from gs2e.io.scene import (IMAGES_DIR, SCENE_JSON, Camera, Frame, Scene, main_size, read_scene,
                            with_frame_sizes, write_scene_json)
+from gs2e.io.settings import IngestSettings
 from gs2e.io.views import LAYOUTS, SourceView, natural_key, sort_views
 
 log = logging.getLogger("gs2e.ingest")
@@ -140,7 +141,7 @@ class _Source:
         self.provenance = provenance or {}
 
 
-def _read_internal(src: Path, cfg: dict) -> _Source:
+def _read_internal(src: Path, cfg: IngestSettings) -> _Source:
     if not (src / SCENE_JSON).is_file():
         raise InputError(f"{src / SCENE_JSON} does not exist (layout 'internal'/'demo' needs scene.json + images/)")
     try:
@@ -157,7 +158,7 @@ def _read_internal(src: Path, cfg: dict) -> _Source:
                    {"source_layout": scene.layout})
 
 
-def _read_folder(src: Path, cfg: dict) -> _Source:
+def _read_folder(src: Path, cfg: IngestSettings) -> _Source:
     if not src.is_dir():
         raise InputError(f"image folder {src} is not a directory")
     folder = src
@@ -171,7 +172,7 @@ def _read_folder(src: Path, cfg: dict) -> _Source:
                    provenance={"image_dir": str(folder)})
 
 
-def _read_colmap(src: Path, cfg: dict, sequential: bool = False) -> _Source:
+def _read_colmap(src: Path, cfg: IngestSettings, sequential: bool = False) -> _Source:
     model_dir = colmap_io.find_model_dir(src)
     if model_dir is None:
         if (src / "sparse").is_dir():
@@ -204,7 +205,7 @@ def _read_colmap(src: Path, cfg: dict, sequential: bool = False) -> _Source:
                    {"model_dir": str(model_dir), "unregistered_images": unregistered})
 
 
-def _read_mvimgnet(src: Path, cfg: dict) -> _Source:
+def _read_mvimgnet(src: Path, cfg: IngestSettings) -> _Source:
     return _read_colmap(src, cfg, sequential=True)
 
 
@@ -218,7 +219,7 @@ def _dl3dv_json(src: Path) -> Path:
     raise InputError(f"DL3DV scene {src} has no transforms.json (looked in {src} and {src / 'nerfstudio'})")
 
 
-def _read_dl3dv(src: Path, cfg: dict) -> _Source:
+def _read_dl3dv(src: Path, cfg: IngestSettings) -> _Source:
     json_path = _dl3dv_json(src)
     root = json_path.parent
     data = nerf_io.load_transforms_json(json_path)
@@ -228,7 +229,7 @@ def _read_dl3dv(src: Path, cfg: dict) -> _Source:
         m = _IMAGES_N.match(p.name)
         if m and p.is_dir():
             folders[p.name] = int(m.group(1) or 1)
-    sub = cfg.get("images_subdir")
+    sub = cfg.images_subdir
     if sub is not None:
         if not (root / sub).is_dir():
             raise ConfigError(f"ingest.images_subdir: folder {root / sub} does not exist")
@@ -239,9 +240,9 @@ def _read_dl3dv(src: Path, cfg: dict) -> _Source:
         by_res = sorted(folders, key=lambda k: folders[k])  # largest resolution first
         chosen = by_res[0]
         w0 = data.get("w")
-        if cfg.get("max_side") and w0 and data.get("h"):
+        if cfg.max_side and w0 and data.get("h"):
             long_side = max(float(w0), float(data["h"]))
-            fits = [k for k in by_res if long_side / folders[k] >= cfg["max_side"]]
+            fits = [k for k in by_res if long_side / folders[k] >= cfg.max_side]
             if fits:
                 chosen = fits[-1]  # the smallest folder still at least max_side
     img_dir = root / chosen
@@ -320,7 +321,7 @@ def _nerf_json(src: Path) -> Path:
     raise InputError(f"no transforms.json or transforms_train.json in {src}")
 
 
-def _read_nerf(src: Path, cfg: dict) -> _Source:
+def _read_nerf(src: Path, cfg: IngestSettings) -> _Source:
     json_path = _nerf_json(src)
     data = nerf_io.load_transforms_json(json_path)
     views = nerf_io.views_from_transforms(data, json_path.parent, str(json_path))
@@ -330,21 +331,21 @@ def _read_nerf(src: Path, cfg: dict) -> _Source:
     return _Source(sort_views(views), provenance=prov)
 
 
-def _read_ecd(src: Path, cfg: dict) -> _Source:
+def _read_ecd(src: Path, cfg: IngestSettings) -> _Source:
     from gs2e.io.ecd import read_ecd_views
 
     views, prov = read_ecd_views(src)
     return _Source(views, extra={"sequential": True}, provenance=prov)
 
 
-def _read_llff(src: Path, cfg: dict) -> _Source:
+def _read_llff(src: Path, cfg: IngestSettings) -> _Source:
     from gs2e.io.llff import read_llff_views
 
     views, prov = read_llff_views(src)
     return _Source(views, provenance=prov)
 
 
-def _read_projection(src: Path, cfg: dict) -> _Source:
+def _read_projection(src: Path, cfg: IngestSettings) -> _Source:
     from gs2e.io.llff import read_projection_views
 
     views, prov = read_projection_views(src)
@@ -366,13 +367,6 @@ _READERS = {
 
 
 # ---------------------------------------------------------------- the stage
-
-def _validated_cfg(cfg: dict | None) -> dict:
-    from gs2e.config import load_schema, validate
-
-    schema = load_schema()["properties"]["ingest"]
-    return validate(copy.deepcopy(dict(cfg or {})), schema, "config ingest")
-
 
 def _upright(img: np.ndarray, view: SourceView, exif: dict[str, list[str]]) -> np.ndarray:
     """The view's image as it is meant to be seen (its EXIF orientation
@@ -409,8 +403,57 @@ def _declared_to_actual(view: SourceView, actual: tuple[int, int]) -> tuple[Came
     return view.camera.scaled(sx, sy), (sx, sy)
 
 
+def _check_paths(src, layout: str, out_dir) -> tuple[Path, Path]:
+    """(src, out_dir) as paths; ConfigError for an unknown layout, InputError
+    for a missing source or an output folder that is it or inside it."""
+    if layout not in LAYOUTS:
+        raise ConfigError(f"layout '{layout}' is not one of {', '.join(LAYOUTS)}")
+    src, out_dir = Path(src), Path(out_dir)
+    if not src.exists():
+        raise InputError(f"source {src} does not exist")
+    if out_dir.resolve() == src.resolve() or src.resolve() in out_dir.resolve().parents:
+        raise InputError(f"output folder {out_dir} must not be the source {src} or inside it")
+    return src, out_dir
+
+
+def _check_files(views: list[SourceView], src: Path) -> None:
+    """Before decoding anything: at least 2 views, and every file there and
+    not absurdly large (InputError naming the file)."""
+    if len(views) < 2:
+        raise InputError(f"scene {src} has {len(views)} usable view(s); at least 2 are needed")
+    for v in views:
+        if not v.path.is_file():
+            raise InputError(f"image file {v.path} does not exist")
+        check_image_size(v.path)
+
+
+def _check_distinct(img: np.ndarray, i: int, views: list[SourceView], seen: dict[bytes, int]) -> None:
+    """InputError naming both files when view ``i``'s decoded pixels equal an
+    earlier view's (``seen``: pixel digest -> view index, updated)."""
+    digest = hashlib.sha256(np.asarray(img.shape).tobytes() + img.tobytes()).digest()
+    if digest in seen:
+        raise InputError(f"duplicate views: images {views[seen[digest]].path} and {views[i].path} are identical")
+    seen[digest] = i
+
+
+def _log_exif(exif: dict[str, list[str]]) -> None:
+    """Say what EXIF orientation did to the views (view names by outcome)."""
+    if exif["applied"]:
+        log.info("%d view(s) turned upright by their EXIF orientation (e.g. %s)", len(exif["applied"]),
+                 exif["applied"][0])
+    if exif["kept_stored"]:
+        log.warning("%d view(s) have an EXIF orientation but cameras for the stored pixel grid "
+                    "(e.g. %s): kept as stored, as their poses were made", len(exif["kept_stored"]),
+                    exif["kept_stored"][0])
+    if exif["ambiguous"]:
+        log.warning("%d view(s) have an EXIF orientation that keeps their size (a flip, a half turn "
+                    "or a square view) and given cameras (e.g. %s): which grid the poses were made "
+                    "on cannot be told; kept as stored",
+                    len(exif["ambiguous"]), exif["ambiguous"][0])
+
+
 def ingest_scene(src: str | os.PathLike, layout: str, out_dir: str | os.PathLike,
-                 cfg: dict | None = None) -> Scene:
+                 cfg: IngestSettings | None = None) -> Scene:
     """Read the scene at ``src`` in ``layout`` and write the internal layout to ``out_dir``.
 
     Each view keeps its own size and orientation (a phone capture's portrait
@@ -426,7 +469,7 @@ def ingest_scene(src: str | os.PathLike, layout: str, out_dir: str | os.PathLike
     src : source folder (or, for ``nerf``, a transforms json file).
     layout : one of ``LAYOUTS``.
     out_dir : output folder; written atomically (replaced only on success).
-    cfg : the ``ingest`` config section (defaults filled in if keys are missing).
+    cfg : the ``ingest`` settings (None: the schema's defaults).
         ``max_side: auto`` caps the longer side at ``SFM_MAX_SIDE`` px, a size
         that suits feature matching whatever the event sensor (training shrinks
         the views to what the sensor needs: ``splat.max_side``).
@@ -440,31 +483,19 @@ def ingest_scene(src: str | os.PathLike, layout: str, out_dir: str | os.PathLike
     InputError naming the file for missing/corrupt images, duplicate views,
     mixed resolutions, invalid poses, fewer than 2 views; ConfigError for bad cfg.
     """
-    cfg = _validated_cfg(cfg)
-    if cfg["max_side"] == "auto":
-        cfg["max_side"] = SFM_MAX_SIDE
-    if layout not in LAYOUTS:
-        raise ConfigError(f"layout '{layout}' is not one of {', '.join(LAYOUTS)}")
-    src = Path(src)
-    out_dir = Path(out_dir)
-    if not src.exists():
-        raise InputError(f"source {src} does not exist")
-    if out_dir.resolve() == src.resolve() or src.resolve() in out_dir.resolve().parents:
-        raise InputError(f"output folder {out_dir} must not be the source {src} or inside it")
+    cfg = IngestSettings.defaults() if cfg is None else IngestSettings.require(cfg, "ingest_scene")
+    if cfg.max_side == "auto":
+        cfg = dataclasses.replace(cfg, max_side=SFM_MAX_SIDE)
+    src, out_dir = _check_paths(src, layout, out_dir)
 
     with timed(f"scan {layout} scene {src}", log):
         source = _READERS[layout](src, cfg)
     views = source.views
     n_src = len(views)
-    idx = subsample_indices(n_src, cfg["max_views"])
+    idx = subsample_indices(n_src, cfg.max_views)
     views = [views[i] for i in idx]
     log.info("%d views in the source, %d selected", n_src, len(views))
-    if len(views) < 2:
-        raise InputError(f"scene {src} has {len(views)} usable view(s); at least 2 are needed")
-    for v in views:  # fail before decoding anything if a file is missing or absurdly large
-        if not v.path.is_file():
-            raise InputError(f"image file {v.path} does not exist")
-        check_image_size(v.path)
+    _check_files(views, src)
     out_names = unique_png_names([v.name for v in views])
 
     frames: list[Frame] = []
@@ -474,24 +505,19 @@ def ingest_scene(src: str | os.PathLike, layout: str, out_dir: str | os.PathLike
     with timed(f"ingest {len(views)} images -> {out_dir}", log), atomic_dir(out_dir) as tmp:
         (tmp / IMAGES_DIR).mkdir()
         for i, v in enumerate(progress(views, desc="ingest images")):
-            img = decode_image(read_image_bytes(v.path), str(v.path))
-            img = _upright(img, v, exif)
+            img = _upright(decode_image(read_image_bytes(v.path), str(v.path)), v, exif)
             h, w = img.shape[:2]
-            digest = hashlib.sha256(np.asarray(img.shape).tobytes() + img.tobytes()).digest()
-            if digest in seen:
-                j = seen[digest]
-                raise InputError(f"duplicate views: images {views[j].path} and {v.path} are identical")
-            seen[digest] = i
-            if src_sizes and sorted((w, h)) != sorted(src_sizes[0]) and not cfg["allow_mixed_resolutions"]:
-                w0, h0 = src_sizes[0]
+            _check_distinct(img, i, views, seen)
+            if src_sizes and sorted((w, h)) != sorted(src_sizes[0]) and not cfg.allow_mixed_resolutions:
                 raise InputError(
-                    f"mixed resolutions: image {v.path} is {w}x{h} but {views[0].path} is {w0}x{h0} "
+                    f"mixed resolutions: image {v.path} is {w}x{h} but {views[0].path} is "
+                    f"{src_sizes[0][0]}x{src_sizes[0][1]} "
                     "(set ingest.allow_mixed_resolutions to keep each view at its own size)")
             src_sizes.append([w, h])
             cam, s0 = _declared_to_actual(v, (w, h))
             if cam is None:
                 cam = guess_camera(w, h)
-            img, cam, s1 = resize_with_camera(img, cam, scaled_size(w, h, cfg["downscale"], cfg["max_side"]))
+            img, cam, s1 = resize_with_camera(img, cam, scaled_size(w, h, cfg.downscale, cfg.max_side))
             out_sizes.append((img.shape[1], img.shape[0]))
             scales.append(list(s1))
             cam_scales.append([s0[0] * s1[0], s0[1] * s1[1]])
@@ -511,25 +537,14 @@ def ingest_scene(src: str | os.PathLike, layout: str, out_dir: str | os.PathLike
             "camera_scale_xy": cam_scales,
             "output_size": list(out_size),
             "main_size_views": sum(tuple(o) == tuple(out_size) for o in out_sizes),
-            "config": cfg,
+            "config": cfg.as_dict(),
             # (only where EXIF turned or kept a view: other scenes' files keep their bytes)
             **({"exif_orientation": {k: v for k, v in exif.items() if v}} if any(exif.values()) else {}),
         }
         scene = Scene(out_size[0], out_size[1], frames, layout, str(src),
                       source.points_xyz, source.points_rgb, with_frame_sizes(extra, out_sizes, out_size))
         write_scene_json(scene, tmp)
-    if exif["applied"]:
-        log.info("%d view(s) turned upright by their EXIF orientation (e.g. %s)", len(exif["applied"]),
-                 exif["applied"][0])
-    if exif["kept_stored"]:
-        log.warning("%d view(s) have an EXIF orientation but cameras for the stored pixel grid "
-                    "(e.g. %s): kept as stored, as their poses were made", len(exif["kept_stored"]),
-                    exif["kept_stored"][0])
-    if exif["ambiguous"]:
-        log.warning("%d view(s) have an EXIF orientation that keeps their size (a flip, a half turn "
-                    "or a square view) and given cameras (e.g. %s): which grid the poses were made "
-                    "on cannot be told; kept as stored",
-                    len(exif["ambiguous"]), exif["ambiguous"][0])
+    _log_exif(exif)
     log.info("wrote %d views (%dx%d, poses: %s, points: %s) to %s", len(frames), out_size[0],
              out_size[1], scene.has_poses, 0 if scene.points_xyz is None else len(scene.points_xyz), out_dir)
     return scene

@@ -30,11 +30,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from gs2e.config import load_section
-    from gs2e.render.dataset import render_dataset
     from gs2e.common.threads import set_threads
+    from gs2e.render.dataset import render_dataset
+    from gs2e.render.settings import RenderSettings
 
-    cfg = load_section("render", args.config_json, args.config)
+    cfg = RenderSettings.load(args.config_json, args.config)
     set_threads(args.threads)
     render_dataset(args.model, args.trajectory, args.out, cfg, scene_id=args.scene_id,
                    sensor=(args.sensor_size, args.sensor_fit) if args.sensor_size else None)

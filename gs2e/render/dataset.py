@@ -17,6 +17,7 @@ from gs2e.io.images import to_u8, write_png
 from gs2e.io.nerf import write_transforms
 from gs2e.io.scene import Camera, Frame, Scene
 from gs2e.render.blur import adaptive_blur, average_srgb, subframe_times_us, subframes_needed
+from gs2e.render.settings import RenderSettings
 from gs2e.common.motion import pixel_motion_px
 from gs2e.trajectory import fixed_times_us
 
@@ -26,18 +27,38 @@ log = get_logger("gs2e.render")
 MOTION_PERCENTILES = (50, 90, 99)
 
 
-def check_render_config(cfg: dict) -> None:
-    """The cross-key checks of the render section (gs2e.config), e.g. exposure
-    against the frame interval."""
-    from gs2e.config import check_config
-
-    check_config({"render": cfg}, sections=("render",))
+def blurred_frame(r, t: float, exposure_us: float, rgb: np.ndarray, centres: np.ndarray,
+                  cfg: RenderSettings) -> tuple[np.ndarray, int, np.ndarray]:
+    """The blurred frame centred on ``t`` (us) over ``exposure_us``, from the
+    :class:`gs2e.render.renderer.TrajectoryRenderer` ``r`` (``rgb`` its sharp
+    (H, W, 3) sRGB image at ``t``; ``centres`` the Gaussian centres (N, 3)
+    whose image motion sets the sub-frames). Returns (blur (H, W, 3), the
+    sub-frames used, the motion percentiles (3,) px over the exposure)."""
+    ta = max(float(r.t0_us), t - exposure_us / 2)
+    tb = min(float(r.t1_us), t + exposure_us / 2)
+    # summed over the spans between turns: a back-and-forth path may reverse
+    # within the exposure, and its ends alone would hide the way out and back
+    spans = r.traj.monotone_spans(ta, tb)
+    motion = (sum(pixel_motion_px(centres, r.pose(a), r.pose(b), r.K, r.width, r.height,
+                                  MOTION_PERCENTILES) for a, b in zip(spans[:-1], spans[1:]))
+              if tb > ta else np.zeros(3))
+    n_sub = subframes_needed(float(motion[2]), cfg.blur_max_step_px, cfg.blur_max_subframes)
+    if n_sub == 1:
+        return rgb, n_sub, motion
+    if cfg.blur_tolerance_db is not None:
+        blur, n_sub, _ = adaptive_blur(r.rgb_at, t, exposure_us, (r.t0_us, r.t1_us), cfg.blur_tolerance_db,
+                                       cfg.blur_max_subframes, known={t: rgb})
+        return blur, n_sub, motion
+    ts = np.clip(subframe_times_us(t, exposure_us, n_sub), r.t0_us, r.t1_us)
+    return average_srgb([r.rgb_at(ts_k) for ts_k in ts]), n_sub, motion
 
 
 def render_dataset(model_dir: str | Path, trajectory_path: str | Path, out_dir: str | Path,
-                   cfg: dict, scene_id: str | None = None,
+                   cfg: RenderSettings, scene_id: str | None = None,
                    sensor: tuple[tuple[int, int], str] | None = None) -> dict[str, Any]:
-    """Render the dataset frames of one trajectory into ``out_dir`` (atomic).
+    """Render the dataset frames of one trajectory into ``out_dir`` (atomic),
+    with the ``render`` settings ``cfg`` (checked across keys when they were
+    built: :meth:`gs2e.common.settings.Section.defaults`).
 
     ``sensor``: ((W, H), fit) of the event sensor's camera to render through
     instead of the trajectory's (x render.scale), so frames and events share
@@ -64,18 +85,19 @@ def render_dataset(model_dir: str | Path, trajectory_path: str | Path, out_dir: 
     # DataLoader) must not load the renderer (torch, splat) or carry its code version
     from gs2e.render.renderer import TrajectoryRenderer
 
-    check_render_config(cfg)
+    cfg = RenderSettings.require(cfg, "render_dataset")
     t_start = time.perf_counter()
-    r = TrajectoryRenderer(model_dir, trajectory_path, cfg["background"], cfg["scale"],
-                           cfg["backend"], sensor=sensor, order_step_px=cfg["order_step_px"])
+    r = TrajectoryRenderer(model_dir, trajectory_path, cfg.background, cfg.scale,
+                           cfg.backend, sensor=sensor, order_step_px=cfg.order_step_px)
     if np.any(np.diff(r.traj.t_us) <= 0):
         raise InputError(f"{trajectory_path}: timestamps are not strictly increasing")
-    times = fixed_times_us(r.t0_us, r.t1_us, cfg["fps"])
-    E = float(cfg["exposure_us"])
+    times = fixed_times_us(r.t0_us, r.t1_us, cfg.fps)
+    E = float(cfg.exposure_us)
     centres = r.gaussian_centres()
     rows, n_sub_total = [], 0
     with atomic_dir(out_dir) as out:
-        for sub in ("rgb", "alpha") + (("blur",) if cfg["write_blur"] else ()) + (("depth",) if cfg["write_depth"] else ()):
+        subs = ("rgb", "alpha") + (("blur",) if cfg.write_blur else ()) + (("depth",) if cfg.write_depth else ())
+        for sub in subs:
             (out / sub).mkdir()
         for i, t in enumerate(progress(times, desc=f"rendering {r.name}")):
             c2w = r.pose(int(t))
@@ -83,40 +105,23 @@ def render_dataset(model_dir: str | Path, trajectory_path: str | Path, out_dir: 
             if r.window != "cut":  # the continuous render's image (alpha, depth: this pose's order)
                 rgb = r.rgb_at(float(t)).astype(np.float64)
             coverage = float((alpha > 0.5).mean())
-            if coverage < cfg["min_coverage"]:
+            if coverage < cfg.min_coverage:
                 raise InputError(f"trajectory {trajectory_path}: the view at t={int(t)} us is empty "
                                  f"({coverage:.1%} of pixels covered < render.min_coverage): "
                                  "the camera left the reconstructed scene")
             name = f"{i:06d}.png"
             write_png(out / "rgb" / name, to_u8(rgb))
             write_png(out / "alpha" / name, to_u8(alpha)[..., None].repeat(3, axis=2))
-            if cfg["write_depth"]:
+            if cfg.write_depth:
                 np.savez_compressed(out / "depth" / f"{i:06d}.npz", depth=depth.astype(np.float32))
             n_sub, motion = 1, np.full(3, np.nan)
-            if cfg["write_blur"]:
-                ta = max(float(r.t0_us), t - E / 2)
-                tb = min(float(r.t1_us), t + E / 2)
-                # summed over the spans between turns: a back-and-forth path may reverse
-                # within the exposure, and its ends alone would hide the way out and back
-                spans = r.traj.monotone_spans(ta, tb)
-                motion = (sum(pixel_motion_px(centres, r.pose(a), r.pose(b), r.K, r.width, r.height,
-                                              MOTION_PERCENTILES) for a, b in zip(spans[:-1], spans[1:]))
-                          if tb > ta else np.zeros(3))
-                n_sub = subframes_needed(float(motion[2]), cfg["blur_max_step_px"], cfg["blur_max_subframes"])
-                if n_sub == 1:
-                    blur = rgb
-                elif cfg["blur_tolerance_db"] is not None:
-                    blur, n_sub, _ = adaptive_blur(r.rgb_at, float(t), E,
-                                                   (r.t0_us, r.t1_us), cfg["blur_tolerance_db"],
-                                                   cfg["blur_max_subframes"], known={float(t): rgb})
-                else:
-                    ts = np.clip(subframe_times_us(float(t), E, n_sub), r.t0_us, r.t1_us)
-                    blur = average_srgb([r.rgb_at(ts_k) for ts_k in ts])
+            if cfg.write_blur:
+                blur, n_sub, motion = blurred_frame(r, float(t), E, rgb, centres, cfg)
                 write_png(out / "blur" / name, to_u8(blur))
                 n_sub_total += n_sub
             rows.append({"frame": i, "file": name, "t_us": int(t), "c2w": c2w.reshape(-1).tolist(),
                          "fx": r.fx, "fy": r.fy, "cx": r.cx, "cy": r.cy, "width": r.width,
-                         "height": r.height, "exposure_us": E if cfg["write_blur"] else 0.0,
+                         "height": r.height, "exposure_us": E if cfg.write_blur else 0.0,
                          "n_subframes": n_sub, "coverage": coverage,
                          **{f"motion_px_p{q}": float(m) for q, m in zip(MOTION_PERCENTILES, motion)}})
         df = pd.DataFrame(rows)
@@ -126,9 +131,9 @@ def render_dataset(model_dir: str | Path, trajectory_path: str | Path, out_dir: 
         frames = [Frame(row["file"], cam, np.asarray(row["c2w"]).reshape(4, 4)) for row in rows]
         write_transforms(Scene(r.width, r.height, frames, "render"), out / "transforms.json", image_prefix="rgb/")
         wall = time.perf_counter() - t_start
-        stats = {"trajectory": r.name, "n_frames": len(rows), "fps": cfg["fps"],
+        stats = {"trajectory": r.name, "n_frames": len(rows), "fps": cfg.fps,
                  "duration_s": (r.t1_us - r.t0_us) / 1e6, "renders": r.renders,
-                 "mean_subframes": n_sub_total / max(1, len(rows)) if cfg["write_blur"] else None,
+                 "mean_subframes": n_sub_total / max(1, len(rows)) if cfg.write_blur else None,
                  "time_s": wall, "frames_per_s": len(rows) / wall if wall > 0 else None,
                  "renders_per_s": r.renders / wall if wall > 0 else None}
         write_json_atomic(out / "render_stats.json", stats)

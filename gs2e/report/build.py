@@ -15,6 +15,7 @@ from gs2e.common.progress import progress
 from gs2e.report import html as H
 from gs2e.report import io as R
 from gs2e.report import plots as P
+from gs2e.report.settings import MetricsSettings
 
 log = logging.getLogger("gs2e.report")
 
@@ -35,7 +36,7 @@ def overview_table(summary: pd.DataFrame) -> pd.DataFrame:
 
 
 def _scene_section(results_dir: Path, scene: str, summary: pd.DataFrame | None,
-                   real: P.EventSeries | None, cfg: dict) -> list[H.Section]:
+                   real: P.EventSeries | None, cfg: MetricsSettings) -> list[H.Section]:
     sdir = results_dir / scene
     out = [H.Section(f"Scene {scene}", anchor=f"scene-{scene}")]
     if not sdir.is_dir():
@@ -57,8 +58,8 @@ def _scene_section(results_dir: Path, scene: str, summary: pd.DataFrame | None,
     thumbs.add(H.image(tpng.read_bytes(), f"{scene} trajectories",
                        "camera trajectories (trajectories/trajectories.png)")
                if tpng.exists() else H.missing(f"trajectory plot {tpng}"))
-    window_us = cfg["preview_window_ms"] * 1e3
-    max_side = cfg["thumbnail_max_side_px"]
+    window_us = cfg.preview_window_ms * 1e3
+    max_side = cfg.thumbnail_max_side_px
     for traj in trajs:
         fdir = sdir / "frames" / traj
         frames = R.read_frames_index(fdir)
@@ -325,19 +326,17 @@ def _bench_section(results_dir: Path, scenes: list[str]) -> H.Section:
 
 
 def build_report(results_dir: str | Path, real_events: str | Path | None = None,
-                 scenes: list[str] | None = None, cfg: dict | None = None,
+                 scenes: list[str] | None = None, cfg: MetricsSettings | None = None,
                  timings: dict[str, float] | None = None) -> str:
     """The HTML report of ``results_dir`` as a string.
 
     ``real_events``: a real recording to compare event statistics with;
     ``scenes``: restrict to these scene ids (default: all of the summary);
-    ``cfg``: the ``metrics`` config section (preview_window_ms,
-    thumbnail_max_side_px, max_scene_sections). Missing inputs appear as
+    ``cfg``: the ``metrics`` settings (None: the schema's defaults).
+    Missing inputs appear as
     'missing'.
     """
-    from gs2e.config import load_section
-
-    cfg = {**load_section("metrics"), **(cfg or {})}
+    cfg = MetricsSettings.defaults() if cfg is None else MetricsSettings.require(cfg, "build_report")
     results_dir = Path(results_dir)
     if not results_dir.is_dir():
         raise InputError(f"results folder {results_dir} does not exist")
@@ -398,7 +397,7 @@ def build_report(results_dir: str | Path, real_events: str | Path | None = None,
     _sim2real_part(rs, results_dir, all_scenes)
     sections.append(rs)
 
-    shown = all_scenes[:cfg["max_scene_sections"]]
+    shown = all_scenes[:cfg.max_scene_sections]
     if len(shown) < len(all_scenes):
         rs.add(H.paragraph(f"Scene sections below: the first {len(shown)} of {len(all_scenes)} "
                            f"scenes (metrics.max_scene_sections); the overview and the training "

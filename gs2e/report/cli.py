@@ -33,12 +33,12 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from gs2e.common.log import timed
-    from gs2e.config import load_section
     from gs2e.report.build import build_report, n_images, write_report
+    from gs2e.report.settings import MetricsSettings
 
     log = logging.getLogger("gs2e.report")
-    cfg = load_section("metrics", text=args.config_json, path=args.config)
-    real = None if args.no_real_events else (args.real_events or cfg["real_events"])
+    cfg = MetricsSettings.load(args.config_json, args.config)
+    real = None if args.no_real_events else (args.real_events or cfg.real_events)
     out = Path(args.out) if args.out else Path(args.results_dir) / "report.html"
     timings: dict[str, float] = {}
     with timed("report", log, timings):

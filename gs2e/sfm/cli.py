@@ -24,10 +24,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from gs2e.config import load_section
     from gs2e.sfm.colmap_sfm import run_sfm
+    from gs2e.sfm.settings import SfmSettings
 
-    cfg = load_section("sfm", args.config_json, args.config)
+    cfg = SfmSettings.load(args.config_json, args.config)
     run_sfm(args.scene, args.out, cfg, seed=args.seed, threads=args.threads,
             scene_id=args.scene_id)
     return 0

@@ -27,29 +27,30 @@ from gs2e.common.threads import pick_threads, set_threads
 from gs2e.metrics.table import write_metrics
 from gs2e.io.scene import IMAGES_DIR, Scene, read_scene, write_scene_json
 from gs2e.sfm.align import alignment_errors
+from gs2e.sfm.settings import SfmSettings
 
 log = get_logger("gs2e.sfm")
 
 
-def choose_matcher(cfg: dict, n_views: int) -> str:
-    """'exhaustive' or 'sequential' for ``cfg['matcher']`` (auto: by view count)."""
-    if cfg["matcher"] != "auto":
-        return cfg["matcher"]
-    return "exhaustive" if n_views <= cfg["exhaustive_max_views"] else "sequential"
+def choose_matcher(cfg: SfmSettings, n_views: int) -> str:
+    """'exhaustive' or 'sequential' for ``cfg.matcher`` (auto: by view count)."""
+    if cfg.matcher != "auto":
+        return cfg.matcher
+    return "exhaustive" if n_views <= cfg.exhaustive_max_views else "sequential"
 
 
-def _device(cfg: dict):
+def _device(cfg: SfmSettings):
     import pycolmap
 
-    return pycolmap.Device.cuda if cfg.get("gpu") else pycolmap.Device.cpu
+    return pycolmap.Device.cuda if cfg.gpu else pycolmap.Device.cpu
 
 
-def sift_max_side_px(cfg: dict, scene: Scene) -> int:
+def sift_max_side_px(cfg: SfmSettings, scene: Scene) -> int:
     """The longest side (px) SIFT sees of any of the scene's photos
     (gs2e.sfm.features.sift_side_px for ``sfm.max_image_size``)."""
     from gs2e.sfm.features import sift_side_px
 
-    return max(sift_side_px(cfg["max_image_size"], scene.frame_size(i))
+    return max(sift_side_px(cfg.max_image_size, scene.frame_size(i))
                for i in range(len(scene.frames)))
 
 
@@ -108,7 +109,7 @@ def _one_camera_per_size(db: Path) -> None:
     con.close()
 
 
-def _extract(db: Path, image_dir: Path, names: list[str], cfg: dict, threads: int,
+def _extract(db: Path, image_dir: Path, names: list[str], cfg: SfmSettings, threads: int,
              camera_mode, camera_model: str) -> None:
     """SIFT keypoints and descriptors of every view into the database, each
     view decoded and shrunk by gs2e (gs2e.sfm.features): COLMAP's SIFT
@@ -127,8 +128,8 @@ def _extract(db: Path, image_dir: Path, names: list[str], cfg: dict, threads: in
     from gs2e.sfm.features import colmap_sift_features, sift_features
 
     _import_images(db, image_dir, names, camera_mode, camera_model)
-    size, n_max = cfg["max_image_size"], int(cfg["max_num_features"])
-    use_colmap = cfg["extractor"] == "colmap" or cfg.get("gpu")
+    size, n_max = cfg.max_image_size, int(cfg.max_num_features)
+    use_colmap = cfg.extractor == "colmap" or cfg.gpu
     device = _device(cfg)
 
     def one(name: str):
@@ -137,7 +138,7 @@ def _extract(db: Path, image_dir: Path, names: list[str], cfg: dict, threads: in
         if gray is None:
             raise InputError(f"{path}: cannot read the image for SIFT")
         if use_colmap:
-            return colmap_sift_features(gray, size, n_max, cfg["sift_first_octave"], device)
+            return colmap_sift_features(gray, size, n_max, cfg.sift_first_octave, device)
         return sift_features(gray, size, n_max)
 
     database = pycolmap.Database.open(str(db))
@@ -167,23 +168,23 @@ def _verification_options(seed: int):
     return vopts
 
 
-def _pairing_options(cfg: dict, threads: int):
+def _pairing_options(cfg: SfmSettings, threads: int):
     import pycolmap
 
     popts = pycolmap.SequentialPairingOptions()
-    popts.overlap = int(cfg["sequential_overlap"])
-    popts.loop_detection = bool(cfg["sequential_loop_detection"])
+    popts.overlap = int(cfg.sequential_overlap)
+    popts.loop_detection = bool(cfg.sequential_loop_detection)
     popts.num_threads = threads
     return popts
 
 
-def _match_colmap(db: Path, matcher: str, cfg: dict, threads: int, seed: int) -> None:
+def _match_colmap(db: Path, matcher: str, cfg: SfmSettings, threads: int, seed: int) -> None:
     """COLMAP's own matching and verification (its faiss index on the CPU, SiftGPU with ``sfm.gpu``)."""
     import pycolmap
 
     mopts = pycolmap.FeatureMatchingOptions()
     mopts.num_threads = threads
-    mopts.use_gpu = bool(cfg.get("gpu"))
+    mopts.use_gpu = bool(cfg.gpu)
     vopts = _verification_options(seed)
     if matcher == "exhaustive":
         pycolmap.match_exhaustive(db, matching_options=mopts, verification_options=vopts, device=_device(cfg))
@@ -204,7 +205,7 @@ def unique_pairs(pairs) -> list[tuple[int, int]]:
     return list(first.values())
 
 
-def _match_gemm(db: Path, matcher: str, cfg: dict, threads: int, colmap_threads: int, seed: int,
+def _match_gemm(db: Path, matcher: str, cfg: SfmSettings, threads: int, colmap_threads: int, seed: int,
                 timings: dict[str, float]) -> None:
     """The view pairs COLMAP's pairing chooses, matched by gs2e (COLMAP's
     brute-force rule as GEMMs, gs2e.sfm.matching: ``threads`` views at a
@@ -250,14 +251,14 @@ FAST_BUNDLE_ADJUSTMENT = {"ba_local_max_num_iterations": 12, "ba_global_max_num_
                           "ba_global_max_refinements": 2}
 
 
-def _mapper_options(cfg: dict, threads: int, seed: int):
+def _mapper_options(cfg: SfmSettings, threads: int, seed: int):
     import pycolmap
 
     opts = pycolmap.IncrementalPipelineOptions()
     opts.num_threads = threads
     opts.random_seed = int(seed)
     opts.extract_colors = False  # taken while undistorting (_undistort): one decode per photo
-    if cfg["bundle_adjustment"] == "fast":
+    if cfg.bundle_adjustment == "fast":
         for key, value in FAST_BUNDLE_ADJUSTMENT.items():
             setattr(opts, key, value)
     return opts
@@ -296,7 +297,7 @@ class _Run:
 
     scene: Scene
     scene_dir: Path
-    cfg: dict
+    cfg: SfmSettings
     seed: int
     threads: int  # extraction, undistortion
     colmap_threads: int  # COLMAP's matching and mapping
@@ -324,7 +325,7 @@ class _Run:
         with timed("extraction", log, self.timings):
             _extract(self.db, self.image_dir, self.names, self.cfg, self.threads, camera_mode, camera_model)
         with timed("matching", log, self.timings):
-            if self.cfg.get("gpu") or self.cfg["descriptor_matcher"] == "colmap":
+            if self.cfg.gpu or self.cfg.descriptor_matcher == "colmap":
                 _match_colmap(self.db, matcher, self.cfg, self.colmap_threads, self.seed)
             else:
                 _match_gemm(self.db, matcher, self.cfg, self.threads, self.colmap_threads, self.seed, self.timings)
@@ -365,8 +366,8 @@ def _reconstruct_incremental(run: _Run, matcher: str):
     # one camera per view size: a phone's portrait and landscape views share a
     # lens but not a pixel grid. (COLMAP's AUTO mode gives each view of a PNG
     # capture its own camera: no EXIF to group by.)
-    run.features(pycolmap.CameraMode.PER_IMAGE, cfg["camera_model"], matcher)
-    if cfg["single_camera"]:
+    run.features(pycolmap.CameraMode.PER_IMAGE, cfg.camera_model, matcher)
+    if cfg.single_camera:
         _one_camera_per_size(run.db)
     with timed("mapping", log, run.timings):
         recs = pycolmap.incremental_mapping(run.db, run.image_dir, run.work / "sparse",
@@ -384,11 +385,11 @@ def _check_registration(rec, run: _Run) -> set[str]:
     n_reg, n_views = rec.num_reg_images(), len(names)
     registered = {rec.image(i).name for i in rec.reg_image_ids()}
     rate = n_reg / n_views
-    if rate < run.cfg["min_registered_fraction"]:
+    if rate < run.cfg.min_registered_fraction:
         missing = [n for n in names if n not in registered]
         raise InputError(
             f"{run.scene_dir}: only {n_reg} of {n_views} views registered "
-            f"({rate:.0%} < sfm.min_registered_fraction={run.cfg['min_registered_fraction']}); "
+            f"({rate:.0%} < sfm.min_registered_fraction={run.cfg.min_registered_fraction}); "
             f"not registered: {', '.join(missing[:10])}{' ...' if len(missing) > 10 else ''}")
     return registered
 
@@ -494,11 +495,11 @@ def _camera_errors(scene: Scene, out_scene: Scene) -> dict[str, float]:
     return {f"gt_{k}": v for k, v in errs.items()}
 
 
-def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
+def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: SfmSettings, seed: int = 0,
             threads: int | None = None, scene_id: str | None = None) -> dict[str, Any]:
     """Recover cameras and sparse points for the scene in ``scene_dir``.
 
-    Two modes: with ``cfg['reuse_poses']`` and a scene that has poses, the
+    Two modes: with ``cfg.reuse_poses`` and a scene that has poses, the
     known cameras are kept (``given`` when the scene has points too, else
     ``triangulate``); otherwise COLMAP's ``incremental`` mapping recovers them.
 
@@ -506,9 +507,9 @@ def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0
     ----------
     scene_dir : internal-layout scene (output of ``gs2e ingest``).
     out_dir : output folder, written atomically (nothing is left on failure).
-    cfg : the validated ``sfm`` config section.
+    cfg : the ``sfm`` settings.
     seed : seed of COLMAP's RANSAC/mapper.
-    threads : CPU threads (None: ``cfg['num_threads']``; -1: the CPUs this
+    threads : CPU threads (None: ``cfg.num_threads``; -1: the CPUs this
         process may use, see gs2e.common.threads).
 
     Returns
@@ -521,7 +522,7 @@ def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0
 
     Raises
     ------
-    InputError if fewer than ``cfg['min_registered_fraction']`` of the views
+    InputError if fewer than ``cfg.min_registered_fraction`` of the views
     register (the message names the scene folder and unregistered views).
     """
     scene_dir, out_dir = Path(scene_dir), Path(out_dir)
@@ -529,12 +530,13 @@ def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0
     n_views = len(scene.frames)
     if n_views < 2:
         raise InputError(f"{scene_dir}: SfM needs at least 2 views, got {n_views}")
-    threads = set_threads(pick_threads(threads, cfg["num_threads"]))
+    cfg = SfmSettings.require(cfg, "run_sfm")
+    threads = set_threads(pick_threads(threads, cfg.num_threads))
     # COLMAP's multi-threaded extraction, matching and mapping depend on thread
     # timing (which job finishes first), so runs differ under load; one thread
     # gives the same bytes on every machine (undistortion stays parallel).
-    colmap_threads = 1 if cfg["deterministic"] else threads
-    reuse = bool(cfg["reuse_poses"]) and scene.has_poses
+    colmap_threads = 1 if cfg.deterministic else threads
+    reuse = bool(cfg.reuse_poses) and scene.has_poses
     matcher = choose_matcher(cfg, n_views)
     keep_points = reuse and scene.points_xyz is not None and len(scene.points_xyz) > 0
     mode = "given" if keep_points else "triangulate" if reuse else "incremental"
@@ -564,8 +566,8 @@ def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0
             "mean_track_length": float(rec.compute_mean_track_length()) if rec.num_points3D() else float("nan"),
             "matcher": matcher,
             "sift_max_image_size": None if mode == "given" else sift_max_side_px(cfg, scene),
-            "sift_extractor": None if mode == "given" else "colmap" if cfg.get("gpu") else cfg["extractor"],
-            "bundle_adjustment": cfg["bundle_adjustment"] if mode == "incremental" else None,
+            "sift_extractor": None if mode == "given" else "colmap" if cfg.gpu else cfg.extractor,
+            "bundle_adjustment": cfg.bundle_adjustment if mode == "incremental" else None,
             "mode": mode,
             "threads": threads,
             **{f"time_{k}_s": v for k, v in run.timings.items()},

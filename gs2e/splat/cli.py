@@ -43,10 +43,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_train(args: argparse.Namespace) -> int:
-    from gs2e.config import load_section
+    from gs2e.splat.settings import SplatSettings
     from gs2e.splat.train import train
 
-    cfg = load_section("splat", args.config_json, args.config)
+    cfg = SplatSettings.load(args.config_json, args.config)
     train(args.scene, args.out, cfg, seed=args.seed, threads=args.threads, scene_id=args.scene_id,
           checkpoint_dir=args.checkpoint_dir, resume=not args.no_resume, target_size=args.target_size)
     return 0

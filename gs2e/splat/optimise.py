@@ -22,6 +22,7 @@ import torch
 
 from gs2e.common.progress import progress
 from gs2e.splat.rasterize import NonFiniteError, SplatCamera
+from gs2e.splat.settings import SplatSettings
 from gs2e.splat.strategy import PARAMS, Adam, DensifyStrategy
 
 
@@ -100,13 +101,13 @@ def training_dtype(compute_dtype: str, train_size: tuple[int, int]) -> str:
     return "float32" if train_size[0] * train_size[1] >= F32_TRAIN_MIN_PIXELS else "float64"
 
 
-def make_optimizer(lrs: dict, sched: Schedule, extent: float) -> Adam:
-    """Adam with the per-parameter learning rates ``lrs`` (the splat schema's
-    ``lr_rotation``, ``lr_scaling``, ``lr_opacity``, ``lr_sh_dc``,
+def make_optimizer(lrs: SplatSettings, sched: Schedule, extent: float) -> Adam:
+    """Adam with the per-parameter learning rates of the ``splat`` settings
+    ``lrs`` (``lr_rotation``, ``lr_scaling``, ``lr_opacity``, ``lr_sh_dc``,
     ``lr_sh_rest``) and the position lr of step 0."""
-    return Adam({"means": sched.position_lr(0, extent), "quats": lrs["lr_rotation"],
-                 "log_scales": lrs["lr_scaling"], "opacity_logits": lrs["lr_opacity"],
-                 "sh_dc": lrs["lr_sh_dc"], "sh_rest": lrs["lr_sh_rest"]})
+    return Adam({"means": sched.position_lr(0, extent), "quats": lrs.lr_rotation,
+                 "log_scales": lrs.lr_scaling, "opacity_logits": lrs.lr_opacity,
+                 "sh_dc": lrs.lr_sh_dc, "sh_rest": lrs.lr_sh_rest})
 
 
 def apply_loss(p: dict[str, torch.Tensor], opt: Adam, loss: torch.Tensor) -> None:

@@ -16,6 +16,7 @@ import torch
 
 from gs2e.common.log import get_logger
 from gs2e.common.so3 import quat_to_rotmat
+from gs2e.splat.settings import SplatSettings
 
 log = get_logger("gs2e.splat")
 
@@ -225,12 +226,12 @@ class DensifyStrategy:
     stats: GradStats | None = None
 
     @classmethod
-    def from_config(cls, cfg: dict, budget: int, extent: float) -> "DensifyStrategy":
-        """The strategy of the validated ``splat`` config section."""
-        ops = DensifyConfig(grad_threshold=cfg["densify_grad_threshold"], percent_dense=cfg["percent_dense"],
-                            min_opacity=cfg["prune_min_opacity"], budget=budget)
-        return cls(ops, extent, densify_from=cfg["densify_from"], densify_until=cfg["densify_until"],
-                   densify_every=cfg["densify_every"], opacity_reset_every=cfg["opacity_reset_every"])
+    def from_config(cls, cfg: SplatSettings, budget: int, extent: float) -> "DensifyStrategy":
+        """The strategy of the ``splat`` settings ``cfg``."""
+        ops = DensifyConfig(grad_threshold=cfg.densify_grad_threshold, percent_dense=cfg.percent_dense,
+                            min_opacity=cfg.prune_min_opacity, budget=budget)
+        return cls(ops, extent, densify_from=cfg.densify_from, densify_until=cfg.densify_until,
+                   densify_every=cfg.densify_every, opacity_reset_every=cfg.opacity_reset_every)
 
     def step_post_update(self, params: dict[str, torch.Tensor], opt: Adam, step: int, meta: dict,
                          width: int, height: int, downscale: int, gen: torch.Generator) -> bool:
@@ -320,3 +321,10 @@ class GrowingBudget:
             self.since = (base, downscale)
             self.history.append((step, self.budget, psnr, "grown"))
         return self.budget
+
+    def summary(self) -> dict:
+        """What the training statistics record: the final budget, how often
+        it grew and the step where it froze (None: never)."""
+        frozen = [h[0] for h in self.history if h[3] == "frozen"]
+        return {"budget": int(self.budget), "budget_growths": sum(h[3] == "grown" for h in self.history),
+                "budget_frozen_at": frozen[0] if frozen else None}

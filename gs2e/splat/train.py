@@ -35,6 +35,7 @@ from gs2e.splat.optimise import (Schedule, Step, downscale_at, gradient_step, ma
                                  optimise, training_dtype)
 from gs2e.splat.output import write_train_output
 from gs2e.splat.scene_stats import choose_sh_degree, detail_budget, view_dependence
+from gs2e.splat.settings import SplatSettings
 from gs2e.splat.strategy import Adam, DensifyStrategy, GrowingBudget
 from gs2e.splat.views import View, load_views, scene_extent, split_views, train_sizes
 
@@ -43,45 +44,46 @@ log = get_logger("gs2e.splat")
 __all__ = ["train"]
 
 
-def plateau_step(best: float, bad_evals: int, psnr: float, n_it: int, cfg: dict) -> tuple[float, int, bool]:
+def plateau_step(best: float, bad_evals: int, psnr: float, n_it: int,
+                 cfg: SplatSettings) -> tuple[float, int, bool]:
     """One held-out evaluation (PSNR dB, after n_it steps) of the plateau stop:
     the new (best, bad_evals) and whether training stops. An evaluation that does
     not beat the best by ``plateau_min_delta_db`` counts against the run only at
     full resolution; the stop comes after ``plateau_patience`` such in a row,
     from ``min_iterations`` on. (``benchmarks/bench_train_budget.py`` replays it
     on recorded curves.)"""
-    full_res = downscale_at(cfg["resolution_schedule"], n_it) == 1
-    if psnr > best + cfg["plateau_min_delta_db"]:
+    full_res = downscale_at(cfg.resolution_schedule, n_it) == 1
+    if psnr > best + cfg.plateau_min_delta_db:
         best, bad_evals = psnr, 0
     elif full_res:
         bad_evals += 1
-    return best, bad_evals, full_res and n_it >= cfg["min_iterations"] and bad_evals >= cfg["plateau_patience"]
+    return best, bad_evals, full_res and n_it >= cfg.min_iterations and bad_evals >= cfg.plateau_patience
 
 
-def scene_needs(scene_dir: Path, train_v: list[View], cfg: dict, seed: int) -> dict[str, Any]:
+def scene_needs(scene_dir: Path, train_v: list[View], cfg: SplatSettings, seed: int) -> dict[str, Any]:
     """SH degree and Gaussian budget of the scene (``auto``: measured from the
     SfM tracks' view dependence and the training images' detail; ``adaptive``
     starts from the same budget)."""
-    if cfg["sh_degree"] == "auto":
+    if cfg.sh_degree == "auto":
         score = view_dependence(scene_dir / "sparse" / "0", scene_dir / IMAGES_DIR, seed=seed)
-        sh_max = choose_sh_degree(score, cfg["sh_thresholds"])
+        sh_max = choose_sh_degree(score, cfg.sh_thresholds)
     else:
-        score, sh_max = None, int(cfg["sh_degree"])
-    if cfg["budget"] in ("auto", "adaptive"):
+        score, sh_max = None, int(cfg.sh_degree)
+    if cfg.budget in ("auto", "adaptive"):
         budget, edges = detail_budget([v.images[1].numpy() for v in train_v],
-                                      cfg["budget_per_edge_pixel"], cfg["budget_min"], cfg["budget_max"])
+                                      cfg.budget_per_edge_pixel, cfg.budget_min, cfg.budget_max)
     else:
-        budget, edges = int(cfg["budget"]), None
+        budget, edges = int(cfg.budget), None
     return {"view_dependence": score, "sh_degree": sh_max, "budget": budget, "median_edge_pixels": edges}
 
 
-def initial_params(scene: Scene, scene_dir: Path, cfg: dict, sh_degree: int) -> dict[str, torch.Tensor]:
+def initial_params(scene: Scene, scene_dir: Path, cfg: SplatSettings, sh_degree: int) -> dict[str, torch.Tensor]:
     """Gaussians initialised from the scene's SfM points."""
     if scene.points_xyz is None:
         raise InputError(f"{scene_dir}: no points3d.npz to initialise Gaussians from")
     try:
         g0 = init_from_points(scene.points_xyz, scene.points_rgb, sh_degree=sh_degree,
-                              init_opacity=cfg["init_opacity"], min_points=cfg["min_points"])
+                              init_opacity=cfg.init_opacity, min_points=cfg.min_points)
     except InputError as exc:
         raise InputError(f"{scene_dir / 'points3d.npz'}: {exc} (splat.min_points)") from exc
     return to_params(g0)
@@ -190,17 +192,17 @@ class _Run:
         # cloned Gaussians scores 1.5-2 dB lower for one evaluation (temple_ring),
         # which misled the plateau stop and the adaptive budget every other time
         cfg, p = self.cfg, self.p
-        if not (n_it % cfg["eval_every"] == 0 or n_it == cfg["max_iterations"]):
+        if not (n_it % cfg.eval_every == 0 or n_it == cfg.max_iterations):
             return False
         elapsed, cpu = self.elapsed()
-        ev = evaluate(p, self.eval_views, self.bg, sh_deg, self.backend, self.cfg["window"])
+        ev = evaluate(p, self.eval_views, self.bg, sh_deg, self.backend, self.cfg.window)
         self.curve.append({"iteration": n_it, "train_time_s": elapsed, "cpu_time_s": cpu,
                            "psnr": ev["psnr"], "ssim": ev["ssim"], "n_gaussians": int(p["means"].shape[0]),
                            "budget": int(self.strategy.ops.budget), "downscale": ds,
                            "loss": float(step.loss.detach())})
         log.info("it %d: held-out PSNR %.2f dB, SSIM %.4f, %d Gaussians, %.1f s", n_it,
                  ev["psnr"], ev["ssim"], p["means"].shape[0], elapsed)
-        if self.growing is not None and cfg["densify_from"] <= n_it < cfg["densify_until"]:
+        if self.growing is not None and cfg.densify_from <= n_it < cfg.densify_until:
             self.strategy.ops.budget = self.growing.update(n_it, ev["psnr"], ds, int(p["means"].shape[0]))
         self.best, self.bad_evals, stop = plateau_step(self.best, self.bad_evals, ev["psnr"], n_it, cfg)
         if stop:
@@ -213,25 +215,49 @@ class _Run:
             # the held-out PSNR drops and recovers: restart plateau tracking, or the
             # run would stop during the recovery with a model worse than before
             self.best, self.bad_evals = -math.inf, 0
-        last = n_it >= cfg["max_iterations"]
+        last = n_it >= cfg.max_iterations
         if self.interrupt_after is not None and n_it >= self.interrupt_after and not last:
             self.save(n_it)
             self.interrupted = True
             return True
-        if cfg["checkpoint_every"] and n_it % cfg["checkpoint_every"] == 0 and not last:
+        if cfg.checkpoint_every and n_it % cfg.checkpoint_every == 0 and not last:
             self.save(n_it)
         return False
 
 
 # ----------------------------------------------------------------- training
-def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
+def _split_stats(views: list[View], train_v: list[View], test_v: list[View], extent: float,
+                 cfg: SplatSettings, train_size: tuple[int, int]) -> dict[str, Any]:
+    """The training statistics that describe the views and their split."""
+    return {"n_views": len(views), "n_train_views": len(train_v), "n_test_views": len(test_v),
+            "extent": extent, "test_every": cfg.test_every, "background": list(cfg.background),
+            "train_width": train_size[0], "train_height": train_size[1]}
+
+
+def densify_strategy(cfg: SplatSettings, budget: int, n_points: int,
+                     extent: float) -> tuple[DensifyStrategy, GrowingBudget | None]:
+    """The densification strategy of ``cfg`` for a scene whose detail asks
+    for ``budget`` Gaussians, starting from ``n_points`` SfM points, and with
+    ``budget: adaptive`` the budget that grows with held-out gains (from the
+    detail budget, never below the SfM points; None otherwise)."""
+    strategy = DensifyStrategy.from_config(cfg, budget, extent)
+    if cfg.budget != "adaptive":
+        return strategy, None
+    growing = GrowingBudget(max(budget, n_points), cfg.budget_max, cfg.budget_growth,
+                            cfg.budget_min_gain_db, floor=n_points)
+    strategy.ops.budget = growing.budget
+    return strategy, growing
+
+
+def train(scene_dir: str | Path, out_dir: str | Path, cfg: SplatSettings, seed: int = 0,
           threads: int | None = None, scene_id: str | None = None,
           checkpoint_dir: str | Path | None = None, resume: bool = True,
           interrupt_after: int | None = None,
           target_size: tuple[int, int] | None = None) -> dict[str, Any]:
     """Train (or, with ``model_source: ply``, import) a Gaussian model of the
     scene in ``scene_dir`` (an sfm output: PINHOLE views with poses and
-    points3d.npz; its ``sparse/0`` tracks are used to choose the SH degree).
+    points3d.npz; its ``sparse/0`` tracks are used to choose the SH degree)
+    with the ``splat`` settings ``cfg``.
 
     Writes atomically to ``out_dir``: ``point_cloud/iteration_N/point_cloud.ply``
     (official layout), ``cameras.json``, ``model.json`` (what downstream stages
@@ -255,33 +281,28 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
     NonFiniteError (naming the iteration and view) when parameters or
     gradients become NaN/inf; no output is written then.
     """
+    cfg = SplatSettings.require(cfg, "train")
     scene_dir, out_dir = Path(scene_dir), Path(out_dir)
-    window = cfg["window"]
-    backend = resolve_backend_for(cfg["backend"], window)
+    backend = resolve_backend_for(cfg.backend, cfg.window)
     set_threads(threads)
     scene = read_scene(scene_dir)
     t0 = time.perf_counter()
-    schedule = cfg["resolution_schedule"]
-    train_size, sizes = train_sizes(scene, cfg["max_side"], target_size)
-    views = load_views(scene_dir, scene, [1] + [int(f) for _, f in schedule], sizes)
-    train_v, test_v = split_views(views, cfg["test_every"])
+    train_size, sizes = train_sizes(scene, cfg.max_side, target_size)
+    views = load_views(scene_dir, scene, [1] + [int(f) for _, f in cfg.resolution_schedule], sizes)
+    train_v, test_v = split_views(views, cfg.test_every)
     extent = scene_extent(train_v)
-    bg = torch.tensor(cfg["background"], dtype=torch.float32)
+    bg = torch.tensor(cfg.background, dtype=torch.float32)
     timings: dict[str, float] = {}
-    compute_dtype = training_dtype(cfg["compute_dtype"], train_size)
-    stats: dict[str, Any] = {"backend": backend, "compute_dtype": compute_dtype, "window": window,
-                             "n_views": len(views), "n_train_views": len(train_v),
-                             "n_test_views": len(test_v), "extent": extent,
-                             "test_every": cfg["test_every"], "background": list(cfg["background"]),
-                             "train_width": train_size[0], "train_height": train_size[1]}
+    compute_dtype = training_dtype(cfg.compute_dtype, train_size)
+    stats: dict[str, Any] = {"backend": backend, "compute_dtype": compute_dtype, "window": cfg.window,
+                             **_split_stats(views, train_v, test_v, extent, cfg, train_size)}
     view_sizes = {v.name: list(sz) for v, sz in zip(views, sizes)}
     log.info("training at %dx%d (views %dx%d%s), passes in %s", *train_size, scene.width, scene.height,
              "" if target_size is None else f", event sensor {target_size[0]}x{target_size[1]}",
              compute_dtype)
 
-    if cfg["model_source"] == "ply":
-        stats = import_ply(cfg.get("ply_path"), scene, scene_dir, out_dir, test_v, bg, stats, scene_id,
-                           view_sizes)
+    if cfg.model_source == "ply":
+        stats = import_ply(cfg.ply_path, scene, scene_dir, out_dir, test_v, bg, stats, scene_id, view_sizes)
         stats["time_total_s"] = time.perf_counter() - t0
         return stats
 
@@ -293,22 +314,16 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
              "n/a" if needs["view_dependence"] is None else f"{needs['view_dependence']:.3f}", needs["budget"])
 
     # ---- the loop's state: everything a checkpoint holds
-    sched = Schedule(cfg["max_iterations"], cfg["lr_position_init"], cfg["lr_position_final"],
-                     schedule, sh_max, cfg["sh_increase_every"])
+    sched = Schedule(cfg.max_iterations, cfg.lr_position_init, cfg.lr_position_final,
+                     cfg.resolution_schedule, sh_max, cfg.sh_increase_every)
     p = initial_params(scene, scene_dir, cfg, sh_max)
-    strategy = DensifyStrategy.from_config(cfg, needs["budget"], extent)
-    growing = None
-    if cfg["budget"] == "adaptive":  # from the detail budget, never below the SfM points
-        n0 = int(p["means"].shape[0])
-        growing = GrowingBudget(max(needs["budget"], n0), cfg["budget_max"], cfg["budget_growth"],
-                                cfg["budget_min_gain_db"], floor=n0)
-        strategy.ops.budget = growing.budget
+    strategy, growing = densify_strategy(cfg, needs["budget"], int(p["means"].shape[0]), extent)
     rng = np.random.default_rng(seed)  # view order
     run = _Run(cfg, p, make_optimizer(cfg, sched, extent), torch.Generator().manual_seed(seed), rng,
                strategy, PhotometricObjective(train_v, rng, bg, backend, compute_dtype,
-                                              cfg["lambda_ssim"], window=window),
+                                              cfg.lambda_ssim, window=cfg.window),
                growing, Checkpoint(checkpoint_dir or out_dir.with_name(out_dir.name + ".ckpt"),
-                                   {**cfg, "view_sizes": view_sizes}, scene_dir, seed),
+                                   {**cfg.as_dict(), "view_sizes": view_sizes}, scene_dir, seed),
                test_v or train_v[:4], bg, backend, interrupt_after)
     it0 = run.resume() if resume else 0
     n_iters = optimise(run.p, run.opt, strategy, run.objective, sched, extent, run.gen, start=it0,
@@ -319,13 +334,10 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: dict, seed: int = 0,
         return {"interrupted": True, "iteration": n_iters, "checkpoint": str(run.ckpt.path)}
     p, growing, curve, stop_reason = run.p, run.growing, run.curve, run.stop_reason
     train_s, cpu_s = run.elapsed()
-    sh_final = min(sh_max, max(0, n_iters - 1) // cfg["sh_increase_every"])
-    final = evaluate(p, test_v, bg, sh_final, backend, window)
+    sh_final = min(sh_max, max(0, n_iters - 1) // cfg.sh_increase_every)
+    final = evaluate(p, test_v, bg, sh_final, backend, cfg.window)
     if growing is not None:
-        frozen = [h[0] for h in growing.history if h[3] == "frozen"]
-        stats.update({"budget": int(growing.budget),
-                      "budget_growths": sum(h[3] == "grown" for h in growing.history),
-                      "budget_frozen_at": frozen[0] if frozen else None})
+        stats.update(growing.summary())
     stats.update({"source": "trained", "iterations": n_iters, "stop_reason": stop_reason,
                   "n_gaussians": int(p["means"].shape[0]), "train_time_s": train_s, "train_cpu_s": cpu_s,
                   "test_psnr": final["psnr"], "test_ssim": final["ssim"], "test_lpips": None,

@@ -26,21 +26,21 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from gs2e.common.log import timed
-    from gs2e.config import load_section
     from gs2e.io.scene import read_scene
     from gs2e.trajectory.io import write_outputs
+    from gs2e.trajectory.settings import TrajectorySettings
     from gs2e.trajectory.stage import generate
 
     log = logging.getLogger("gs2e.trajectory")
-    cfg = load_section("trajectory", text=args.config_json, path=args.config)
-    seed = int(cfg["seed"] if args.seed is None else args.seed)
+    cfg = TrajectorySettings.load(args.config_json, args.config)
+    seed = int(cfg.seed if args.seed is None else args.seed)
     timings: dict[str, float] = {}
     with timed("read scene", log, timings):
         scene = read_scene(args.scene)
     with timed("trajectories", log, timings):
         result = generate(scene, cfg, seed, timings)
     with timed("write outputs", log, timings):
-        write_outputs(args.out, result, cfg, args.scene, plot=cfg["plot"] and not args.no_plot)
+        write_outputs(args.out, result, cfg, args.scene, plot=cfg.plot and not args.no_plot)
     for name, tr in result.trajectories.items():
         log.info("%s: %d poses, %.3f s, method %s", name, len(tr.t_us), tr.duration_us * 1e-6,
                  tr.meta["method"])

@@ -23,6 +23,7 @@ import numpy as np
 from gs2e.codeversion import code_version
 from gs2e.common.atomic import atomic_dir, write_json_atomic
 from gs2e.common.errors import InputError
+from gs2e.trajectory.settings import TrajectorySettings
 from gs2e.trajectory.trajectory import Trajectory
 
 INDEX_JSON = "trajectories.json"
@@ -59,7 +60,7 @@ def read_index(folder: str | os.PathLike) -> dict:
         raise InputError(f"cannot read {p}: {exc}") from exc
 
 
-def write_outputs(out_dir: str | os.PathLike, result, cfg: dict, scene_dir: str,
+def write_outputs(out_dir: str | os.PathLike, result, cfg: TrajectorySettings, scene_dir: str,
                   plot: bool = True) -> Path:
     """Write every trajectory, the index and the plot into ``out_dir`` atomically.
 
@@ -84,7 +85,7 @@ def write_outputs(out_dir: str | os.PathLike, result, cfg: dict, scene_dir: str,
             plot_scene(result, tmp / PLOT_PNG)
         write_json_atomic(tmp / INDEX_JSON, {
             "format": "gs2e-trajectories", "version": 1, "scene": str(scene_dir),
-            "code_version": code_version("trajectory"), "config": cfg,
+            "code_version": code_version("trajectory"), "config": cfg.as_dict(),
             "trajectories": entries,
         })
     return out_dir

@@ -29,6 +29,7 @@ from gs2e.trajectory import kernels
 from gs2e.trajectory.curve import (ArcTable, PoseCurve, arc_length_table, check_c2w,
                                    fit_bezier, fit_curve, hermite_eval, monotone_slopes,
                                    pose_deltas, smooth_poses, split_c2w, translation_scale)
+from gs2e.trajectory.settings import TrajectorySettings
 from gs2e.trajectory.velocity import reparameterise, sample_profile
 
 MIN_QUAT_NORM = 0.05  # below this the normalised quaternion curve is ill-defined
@@ -207,7 +208,7 @@ def fit_path_curve(c2w: np.ndarray, alpha: float, beta_n: float, method: str,
     return curve, arc, keep
 
 
-def build_base_path(c2w_in: np.ndarray, cfg: dict, profile: Callable[[np.ndarray], np.ndarray],
+def build_base_path(c2w_in: np.ndarray, cfg: TrajectorySettings, profile: Callable[[np.ndarray], np.ndarray],
                     what: str = "poses") -> SampledPath:
     """Smoothing + velocity-controlled dense interpolation (paper section 3.4.1).
 
@@ -220,13 +221,13 @@ def build_base_path(c2w_in: np.ndarray, cfg: dict, profile: Callable[[np.ndarray
     """
     P = check_c2w(c2w_in, what)
     N = len(P)
-    sm = smooth_poses(P, int(cfg["smooth_half_width"]))
-    scale = translation_scale(sm) if cfg["normalize_translation"] else 1.0
-    alpha, beta_n = float(cfg["alpha"]), float(cfg["beta"]) / scale
-    curve, arc, keep = fit_path_curve(sm, alpha, beta_n, cfg["interpolation"])
-    M = max(2, math.ceil(float(cfg["gamma"]) * N - 1e-9))
+    sm = smooth_poses(P, int(cfg.smooth_half_width))
+    scale = translation_scale(sm) if cfg.normalize_translation else 1.0
+    alpha, beta_n = float(cfg.alpha), float(cfg.beta) / scale
+    curve, arc, keep = fit_path_curve(sm, alpha, beta_n, cfg.interpolation)
+    M = max(2, math.ceil(float(cfg.gamma) * N - 1e-9))
     t = np.linspace(0.0, 1.0, M)
-    v = sample_profile(profile, t, "trajectory.speed_list" if cfg.get("speed_list")
+    v = sample_profile(profile, t, "trajectory.speed_list" if cfg.speed_list
                        else "trajectory.velocity")
     s = reparameterise(v, arc.total)
     dense = eval_at_s(curve, arc, s)
@@ -252,7 +253,7 @@ def points_in_view_fraction(points_w: np.ndarray, c2w: np.ndarray, K: np.ndarray
     return out
 
 
-def build_mini_paths(base: SampledPath, cfg: dict, rng: np.random.Generator, alpha: float,
+def build_mini_paths(base: SampledPath, cfg: TrajectorySettings, rng: np.random.Generator, alpha: float,
                      beta_n: float, sees: Callable[[np.ndarray], np.ndarray] | None = None,
                      min_sees: float = 0.0, max_draws: int = 100) -> list[tuple[SampledPath, int]]:
     """Novel-view mini-trajectories (paper section 3.4.2).
@@ -271,13 +272,13 @@ def build_mini_paths(base: SampledPath, cfg: dict, rng: np.random.Generator, alp
     far apart on a ring of views join through the object or look past it.
     Returns (path, index of the group's first keyframe in the base path).
     """
-    G, K, F = int(cfg["mini_groups"]), int(cfg["mini_keyframes"]), int(cfg["mini_frames"])
+    G, K, F = int(cfg.mini_groups), int(cfg.mini_keyframes), int(cfg.mini_frames)
     M = len(base.c2w)
     if G == 0:
         return []
     if M < K:
         raise InputError(f"mini-trajectories need at least mini_keyframes={K} base poses, got {M}")
-    window = float(cfg["mini_window"])
+    window = float(cfg.mini_window)
     W = min(M, max(K, int(round(window * M))))
 
     def draw() -> np.ndarray:
@@ -311,8 +312,8 @@ def build_mini_paths(base: SampledPath, cfg: dict, rng: np.random.Generator, alp
     out = []
     for g in range(G):
         idx = np.sort(groups[g])
-        use_bspline = rng.random() < float(cfg["mini_bspline_probability"])
-        degree = int(rng.choice(np.asarray(cfg["mini_degrees"], dtype=np.int64)))
+        use_bspline = rng.random() < float(cfg.mini_bspline_probability)
+        degree = int(rng.choice(np.asarray(cfg.mini_degrees, dtype=np.int64)))
         curve, arc, keep, method, s, c2w = fit(idx, use_bspline, degree)
         draws, seen = 1, None
         if sees is not None:
@@ -493,20 +494,6 @@ def achieved_steps_fine(path: SampledPath, alpha: float, beta_n: float,
     return alpha * ang + beta_n * lin
 
 
-def check_config(cfg: dict) -> None:
-    """Cross-key checks the schema cannot express (gs2e.config's for this
-    section: alpha + beta > 0, the velocity profile), and every preset named in
-    speed_presets / mini_preset is defined."""
-    from gs2e.config import check_config as check_cross_keys
-
-    check_cross_keys({"trajectory": cfg}, sections=("trajectory",))
-    presets = cfg["presets"]
-    for name in list(cfg["speed_presets"]) + [cfg["mini_preset"]]:
-        if name not in presets:
-            raise ConfigError(f"trajectory.speed_presets: preset '{name}' is not defined in "
-                              f"trajectory.presets ({', '.join(sorted(presets))})")
-
-
 __all__ = ["Trajectory", "SampledPath", "build_base_path", "build_mini_paths", "points_in_view_fraction",
-           "eval_at_s", "back_and_forth", "preset_duration_s", "image_steps_width", "timestamps_us", "timed_trajectory", "achieved_steps", "achieved_steps_fine", "check_config",
-           "hermite_eval"]
+           "eval_at_s", "back_and_forth", "preset_duration_s", "image_steps_width", "timestamps_us",
+           "timed_trajectory", "achieved_steps", "achieved_steps_fine", "hermite_eval"]

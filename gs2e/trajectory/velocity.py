@@ -150,11 +150,14 @@ def speed_list_profile(speeds, tau_frac: float = 0.1, key: str = "trajectory.spe
     return v
 
 
-def make_profile(cfg: dict) -> Callable[[np.ndarray], np.ndarray]:
-    """The velocity profile a trajectory config asks for (speed_list wins if set)."""
-    if cfg["speed_list"]:
-        return speed_list_profile(cfg["speed_list"], cfg["speed_list_tau"])
-    return parse_velocity_expression(cfg["velocity"])
+def make_profile(velocity: str, speed_list: list | None = None,
+                 speed_list_tau: float = 0.0) -> Callable[[np.ndarray], np.ndarray]:
+    """The velocity profile of ``trajectory.velocity`` (an expression in t), or
+    of ``trajectory.speed_list`` with its blending half-width
+    ``speed_list_tau``, which wins if set."""
+    if speed_list:
+        return speed_list_profile(speed_list, speed_list_tau)
+    return parse_velocity_expression(velocity)
 
 
 def sample_profile(v: Callable[[np.ndarray], np.ndarray], t: np.ndarray,

@@ -138,8 +138,9 @@ def sensor_size(sid):
     if ev["sensor"] is None:
         return None
     from gs2e.events.sensors import get_sensor
+    from gs2e.events.settings import event_settings
 
-    w, h = get_sensor(ev).size
+    w, h = get_sensor(event_settings(ev)).size
     return f"{w}x{h}"
 
 
