@@ -48,7 +48,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import numpy as np
 
 import harness
-from event_runs import PAPER_FPS, cost_run, count_distance, pixel_counts, run_events
+from event_runs import PAPER_FPS, cost_run, cost_run_scenes, count_distance, pixel_counts, run_events
 from harness import REPO, median_ms
 
 BASELINE_REV = "468d5aa"  # main before the float32 kernel
@@ -354,8 +354,8 @@ def main() -> None:
     ap = harness.parser(__doc__, quick="2 poses, 2 reps, 20 ms of events (minutes: still needs "
                                        "--sensor, --scenes and the cost run's models)",
                         baseline_rev=BASELINE_REV)
-    ap.add_argument("--sensor", required=True, help="the cost run to use (cost_<sensor>)")
-    ap.add_argument("--scenes", help="comma-separated scenes of that run")
+    ap.add_argument("--sensor", default="davis346", help="the cost run to use (cost_<sensor>; default davis346)")
+    ap.add_argument("--scenes", help="comma-separated scenes of that run (default: every scene it trained)")
     ap.add_argument("--parts", default="kernel,events")
     ap.add_argument("--trajectory", default="mini00_medium")
     ap.add_argument("--poses", type=int, default=6)
@@ -375,8 +375,14 @@ def main() -> None:
         rn = pd.read_csv(f"{stem}_render.csv") if Path(f"{stem}_render.csv").exists() else None
         files = [f for p in ("kernel", "events", "render") if (f := Path(f"{stem}_{p}.csv")).exists()]
         return report(kn, ev, name, args.sensor, args.baseline_rev, rn, files)
+    args.scenes = args.scenes or ",".join(cost_run_scenes(args.sensor))
     if not args.scenes:
-        ap.error("--scenes is required (or --report)")
+        if not args.quick:
+            ap.error(f"the cost run at {args.sensor} has trained no scene: give --scenes, or run "
+                     f"bench_cost_model.py --run SCENE --sensor {args.sensor} first")
+        harness.report(None, f"compositing not measured: no cost run at {args.sensor} here (python "
+                             f"benchmarks/bench_cost_model.py --run SCENE --sensor {args.sensor} trains its models)")
+        return
     if args.quick:
         args.poses, args.reps, args.span_s = 2, 2, 0.02
     results, cfg = cost_run(args.sensor)

@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 import harness
-from event_runs import PAPER_FPS, cost_run, count_distance, pixel_counts, run_events
+from event_runs import PAPER_FPS, cost_run, cost_run_scenes, count_distance, pixel_counts, run_events
 
 BLUR_N = (8, 16, 32, 64, 128)
 BLUR_REF_N = 256
@@ -179,8 +179,8 @@ def plot(ev, bl):
 def main() -> None:
     ap = harness.parser(__doc__, quick="50 ms per events run, 1 blurred frame per scene (minutes: "
                                        "still needs --sensor, --scenes and the cost run's models)")
-    ap.add_argument("--sensor", required=True, help="the cost run to use (cost_<sensor>)")
-    ap.add_argument("--scenes", help="comma-separated scenes of that run")
+    ap.add_argument("--sensor", default="davis346", help="the cost run to use (cost_<sensor>; default davis346)")
+    ap.add_argument("--scenes", help="comma-separated scenes of that run (default: every scene it trained)")
     ap.add_argument("--report", action="store_true", help="only reprint and redraw from the CSVs")
     ap.add_argument("--parts", default="events,blur")
     ap.add_argument("--trajectory", default="mini00_medium")
@@ -195,8 +195,15 @@ def main() -> None:
 
     if args.quick:
         args.span_s, args.frames = 0.05, 1
+    if not args.report:
+        args.scenes = args.scenes or ",".join(cost_run_scenes(args.sensor))
     if not args.report and not args.scenes:
-        ap.error("--scenes is required (or --report)")
+        if not args.quick:
+            ap.error(f"the cost run at {args.sensor} has trained no scene: give --scenes, or run "
+                     f"bench_cost_model.py --run SCENE --sensor {args.sensor} first")
+        harness.report(None, f"cost cuts not measured: no cost run at {args.sensor} here (python "
+                             f"benchmarks/bench_cost_model.py --run SCENE --sensor {args.sensor} trains its models)")
+        return
     name = f"bench_cost_cuts_{args.sensor}"
     stem = harness.RESULTS / name
     if args.report:  # reprint and redraw from the CSVs of an earlier run

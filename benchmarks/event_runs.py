@@ -67,10 +67,10 @@ def build_scenes(names: list[str]) -> dict[str, Path]:
 def plane_scene(tmp: Path) -> tuple[Path, Path]:
     """The tests' textured plane (64 x 48 px, :func:`gs2e.testing.plane_model`)
     and a pan 10x faster than 'strong'; (model folder, trajectory file) under ``tmp``."""
-    from gs2e.config import load_config
     from gs2e.io.scene import Camera, Frame, Scene
     from gs2e.testing import PLANE_F as F, PLANE_H as H, PLANE_W as W, plane_model
     from gs2e.trajectory.io import save_trajectory
+    from gs2e.trajectory.settings import TrajectorySettings
     from gs2e.trajectory.stage import generate
     from gs2e.trajectory.trajectory import Trajectory
 
@@ -82,9 +82,8 @@ def plane_scene(tmp: Path) -> tuple[Path, Path]:
         T[:3, :3] = [[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]]
         T[0, 3], T[1, 3] = -0.1 + 0.2 * i / 6, 0.05 * np.sin(i)
         frames.append(Frame(f"{i}.png", Camera(F, F, W / 2, H / 2), T))
-    cfg = load_config({"trajectory": {"view_order": "sequence", "speed_presets": ["strong"],
-                                      "mini_groups": 0, "plot": False,
-                                      "velocity": "0.6*sin(6*t)+1.0"}})["trajectory"]
+    cfg = TrajectorySettings.defaults(view_order="sequence", speed_presets=["strong"], mini_groups=0,
+                                      plot=False, velocity="0.6*sin(6*t)+1.0")
     tr = generate(Scene(W, H, frames, "plane"), cfg, seed=0).trajectories["base_strong"]
     d = tr.to_arrays()
     d["t_us"] = np.round(d["t_us"] / 10.0).astype(np.int64)
@@ -265,6 +264,13 @@ def cost_run(sensor: str) -> tuple[Path, dict]:
         raise SystemExit(f"{work}/config.yaml is absent: run "
                          f"`python benchmarks/bench_cost_model.py --run SCENE --sensor {sensor}` first")
     return work / "results", load_config(yaml.safe_load((work / "config.yaml").read_text()))
+
+
+def cost_run_scenes(sensor: str) -> list[str]:
+    """The scenes bench_cost_model.py's ``--run`` at ``sensor`` has trained
+    (sorted; empty when it has not run here)."""
+    results = RESULTS / f"cost_{sensor}" / "results"
+    return sorted(p.parent.name for p in results.glob("*/splat/model.json")) if results.is_dir() else []
 
 
 def run_events(scene_dir: Path, traj: str, events_cfg: dict, mode: str, fps: float, bound: float,
