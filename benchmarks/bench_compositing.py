@@ -48,7 +48,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import numpy as np
 
 import harness
-from event_runs import PAPER_FPS, cost_run, cost_run_scenes, count_distance, pixel_counts, run_events
+from event_runs import PAPER_FPS, cost_run, count_distance, pixel_counts, run_events, scenes_of_cost_run
 from harness import REPO, median_ms
 
 BASELINE_REV = "468d5aa"  # main before the float32 kernel
@@ -375,13 +375,7 @@ def main() -> None:
         rn = pd.read_csv(f"{stem}_render.csv") if Path(f"{stem}_render.csv").exists() else None
         files = [f for p in ("kernel", "events", "render") if (f := Path(f"{stem}_{p}.csv")).exists()]
         return report(kn, ev, name, args.sensor, args.baseline_rev, rn, files)
-    args.scenes = args.scenes or ",".join(cost_run_scenes(args.sensor))
-    if not args.scenes:
-        if not args.quick:
-            ap.error(f"the cost run at {args.sensor} has trained no scene: give --scenes, or run "
-                     f"bench_cost_model.py --run SCENE --sensor {args.sensor} first")
-        harness.report(None, f"compositing not measured: no cost run at {args.sensor} here (python "
-                             f"benchmarks/bench_cost_model.py --run SCENE --sensor {args.sensor} trains its models)")
+    if not scenes_of_cost_run(ap, args, "compositing"):
         return
     if args.quick:
         args.poses, args.reps, args.span_s = 2, 2, 0.02

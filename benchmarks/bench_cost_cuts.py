@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 import harness
-from event_runs import PAPER_FPS, cost_run, cost_run_scenes, count_distance, pixel_counts, run_events
+from event_runs import PAPER_FPS, cost_run, count_distance, pixel_counts, run_events, scenes_of_cost_run
 
 BLUR_N = (8, 16, 32, 64, 128)
 BLUR_REF_N = 256
@@ -195,14 +195,7 @@ def main() -> None:
 
     if args.quick:
         args.span_s, args.frames = 0.05, 1
-    if not args.report:
-        args.scenes = args.scenes or ",".join(cost_run_scenes(args.sensor))
-    if not args.report and not args.scenes:
-        if not args.quick:
-            ap.error(f"the cost run at {args.sensor} has trained no scene: give --scenes, or run "
-                     f"bench_cost_model.py --run SCENE --sensor {args.sensor} first")
-        harness.report(None, f"cost cuts not measured: no cost run at {args.sensor} here (python "
-                             f"benchmarks/bench_cost_model.py --run SCENE --sensor {args.sensor} trains its models)")
+    if not args.report and not scenes_of_cost_run(ap, args, "cost cuts"):
         return
     name = f"bench_cost_cuts_{args.sensor}"
     stem = harness.RESULTS / name

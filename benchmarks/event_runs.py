@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from harness import REPO, RESULTS, SHARED_SCENES, clock, gs2e_env, run_child
+from harness import REPO, RESULTS, SHARED_SCENES, clock, gs2e_env, report, run_child
 
 CACHE = RESULTS / "bench_event_sampling_cache"
 THETA_IDEAL = 0.2
@@ -271,6 +271,20 @@ def cost_run_scenes(sensor: str) -> list[str]:
     (sorted; empty when it has not run here)."""
     results = RESULTS / f"cost_{sensor}" / "results"
     return sorted(p.parent.name for p in results.glob("*/splat/model.json")) if results.is_dir() else []
+
+
+def scenes_of_cost_run(ap, args, what: str) -> bool:
+    """Fill ``args.scenes`` with every scene the cost run at ``args.sensor``
+    trained, unless given. False when it trained none: then a usage error,
+    or with ``--quick`` the headline says what was not measured."""
+    args.scenes = args.scenes or ",".join(cost_run_scenes(args.sensor))
+    if args.scenes:
+        return True
+    how = f"python benchmarks/bench_cost_model.py --run SCENE --sensor {args.sensor}"
+    if not args.quick:
+        ap.error(f"the cost run at {args.sensor} has trained no scene: give --scenes, or run {how} first")
+    report(None, f"{what} not measured: no cost run at {args.sensor} here ({how} trains its models)")
+    return False
 
 
 def run_events(scene_dir: Path, traj: str, events_cfg: dict, mode: str, fps: float, bound: float,
