@@ -4,7 +4,8 @@ its default.
 
 A stage declares its class with a field per key of its section (no defaults:
 :func:`gs2e.config.load_section` fills them from the schema), resolves its
-section once in its CLI (:meth:`Section.load`) and passes the object on.
+section once in its CLI (:meth:`Section.load`) and passes the object on;
+the stage's functions take only that (:func:`require`).
 ``tests/test_settings.py`` holds every class's fields equal to its
 section's keys. (No table of the classes here: every stage imports this
 module, and a table of module names would tie each stage's code version to
@@ -32,6 +33,18 @@ from typing import Any, ClassVar, Mapping, TypeVar
 from gs2e.common.errors import ConfigError
 
 S = TypeVar("S", bound="Section")
+T = TypeVar("T")
+
+
+def require(settings: Any, cls: type[T], where: str) -> T:
+    """``settings`` if it is a ``cls`` (typed settings); TypeError naming
+    ``where`` otherwise: a config section is resolved once, before it reaches
+    a stage, and never again (a dict is not resolved on the way)."""
+    if not isinstance(settings, cls):
+        raise TypeError(f"{where} takes {cls.__name__}, not {type(settings).__name__} "
+                        "(a config section is resolved once, into its typed settings, before a stage runs)")
+    return settings
+
 
 class Section:
     """Base of a frozen dataclass that holds one config section's keys."""
@@ -69,15 +82,6 @@ class Section:
         from gs2e.config import load_section
 
         return cls.from_section(load_section(cls.SECTION, text=json.dumps(over) if over else None))
-
-    @classmethod
-    def require(cls: type[S], settings: Any, where: str) -> S:
-        """``settings`` if it is of this class; TypeError naming ``where``
-        otherwise (a section is resolved once, before it reaches a stage)."""
-        if not isinstance(settings, cls):
-            raise TypeError(f"{where} takes {cls.__name__}, not {type(settings).__name__} "
-                            f"({cls.__name__}.from_section / .defaults build it from the '{cls.SECTION}' section)")
-        return settings
 
     def replace(self: S, **over: Any) -> S:
         """A copy with ``over`` replacing keys, validated again."""

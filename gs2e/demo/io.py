@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from gs2e.common import atomic_dir, progress, timed
+from gs2e.common.settings import require
 from gs2e.demo.settings import DemoSettings
 from gs2e.demo.world import (TARGET, WOBBLE_PERIODS, build_world, check_orbit, intrinsics,
                              orbit_c2w, render_view, sample_points, wall_size)
@@ -21,7 +22,7 @@ log = logging.getLogger("gs2e.demo")
 def generate_demo_scene(out: str | Path, cfg: DemoSettings) -> dict:
     """Render the demo scene described by ``cfg`` into folder ``out``
     (replaced atomically). Returns timings (s) and counts."""
-    check_orbit(DemoSettings.require(cfg, "generate_demo_scene"))
+    check_orbit(require(cfg, DemoSettings, "generate_demo_scene"))
     out = Path(out)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()

@@ -1,4 +1,5 @@
-"""The ``demo`` config section, typed: the settings of the demo scene (:func:`gs2e.demo.io.generate_demo_scene`).
+"""The ``demo`` config section, typed: the settings of
+the demo scene (:func:`gs2e.demo.io.generate_demo_scene`).
 
 Each field is a key of the section; its meaning, type and default are the
 schema's (``gs2e/schemas/config.schema.yaml``, listed in config/README.md).

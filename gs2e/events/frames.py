@@ -29,10 +29,11 @@ import numpy as np
 
 from gs2e.common.errors import InputError
 from gs2e.common.color import REC709 as _REC709, srgb_to_linear
+from gs2e.common.settings import require
 from gs2e.io.images import list_images
 from gs2e.common.camera import fit_scale
 from gs2e.events.sensors import fit_frame, get_sensor
-from gs2e.events.settings import EventSettings, require_settings
+from gs2e.events.settings import EventSettings
 
 _T = TypeVar("_T")
 _R = TypeVar("_R")
@@ -284,7 +285,7 @@ class SensorFrames:
     about its centre to the sensor's pixel array (:func:`gs2e.events.sensors.fit_frame`)."""
 
     def __init__(self, frames, settings: "EventSettings"):
-        settings = require_settings(settings, "SensorFrames")
+        settings = require(settings, EventSettings, "SensorFrames")
         self.src, self.fit = frames, settings.sensor_fit
         self.sensor = get_sensor(settings)
         self.width, self.height = self.sensor.size

@@ -76,10 +76,11 @@ import numpy as np
 
 from gs2e.common.errors import InputError, ConfigError
 from gs2e.common.registry import PluginRegistry, add
+from gs2e.common.settings import require
 from gs2e.events import _kernels as K
 from gs2e.events.presets import Preset, effective_threshold, get_preset
 from gs2e.events.sensors import resolve_noise
-from gs2e.events.settings import EventSettings, require_settings
+from gs2e.events.settings import EventSettings
 
 log = logging.getLogger("gs2e.events")
 
@@ -699,7 +700,7 @@ def make_model(settings: EventSettings, shape: tuple[int, int], seed: int,
     values) for the metadata. The per-sequence theta, the mismatch maps and
     the model's random streams all derive from ``seed``.
     """
-    cfg = require_settings(settings, "make_model")
+    cfg = require(settings, EventSettings, "make_model")
     rng = np.random.default_rng([int(seed), 0x7E7A])
     th_on, th_off = sample_sequence_theta(
         rng, cfg.theta_on, cfg.theta_off, cfg.theta_sampling, cfg.theta_range,
@@ -753,7 +754,7 @@ def log_contrast(settings: EventSettings, theta_on=None, theta_off=None):
     voltage threshold theta is the step theta / k1 of log(L + k2 / scale);
     noise and leak are not part of it.
     """
-    cfg = require_settings(settings, "log_contrast")
+    cfg = require(settings, EventSettings, "log_contrast")
     on = np.asarray(cfg.theta_on if theta_on is None else theta_on, np.float64)
     off = np.asarray(cfg.theta_off if theta_off is None else theta_off, np.float64)
     return model_class(cfg.model).log_contrast(cfg, on, off)

@@ -41,10 +41,11 @@ import numpy as np
 from numba import njit
 
 from gs2e.common.errors import InputError
+from gs2e.common.settings import require
 from gs2e.events import _kernels as K
 from gs2e.events.models import Events, TileBatch
 from gs2e.events.sensors import READOUT_KEYS
-from gs2e.events.settings import EventSettings, require_settings
+from gs2e.events.settings import EventSettings
 
 HOT_BLOCK_US = 100_000
 _SALT_HOT_PICK, _SALT_HOT_EVENTS, _SALT_JITTER = 0x4807, 0x4808, 0x4809
@@ -87,7 +88,7 @@ def resolve_readout(settings: EventSettings) -> tuple[ReadoutSettings, dict]:
     sensor preset's (``Sensor.extra['readout']``), then off / the default."""
     from gs2e.events.sensors import get_sensor
 
-    cfg = require_settings(settings, "resolve_readout")
+    cfg = require(settings, EventSettings, "resolve_readout")
     sensor = get_sensor(cfg)
     preset = (sensor.extra.get("readout") or {}) if sensor is not None else {}
     values, sources = {}, {}

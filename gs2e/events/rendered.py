@@ -24,9 +24,10 @@ import torch
 
 from gs2e.common.camera import render_camera
 from gs2e.common.errors import ConfigError, InputError
+from gs2e.common.settings import require
 from gs2e.events.models import TileBatch, log_contrast, model_class
 from gs2e.events.sensors import get_sensor
-from gs2e.events.settings import EventSettings, require_settings
+from gs2e.events.settings import EventSettings
 from gs2e.events.sampling import (MODES, SamplerStats, TileSampler, adaptive_samples,
                                   image_luminance, motion_times)
 from gs2e.splat.backend import resolve_backend_for
@@ -51,7 +52,7 @@ def bound_log(settings: EventSettings) -> float:
     can draw (theta_on / theta_off, or the low end of theta_range), as a
     log-intensity step (voltmeter: log(1 + theta / k1), the bright-pixel
     limit of the voltage threshold)."""
-    cfg = require_settings(settings, "bound_log")
+    cfg = require(settings, EventSettings, "bound_log")
     theta = min(cfg.theta_on, cfg.theta_off)
     if cfg.theta_sampling != "fixed":
         theta = min(theta, min(cfg.theta_range))
@@ -163,7 +164,7 @@ class RenderedSource:
                  background=(0.0, 0.0, 0.0), scale: float = 1.0, backend: str = "cpu",
                  batch_frames: int = 32, span_us: tuple[int, int] | None = None,
                  order_step_px: float = 2.0):
-        settings = require_settings(settings, "RenderedSource")
+        settings = require(settings, EventSettings, "RenderedSource")
         sc = settings.sampling
         if sc.mode not in MODES:
             raise ConfigError(f"events.sampling.mode must be one of {MODES}, got {sc.mode!r}")

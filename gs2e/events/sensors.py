@@ -43,7 +43,8 @@ import numpy as np
 from gs2e.common.camera import fit_scale, size_problem
 from gs2e.common.errors import ConfigError, InputError
 from gs2e.common.registry import PluginRegistry, add
-from gs2e.events.settings import EventSettings, require_settings
+from gs2e.common.settings import require
+from gs2e.events.settings import EventSettings
 
 # The pixel non-idealities a sensor sets, and their value without a sensor.
 NOISE_KEYS = {"theta_mismatch_sigma": 0.0, "refractory_us": 0.0, "leak_rate_hz": 0.0,
@@ -248,7 +249,7 @@ def read_sensor_file(path: str | Path) -> Sensor:
 
 def get_sensor(settings: "EventSettings") -> Sensor | None:
     """The sensor the ``events`` settings (or section) ask for (None: no sensor)."""
-    cfg = require_settings(settings, "get_sensor")
+    cfg = require(settings, EventSettings, "get_sensor")
     name = cfg.sensor
     if name is None:
         return None
@@ -272,7 +273,7 @@ def resolve_noise(settings: "EventSettings", theta_nominal: float) -> tuple[dict
     config's, else the config's ``theta_mismatch_rel`` or the sensor's
     relative mismatch x ``theta_nominal``); ``sources`` says where each came from.
     """
-    cfg = require_settings(settings, "resolve_noise")
+    cfg = require(settings, EventSettings, "resolve_noise")
     sensor = get_sensor(cfg)
     values, sources = {}, {}
     for key, default in NOISE_KEYS.items():

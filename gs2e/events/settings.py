@@ -135,13 +135,3 @@ def read_settings(attrs: Mapping[str, Any], where: str) -> EventSettings:
     except (TypeError, KeyError, json.JSONDecodeError) as exc:
         raise InputError(f"{where}: no events config in its metadata ({exc!r})") from None
     return event_settings(section)
-
-
-def require_settings(settings: Any, where: str) -> EventSettings:
-    """``settings`` if it is :class:`EventSettings`; TypeError naming ``where``
-    otherwise (a dict is resolved once, by :func:`event_settings`, before it
-    reaches the stage's functions)."""
-    if not isinstance(settings, EventSettings):
-        raise TypeError(f"{where} takes EventSettings, not {type(settings).__name__} "
-                        "(gs2e.events.settings.event_settings resolves an events section once)")
-    return settings

@@ -37,12 +37,13 @@ from gs2e import __version__
 from gs2e.common.atomic import atomic_dir, write_json_atomic
 from gs2e.common.errors import ConfigError, InputError
 from gs2e.common.progress import progress
+from gs2e.common.settings import require
 from gs2e.events.containers import CONTAINERS, ContainerWriter, container_limits
 from gs2e.events.io import H5EventWriter, TextEventWriter, read_h5, write_npz
 from gs2e.events.models import Events, TileBatch, make_model
 from gs2e.events.readout import SensorChain, resolve_readout
 from gs2e.events.represent import PreviewWriter
-from gs2e.events.settings import EventSettings, require_settings
+from gs2e.events.settings import EventSettings
 from gs2e.events.stats import StatsAccumulator
 
 log = logging.getLogger("gs2e.events")
@@ -173,7 +174,7 @@ def simulate_to_folder(source, settings: EventSettings, out_dir: str | Path, see
     ``start()``/``batches()`` like :class:`gs2e.events.rendered.RenderedSource`)
     with the ``events`` settings (:class:`EventSettings`); write the output
     folder. Returns the stats dict (also written to stats.json)."""
-    settings = require_settings(settings, "simulate_to_folder")
+    settings = require(settings, EventSettings, "simulate_to_folder")
     if not hasattr(source, "batches"):
         source = FrameBatches(source, settings.batch_frames)
     timings: dict[str, float] = {}

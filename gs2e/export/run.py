@@ -7,6 +7,7 @@ from pathlib import Path
 
 from gs2e.common.atomic import atomic_dir
 from gs2e.common.log import get_logger
+from gs2e.common.settings import require
 from gs2e.export.common import ExportOut
 from gs2e.export.settings import ExportSettings
 from gs2e.export.source import TrajectorySource
@@ -25,7 +26,7 @@ def export_trajectory(scene_dir: str | Path, traj: str, fmt: str, out_dir: str |
     from gs2e.common.errors import ConfigError
     from gs2e.export.formats import FORMATS
 
-    cfg = ExportSettings.require(cfg, "export_trajectory")
+    cfg = require(cfg, ExportSettings, "export_trajectory")
     if fmt not in FORMATS:
         raise ConfigError(f"export format '{fmt}' is not one of {', '.join(FORMATS)}")
     spec = FORMATS[fmt]

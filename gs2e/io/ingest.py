@@ -60,6 +60,7 @@ from gs2e.common.atomic import atomic_dir
 from gs2e.common.errors import ConfigError, InputError
 from gs2e.common.log import timed
 from gs2e.common.progress import progress
+from gs2e.common.settings import require
 from gs2e.io import colmap as colmap_io
 from gs2e.io import nerf as nerf_io
 from gs2e.io.images import (IMAGE_EXTS, apply_orientation, check_image_size, decode_image, exif_orientation,
@@ -483,7 +484,7 @@ def ingest_scene(src: str | os.PathLike, layout: str, out_dir: str | os.PathLike
     InputError naming the file for missing/corrupt images, duplicate views,
     mixed resolutions, invalid poses, fewer than 2 views; ConfigError for bad cfg.
     """
-    cfg = IngestSettings.defaults() if cfg is None else IngestSettings.require(cfg, "ingest_scene")
+    cfg = IngestSettings.defaults() if cfg is None else require(cfg, IngestSettings, "ingest_scene")
     if cfg.max_side == "auto":
         cfg = dataclasses.replace(cfg, max_side=SFM_MAX_SIDE)
     src, out_dir = _check_paths(src, layout, out_dir)

@@ -1,4 +1,5 @@
-"""The ``ingest`` config section, typed: the settings of ingest (:func:`gs2e.io.ingest.ingest`).
+"""The ``ingest`` config section, typed: the settings of
+ingest (:func:`gs2e.io.ingest.ingest_scene`).
 
 Each field is a key of the section; its meaning, type and default are the
 schema's (``gs2e/schemas/config.schema.yaml``, listed in config/README.md).

@@ -13,6 +13,7 @@ from gs2e.common.atomic import atomic_dir, write_json_atomic
 from gs2e.common.errors import InputError
 from gs2e.common.log import get_logger
 from gs2e.common.progress import progress
+from gs2e.common.settings import require
 from gs2e.io.images import to_u8, write_png
 from gs2e.io.nerf import write_transforms
 from gs2e.io.scene import Camera, Frame, Scene
@@ -85,7 +86,7 @@ def render_dataset(model_dir: str | Path, trajectory_path: str | Path, out_dir: 
     # DataLoader) must not load the renderer (torch, splat) or carry its code version
     from gs2e.render.renderer import TrajectoryRenderer
 
-    cfg = RenderSettings.require(cfg, "render_dataset")
+    cfg = require(cfg, RenderSettings, "render_dataset")
     t_start = time.perf_counter()
     r = TrajectoryRenderer(model_dir, trajectory_path, cfg.background, cfg.scale,
                            cfg.backend, sensor=sensor, order_step_px=cfg.order_step_px)

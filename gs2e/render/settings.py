@@ -1,4 +1,5 @@
-"""The ``render`` config section, typed: the settings of the render stage (:mod:`gs2e.render.run`).
+"""The ``render`` config section, typed: the settings of
+the render stage (:func:`gs2e.render.dataset.render_dataset`).
 
 Each field is a key of the section; its meaning, type and default are the
 schema's (``gs2e/schemas/config.schema.yaml``, listed in config/README.md).

@@ -12,6 +12,7 @@ from gs2e import __version__
 from gs2e.common.errors import InputError
 from gs2e.common.log import timed
 from gs2e.common.progress import progress
+from gs2e.common.settings import require
 from gs2e.report import html as H
 from gs2e.report import io as R
 from gs2e.report import plots as P
@@ -336,7 +337,7 @@ def build_report(results_dir: str | Path, real_events: str | Path | None = None,
     Missing inputs appear as
     'missing'.
     """
-    cfg = MetricsSettings.defaults() if cfg is None else MetricsSettings.require(cfg, "build_report")
+    cfg = MetricsSettings.defaults() if cfg is None else require(cfg, MetricsSettings, "build_report")
     results_dir = Path(results_dir)
     if not results_dir.is_dir():
         raise InputError(f"results folder {results_dir} does not exist")

@@ -23,6 +23,7 @@ import numpy as np
 from gs2e.common.atomic import atomic_dir, scratch_dir, write_json_atomic
 from gs2e.common.errors import InputError
 from gs2e.common.log import get_logger, timed
+from gs2e.common.settings import require
 from gs2e.common.threads import pick_threads, set_threads
 from gs2e.metrics.table import write_metrics
 from gs2e.io.scene import IMAGES_DIR, Scene, read_scene, write_scene_json
@@ -530,7 +531,7 @@ def run_sfm(scene_dir: str | Path, out_dir: str | Path, cfg: SfmSettings, seed: 
     n_views = len(scene.frames)
     if n_views < 2:
         raise InputError(f"{scene_dir}: SfM needs at least 2 views, got {n_views}")
-    cfg = SfmSettings.require(cfg, "run_sfm")
+    cfg = require(cfg, SfmSettings, "run_sfm")
     threads = set_threads(pick_threads(threads, cfg.num_threads))
     # COLMAP's multi-threaded extraction, matching and mapping depend on thread
     # timing (which job finishes first), so runs differ under load; one thread

@@ -1,4 +1,5 @@
-"""The ``sfm`` config section, typed: the settings of structure from motion (:func:`gs2e.sfm.run.run_sfm`).
+"""The ``sfm`` config section, typed: the settings of
+structure from motion (:func:`gs2e.sfm.colmap_sfm.run_sfm`).
 
 Each field is a key of the section; its meaning, type and default are the
 schema's (``gs2e/schemas/config.schema.yaml``, listed in config/README.md).

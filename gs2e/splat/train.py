@@ -22,6 +22,7 @@ import torch
 
 from gs2e.common.errors import InputError
 from gs2e.common.log import get_logger, timed
+from gs2e.common.settings import require
 from gs2e.common.threads import set_threads
 from gs2e.io.scene import IMAGES_DIR, Scene, read_scene
 from gs2e.splat.backend import resolve_backend_for
@@ -281,7 +282,7 @@ def train(scene_dir: str | Path, out_dir: str | Path, cfg: SplatSettings, seed: 
     NonFiniteError (naming the iteration and view) when parameters or
     gradients become NaN/inf; no output is written then.
     """
-    cfg = SplatSettings.require(cfg, "train")
+    cfg = require(cfg, SplatSettings, "train")
     scene_dir, out_dir = Path(scene_dir), Path(out_dir)
     backend = resolve_backend_for(cfg.backend, cfg.window)
     set_threads(threads)

@@ -1,4 +1,5 @@
-"""The ``trajectory`` config section, typed: the settings of the trajectory stage (:mod:`gs2e.trajectory.stage`).
+"""The ``trajectory`` config section, typed: the settings of
+the trajectory stage (:mod:`gs2e.trajectory.stage`).
 
 Each field is a key of the section; its meaning, type and default are the
 schema's (``gs2e/schemas/config.schema.yaml``, listed in config/README.md).

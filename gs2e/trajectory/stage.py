@@ -14,6 +14,7 @@ import numpy as np
 
 from gs2e.common.errors import InputError
 from gs2e.common.log import timed
+from gs2e.common.settings import require
 from gs2e.io.scene import Scene
 from gs2e.trajectory.curve import pose_deltas
 from gs2e.trajectory.order import is_sequential, tour_order
@@ -88,7 +89,7 @@ def generate(scene: Scene, cfg: TrajectorySettings, seed: int, timings: dict | N
     cfg : the ``trajectory`` settings.
     seed : seed of the mini-trajectory draws (same seed, same output).
     """
-    cfg = TrajectorySettings.require(cfg, "generate")
+    cfg = require(cfg, TrajectorySettings, "generate")
     if not scene.has_poses:
         raise InputError("trajectory: scene has frames without poses (run sfm first)")
     c2w_in = scene.c2w_array()
