@@ -30,7 +30,7 @@ SCENES_SCHEMA = SCHEMA_DIR / "scenes.schema.yaml"
 # Where files are, not what a scene computes: left out of config hashes and params.
 LOCATION_KEYS = ("scenes", "results_dir")
 
-SECTIONS = ("demo", "ingest", "sfm", "splat", "trajectory", "render", "events", "metrics", "export", "bench")
+SECTIONS = ("demo", "ingest", "sfm", "splat", "trajectory", "light", "render", "events", "metrics", "export", "bench")
 
 
 def _with_defaults(cls):
@@ -393,6 +393,9 @@ def _check_bench(cfg: dict) -> None:
     sensors = [s for s in load_schema()["properties"]["events"]["properties"]["sensor"]["enum"]
                if s not in (None, "custom")]
     for v in b["sim2real_variants"]:
+        if v in COLOUR_SENSORS:
+            raise ConfigError(f"bench.sim2real_variants: '{v}' has a colour filter, but the recording's "
+                              "frames are luminance (choose a grey sensor)")
         if v not in ("scene", "ideal", "voltmeter", *sensors):
             raise ConfigError(f"bench.sim2real_variants: unknown variant '{v}' (choose from scene, "
                               f"ideal, voltmeter, {', '.join(sensors)})")
@@ -410,6 +413,12 @@ def _check_bench(cfg: dict) -> None:
                               "this interpreter (install it or add it to PYTHONPATH)")
 
 
+# The sensors of the schema with a colour filter over their pixels (by name: importing
+# the presets would tie every stage's code version to them; tests/test_light.py holds
+# this equal to the presets with a ``cfa``).
+COLOUR_SENSORS = frozenset({"color_davis346"})
+
+
 def trajectory_names(traj_cfg: dict) -> list[str]:
     """Names of the trajectory files the trajectory stage writes for this section."""
     names = [f"base_{p}" for p in traj_cfg["speed_presets"]]
@@ -418,7 +427,8 @@ def trajectory_names(traj_cfg: dict) -> list[str]:
 
 def _check_render_trajectories(cfg: dict) -> None:
     made = trajectory_names(cfg["trajectory"])
-    for name in cfg["render"]["trajectories"]:
+    for run in cfg["render"]["trajectories"]:
+        name = run.partition("@")[0]  # a run is <trajectory>[@<condition>] (gs2e.light)
         if name not in made:
             raise ConfigError(f"render.trajectories: '{name}' is not a trajectory the trajectory "
                               f"stage writes with this config ({', '.join(made) or 'none'}; see "
@@ -458,10 +468,12 @@ def _check_export(cfg: dict) -> None:
 
 def _check_export_inputs(cfg: dict) -> None:
     x, r = cfg["export"], cfg["render"]
+    runs = list(r["trajectories"]) + [f"{t}@{c}" for c in cfg["light"]["runs"] for t in r["trajectories"]
+                                      if "@" not in t]
     for name in x["trajectories"] or ():
-        if name not in r["trajectories"]:
-            raise ConfigError(f"export.trajectories: '{name}' is not rendered (render.trajectories: "
-                              f"{', '.join(r['trajectories'])})")
+        if name not in runs:
+            raise ConfigError(f"export.trajectories: '{name}' is not rendered (render.trajectories and "
+                              f"light.runs: {', '.join(runs)})")
     if "flow" in x["formats"] and not r["write_depth"]:
         raise ConfigError("export.formats: 'flow' needs the rendered depth, but render.write_depth is false")
     bags = [f for f in x["formats"] if f in ("rosbag", "rosbag2")]
@@ -470,8 +482,18 @@ def _check_export_inputs(cfg: dict) -> None:
                           "frames, but render.write_blur is false (or set export.rosbag_image: sharp)")
 
 
+def _check_render_light(cfg: dict) -> None:
+    known = cfg["light"]["conditions"]
+    for run in cfg["render"]["trajectories"]:
+        cond = run.partition("@")[2]
+        if "@" in run and cond not in known:
+            raise ConfigError(f"render.trajectories: '{run}' names no lighting condition '{cond}' "
+                              f"(light.conditions: {', '.join(sorted(known))})")
+
+
 CROSS_CHECKS = (
     (("render",), _check_render),
+    (("render", "light"), _check_render_light),
     (("trajectory",), _check_trajectory),
     (("splat",), _check_splat),
     (("events",), _check_events),
@@ -492,7 +514,7 @@ WORKFLOW_CHECKS = (
     (("render", "trajectory"), _check_render_trajectories),
     (("splat", "render"), _check_window_backend),
     (("bench", "render"), _check_bench_inputs),
-    (("export", "render"), _check_export_inputs),
+    (("export", "render", "light"), _check_export_inputs),
 )
 
 

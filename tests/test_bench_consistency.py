@@ -284,3 +284,27 @@ def test_bad_inputs_are_one_line_errors_before_any_output(plane_dataset, tmp_pat
     assert "no blurred frames" in err[2]
     assert "nothing to deblur" in err[3] or "simulated events" in err[3]
     assert not list(tmp_path.glob("deblur.*")) and not (tmp_path / "x.parquet").exists()
+
+
+def test_a_path_shorter_than_one_exposure_is_a_valid_run_with_nothing_to_deblur(plane_dataset, tmp_path):
+    """Auto-exposure at night can lengthen the exposure past a short path: no
+    frame can be scored, which is a valid result (an empty table, a strip that
+    says so, the summary row missing), not an error."""
+    import pandas as pd
+
+    from gs2e.bench.summary import write_summary
+
+    model, traj = plane_dataset / "model", plane_dataset / "fast_pan.npz"
+    cfg = {"fps": 5.0, "exposure_us": 190_000.0, "write_depth": False, "min_coverage": 0.0}  # path 150 ms
+    assert main(["render", "--model", str(model), "--trajectory", str(traj), "--out", str(tmp_path / "long"),
+                 "--threads", "1", "--config-json", json.dumps(cfg)]) == 0
+    assert main(["windows", "--frames", str(tmp_path / "long"), "--events", str(plane_dataset / "events_0.2"),
+                 "--out", str(tmp_path / "long.parquet")]) == 0
+    assert main(["bench", "--task", "deblur", "--frames", str(tmp_path / "long"), "--events",
+                 str(plane_dataset / "events_0.2"), "--windows", str(tmp_path / "long.parquet"),
+                 "--out", str(tmp_path / "d.parquet"), "--png", str(tmp_path / "d.png"), "--run", "pan@night"]) == 0
+    assert len(pd.read_parquet(tmp_path / "d.parquet")) == 0 and (tmp_path / "d.png").stat().st_size > 0
+    (tmp_path / "ok").mkdir()
+    assert _bench_cli(plane_dataset, "deblur", tmp_path / "ok") == 0
+    rows = write_summary([tmp_path / "d.parquet", tmp_path / "ok" / "deblur.parquet"], tmp_path / "s.parquet")
+    assert len(rows) > 0 and all(r["task"] == "deblur" for r in rows)

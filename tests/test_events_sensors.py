@@ -83,7 +83,7 @@ def test_fitted_frames_follow_the_same_geometry():
 def test_sensor_values_precedence_and_sources():
     none, src = resolve_noise(_events_cfg(), 1.0)
     assert none == {"theta_mismatch_sigma": 0.0, "refractory_us": 0.0, "leak_rate_hz": 0.0,
-                    "shot_noise_rate_hz": 0.0, "shot_noise_on_fraction": 0.5}
+                    "leak_light_rate_hz": 0.0, "shot_noise_rate_hz": 0.0, "shot_noise_on_fraction": 0.5}
     assert set(src.values()) == {"default (no sensor)"}
     vals, src = resolve_noise(_events_cfg(sensor="dvxplorer", refractory_us=20.0), 0.4)
     dvx = SENSORS["dvxplorer"]

@@ -282,6 +282,7 @@ class _TinySource:
     width, height = 8, 6
     events_file = "tiny/events.h5"
     focal = 10.46
+    cfa = None  # luminance events (events.h5's metadata records no colour filter)
 
     def __init__(self) -> None:
         t, ev_t = _hard_frames()
@@ -338,6 +339,27 @@ def _export(fn, fmt: str, tmp_path, src=None) -> tuple:
     out = ExportOut(tmp_path / fmt, fmt)
     fn(src, out, EXPORT_CFG)
     return src, out.root, out.manifest
+
+
+def test_eventnerf_reads_colour_events_only_in_its_own_bayer_phase(tmp_path):
+    """RGGB events: is_colored = True where the pad keeps the pattern's phase
+    (an even offset); an odd offset, or another pattern, is an error naming the file."""
+    from gs2e.common.errors import InputError
+    from gs2e.export.eventnerf import export_eventnerf
+
+    class Colour(_TinySource):
+        width, height, cfa = 10, 8, "RGGB"  # pads by (168, 126): even
+
+    _, root, _ = _export(export_eventnerf, "eventnerf", tmp_path / "even", Colour())
+    assert eventnerf_config((root / "eventnerf.txt").read_text())["is_colored"] == "True"
+    odd = _TinySource()
+    odd.cfa = "RGGB"  # 8x6 pads by (169, 127): the pattern would shift
+    with pytest.raises(InputError, match="tiny/events.h5.*shifts the RGGB pattern"):
+        _export(export_eventnerf, "eventnerf", tmp_path / "odd", odd)
+    bggr = Colour()
+    bggr.cfa = "BGGR"
+    with pytest.raises(InputError, match="reads RGGB only"):
+        _export(export_eventnerf, "eventnerf", tmp_path / "bggr", bggr)
 
 
 def test_e2gs_render_novel_reads_the_export(tmp_path):

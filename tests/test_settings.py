@@ -86,6 +86,7 @@ def _sections() -> list[str]:
 
 # section -> its stage's typed settings (events: EventSettings, bench: BenchConfig, above)
 SETTINGS = {"demo": "gs2e.demo.settings:DemoSettings", "ingest": "gs2e.io.settings:IngestSettings",
+            "light": "gs2e.light.settings:LightSettings",
             "sfm": "gs2e.sfm.settings:SfmSettings", "splat": "gs2e.splat.settings:SplatSettings",
             "trajectory": "gs2e.trajectory.settings:TrajectorySettings",
             "render": "gs2e.render.settings:RenderSettings", "metrics": "gs2e.report.settings:MetricsSettings",

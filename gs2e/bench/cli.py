@@ -27,6 +27,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--windows", required=True, help="windows table of gs2e windows")
     p.add_argument("--trajectory", default=None,
                    help="the trajectory .npz (its speed preset is recorded)")
+    p.add_argument("--run", default=None,
+                   help="the run's name, <trajectory>[@<condition>] (default: the trajectory file's "
+                        "stem); a lighting condition is recorded in the light column")
     p.add_argument("--out", required=True, help="output .parquet (written atomically)")
     p.add_argument("--png", required=True, help="example crops .png (written atomically)")
     p.add_argument("--method", action="append", default=[], metavar="MODULE:FUNCTION",
@@ -122,7 +125,7 @@ def run_bench(args: argparse.Namespace) -> int:
     cfg = load_section("bench", args.config_json, args.config)
     cfg["methods"] = list(dict.fromkeys(list(cfg["methods"]) + list(args.method)))
     run_task(args.task, args.frames, args.events, args.windows, args.trajectory, resolve(cfg, args.seed),
-             args.out, args.png, scene_id=args.scene_id)
+             args.out, args.png, scene_id=args.scene_id, trajectory=args.run)
     return 0
 
 

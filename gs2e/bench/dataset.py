@@ -5,6 +5,7 @@ the shared scoring (:func:`score`: PSNR, SSIM, MSE)."""
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from dataclasses import dataclass, field
@@ -34,6 +35,7 @@ class Dataset:
     shape: tuple[int, int]
     preset: str | None
     trajectory: "object" = None  # gs2e.trajectory.Trajectory (recon3d)
+    cfa: str | None = None  # the events' colour filter (events.cfa, e.g. RGGB); None: luminance
     _cache: dict = field(default_factory=dict, repr=False)
 
     def image(self, kind: str, i: int) -> np.ndarray:
@@ -93,6 +95,10 @@ def load_dataset(task: str, frames_dir: str | Path, events_dir: str | Path,
                          "(a windows table of another run)")
     ev, attrs = read_h5(events_dir / "events.h5")
     ev_cfg = read_settings(attrs, str(events_dir / "events.h5"))
+    cfa = json.loads(attrs["metadata"]).get("cfa") if "metadata" in attrs else None
+    if cfa is not None and not spec.colour_events:
+        raise InputError(f"{events_dir / 'events.h5'}: events under a {cfa} colour filter; the {task} task "
+                         "reads luminance events (simulate them without events.cfa, or run recon3d)")
     if "theta/on" not in attrs:
         raise InputError(f"{events_dir / 'events.h5'}: no per-pixel thresholds (theta/on, theta/off)")
     shape = (int(frames["height"].iloc[0]), int(frames["width"].iloc[0]))
@@ -110,7 +116,7 @@ def load_dataset(task: str, frames_dir: str | Path, events_dir: str | Path,
         raise InputError(f"bench --task {task} needs --trajectory (poses between frames)")
     return Dataset(frames_dir, frames, windows, (int(meta["sim_start_us"]), int(meta["sim_end_us"])),
                    ev, np.broadcast_to(th_on, shape), np.broadcast_to(th_off, shape), eps,
-                   ev_cfg.model, shape, preset, traj)
+                   ev_cfg.model, shape, preset, traj, cfa=cfa)
 
 
 def grey(srgb: np.ndarray) -> np.ndarray:

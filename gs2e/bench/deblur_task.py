@@ -15,16 +15,24 @@ from gs2e.bench import methods as M
 from gs2e.bench.dataset import (Dataset, grey, intrinsics, motion_px, score, slice_events,
                                 timed)
 from gs2e.common.errors import InputError
+from gs2e.common.log import get_logger
 from gs2e.common.progress import progress
+
+log = get_logger("gs2e.bench")
 
 
 def deblur_frames(ds: Dataset, every: int) -> list[int]:
     """Frames the deblur task scores: a blurred frame whose whole exposure lies
-    inside the trajectory and the simulated events."""
+    inside the trajectory and the simulated events. None (empty) where no exposure
+    fits inside the trajectory at all (a path shorter than one exposure, as
+    auto-exposure makes at night: a valid run with nothing to score);
+    InputError where exposures fit but the events do not cover them."""
     w, f = ds.windows, ds.frames
     E = f["exposure_us"].to_numpy(np.float64)
     t = f["t_us"].to_numpy(np.float64)
     whole = (t - E / 2 >= t[0]) & (t + E / 2 <= t[-1]) & (E > 0)
+    if not whole.any():
+        return []
     ok = whole & w["exp_covered"].to_numpy(bool)
     out = [i for i in np.flatnonzero(ok) if i % every == 0]
     if not out:
@@ -38,6 +46,11 @@ def run(ds: Dataset, cfg, user: dict[str, Callable]):
     """Rows of the deblur task and the example frame's images per method."""
     rows, f, w = [], ds.frames, ds.windows
     idx = deblur_frames(ds, cfg.eval_every)
+    if not idx:
+        log.warning("%s: no blurred frame's whole exposure lies inside the trajectory (%.1f ms long): "
+                    "nothing to deblur, no rows", ds.frames_dir,
+                    (int(f["t_us"].iloc[-1]) - int(f["t_us"].iloc[0])) * 1e-3)
+        return [], {}, None
     t_first = int(f["t_us"].iloc[0])
     theta_med = float(np.median(np.concatenate([ds.theta_on.ravel(), ds.theta_off.ravel()])))
     example = idx[len(idx) // 2]

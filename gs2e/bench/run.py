@@ -32,6 +32,7 @@ from gs2e.bench import methods as M
 from gs2e.bench.dataset import load_dataset
 from gs2e.bench.tasks import get_task
 from gs2e.common.log import get_logger
+from gs2e.light.settings import split_run
 from gs2e.io.images import to_u8
 
 log = get_logger("gs2e.bench")
@@ -77,9 +78,11 @@ def run_task(task: str, frames_dir, events_dir, windows_path, trajectory_path, c
     ds = load_dataset(task, frames_dir, events_dir, windows_path, trajectory_path)
     rows, shown, example = get_task(task).runner()(ds, cfg, user)
     name = trajectory or (Path(trajectory_path).stem if trajectory_path else Path(frames_dir).name)
+    light = split_run(name)[1]  # a run under a lighting condition: its own rows
     write_metrics(out_parquet, rows, scene_id=scene_id, trajectory=name, preset=ds.preset,
-                  task=task, model=ds.model)
-    png = example_strip(shown, cfg.crop_px, f"{name} frame {example}")
+                  task=task, model=ds.model, **({"light": light} if light else {}))
+    png = (example_strip(shown, cfg.crop_px, f"{name} frame {example}") if rows
+           else note_strip(f"{name}: no frame to score"))
     with atomic_path(out_png) as tmp:
         write_png(tmp, png)
     wall = time.perf_counter() - t0
@@ -91,6 +94,15 @@ def run_task(task: str, frames_dir, events_dir, windows_path, trajectory_path, c
              wall, ", ".join(f"{m} {v:.2f} dB" for m, v in summary.items()))
     return {"task": task, "n_frames": len({r["frame"] for r in rows}), "time_s": wall,
             "psnr": summary}
+
+
+def note_strip(text: str) -> np.ndarray:
+    """A small image that says why a task shows no example (uint8 RGB)."""
+    import cv2
+
+    img = np.zeros((24, 8 * len(text) + 8, 3), np.uint8)
+    cv2.putText(img, text, (4, 17), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
+    return img
 
 
 def example_strip(images: dict[str, np.ndarray], crop_px: int, title: str) -> np.ndarray:

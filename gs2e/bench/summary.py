@@ -1,6 +1,7 @@
 """The dataset's bench table: one row per scene x trajectory x task x method.
 
-Columns: scene_id, trajectory, preset, task, model, method, n_frames,
+Columns: scene_id, trajectory (the run: <trajectory>[@<condition>]), light
+(the run's lighting condition; only where a run has one), preset, task, model, method, n_frames,
 psnr (dB, from the mean MSE over the scored frames: an exact match counts as
 zero error, not as a missing value), ssim (mean), motion_px_median /
 motion_px_p90 (over frames, of each frame's median image motion over its
@@ -11,7 +12,8 @@ trajectory is shorter), psnr_end (its last scored frame), drift_db_per_s
 (least-squares slope of per-frame PSNR against time); for recon3d:
 psnr is on luminance after the per-image log-affine correction (see
 gs2e.bench.recon3d), psnr_raw the same uncorrected, psnr_rgb uncorrected
-colour, cpu_min the variant's training CPU-minutes, n_gaussians its final
+colour, psnr_rgb_corrected colour corrected per channel (what colour events
+teach), cpu_min the variant's training CPU-minutes, n_gaussians its final
 count; for flow (psnr and ssim null): aee_px, out_3px, aee_px_events (means
 over the scored frame pairs, gs2e.bench.flow_task).
 """
@@ -27,7 +29,7 @@ import numpy as np
 from gs2e.bench.dataset import pooled_psnr
 from gs2e.bench.tasks import TASKS
 
-KEYS = ("scene_id", "trajectory", "preset", "task", "model", "method")
+KEYS = ("scene_id", "trajectory", "light", "preset", "task", "model", "method")
 
 
 def summarise(df) -> list[dict]:

@@ -37,6 +37,8 @@ class Task:
         included; example: that frame's index).
     needs_blur, needs_trajectory, needs_depth : what the dataset must hold
         (checked before any work, with an error naming the folder or flag).
+    colour_events : reads events under a colour filter (``events.cfa``,
+        ``color_davis346``); the other tasks read luminance events and refuse them.
     threads, runtime_min : the workflow job's threads and run time (minutes).
     summary : ``summary(group, row)`` or its import path: adds the task's own
         columns to a dataset-table row from the task's rows of one trajectory
@@ -51,6 +53,7 @@ class Task:
     runtime_min: int = 60
     summary: Callable | str | None = None
     needs_depth: bool = False
+    colour_events: bool = False
 
     def runner(self) -> Callable:
         return resolve(self.run)
@@ -81,6 +84,6 @@ register(Task("deblur", "gs2e.bench.deblur_task:run", needs_blur=True))
 register(Task("video", "gs2e.bench.video_task:run", summary="gs2e.bench.video_task:summary"))
 # recon3d trains three 3DGS models (minutes each, multi-threaded rasterizer)
 register(Task("recon3d", "gs2e.bench.recon3d:run", needs_trajectory=True, threads=2,
-              runtime_min=120, summary="gs2e.bench.recon3d:summary"))
+              runtime_min=120, summary="gs2e.bench.recon3d:summary", colour_events=True))
 register(Task("flow", "gs2e.bench.flow_task:run", needs_depth=True, summary="gs2e.bench.flow_task:summary"))
 TASKS.plugins(register, lambda t: t.name)

@@ -109,6 +109,8 @@ class NoiseParams(NamedTuple):
     shot_rate_hz: float
     shot_on_fraction: float
     block_us: int           # :func:`noise_block_us`
+    leak_light_rate_hz: float = 0.0  # leak per unit of linear luminance (grows with the light)
+    lum_max: float = 1.0    # bound of the luminance the rates follow (the light's largest scale)
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
@@ -766,6 +768,7 @@ def _noise_slot(sl, batch, grid, prev, params, slots):
     H, W, tile = grid.height, grid.width, grid.tile
     seed, leak_rate_hz, shot_rate_hz = params.seed, params.leak_rate_hz, params.shot_rate_hz
     shot_on_fraction, block_us = params.shot_on_fraction, params.block_us
+    leak_light, lum_max = params.leak_light_rate_hz, params.lum_max
     cap, ev_t, ev_x, ev_y, ev_p, fn = slots.cap, slots.t, slots.x, slots.y, slots.p, slots.counts
     base = sl * cap
     tiles_x = (W + tile - 1) // tile
@@ -774,7 +777,7 @@ def _noise_slot(sl, batch, grid, prev, params, slots):
     npx = (y1 - y0) * w
     a, b = boff[sl], boff[sl + 1]
     ts, te = t0_us[a], t1_us[b - 1]
-    r_max = leak_rate_hz + 2.0 * shot_rate_hz
+    r_max = leak_rate_hz + leak_light * lum_max + 2.0 * shot_rate_hz
     lam = r_max * npx * block_us * 1e-6
     pos = np.zeros(b - a, np.int64)
     for iv in range(a, b):
@@ -808,9 +811,10 @@ def _noise_slot(sl, batch, grid, prev, params, slots):
                 y = y0 + q // w
                 x = x0 + q % w
                 l0 = prev[y, x] if iv == a else float(lum[iv - 1, y - y0, x - x0])
-                lval = min(max(0.5 * (l0 + float(lum[iv, y - y0, x - x0])), 0.0), 1.0)
+                lval = min(max(0.5 * (l0 + float(lum[iv, y - y0, x - x0])), 0.0), lum_max)
+                leak = leak_rate_hz + leak_light * lval
                 # thinning: a candidate at the largest rate is kept with rate / r_max
-                if ua * r_max >= leak_rate_hz + shot_rate_hz * 2.0 * (1.0 - lval):
+                if ua * r_max >= leak + shot_rate_hz * 2.0 * max(1.0 - lval, 0.0):
                     continue
                 if write == 0:
                     fn[iv] += 1
@@ -822,7 +826,7 @@ def _noise_slot(sl, batch, grid, prev, params, slots):
                     ev_x[base + idx] = x
                     ev_y[base + idx] = y
                     # leak events are ON; shot noise ON with shot_on_fraction
-                    ev_p[base + idx] = 1 if (ua * r_max < leak_rate_hz or upol < shot_on_fraction) else -1
+                    ev_p[base + idx] = 1 if (ua * r_max < leak or upol < shot_on_fraction) else -1
 
 
 @njit(cache=True, parallel=True, nogil=True)
@@ -839,6 +843,11 @@ def noise_tiles(batch, grid, prev, params, slots):
     probability ``shot_on_fraction``. Noise events are independent of the
     pixel model's state (they neither reset it nor obey its refractory period,
     as they stand for activity outside the modelled signal path).
+
+    With ``leak_light_rate_hz`` the leak grows with the light, leak +
+    leak_light L (parasitic photocurrent; Nozaki and Delbruck, IEEE TED 2017),
+    and L runs up to ``lum_max`` (a light brighter than the reference); shot
+    noise stops at L >= 1.
 
     Drawn by thinning: per tile and time block of ``block_us``
     (:func:`noise_block_us`; blocks at multiples of it, keyed by seed, block

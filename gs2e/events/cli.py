@@ -30,6 +30,10 @@ def register(subparsers) -> None:
     p.add_argument("--order-step-px", type=float, default=2.0,
                    help="with --model and a model trained with the smooth window: px of image motion "
                         "between the continuous renderer's depth-order knots (render.order_step_px)")
+    p.add_argument("--light-json", default=None, metavar="JSON",
+                   help="with --model: the run's lighting condition (gs2e.light; the workflow "
+                        "passes a run <trajectory>@<condition>'s): the luminance is scaled by its "
+                        "illuminance over light.reference_lux")
     p.add_argument("--threads", type=int, default=None,
                    help="CPU threads for rendering and simulation (default events.num_threads; "
                         "-1 = the CPUs this process may use)")
@@ -148,9 +152,12 @@ def run(args) -> int:
             raise ConfigError("workflow mode needs both --model and --trajectory and no INPUT")
         from gs2e.events.rendered import RenderedSource
 
+        from gs2e.light.settings import Condition
+
+        light = Condition.from_json(args.light_json) if args.light_json else None
         src = RenderedSource(args.model, args.trajectory, cfg, background=args.background,
                              scale=args.scale, backend=args.backend, batch_frames=cfg.batch_frames,
-                             order_step_px=args.order_step_px)
+                             order_step_px=args.order_step_px, light=light)
         extra = {"model_dir": str(args.model), "trajectory": str(args.trajectory),
                  "render": {"background": list(args.background), "scale": args.scale,
                             "backend": args.backend, "order_step_px": args.order_step_px,
@@ -158,6 +165,11 @@ def run(args) -> int:
     else:
         if not args.input:
             raise ConfigError("give INPUT (frames) or --model and --trajectory")
+        from gs2e.events.sensors import resolve_cfa
+
+        if args.light_json or resolve_cfa(cfg) is not None:
+            raise ConfigError("--light-json and a colour filter (events.cfa, color_davis346) need rendered "
+                              "input (--model and --trajectory): frame files are luminance")
         src = open_frame_source(args.input, args.timestamps, args.fps, args.encoding, args.time_unit)
         extra = None
         if cfg.sensor is not None:

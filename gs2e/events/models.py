@@ -235,7 +235,8 @@ class _StreamingModel:
                  theta_off: float | np.ndarray = 1.0, refractory_us: float = 0.0,
                  leak_rate_hz: float = 0.0, shot_noise_rate_hz: float = 0.0,
                  shot_noise_on_fraction: float = 0.5, seed: int = 0,
-                 max_events_per_pixel: int = 10000, source: str = "frames"):
+                 max_events_per_pixel: int = 10000, source: str = "frames",
+                 leak_light_rate_hz: float = 0.0, lum_max: float = 1.0):
         H, W = int(shape[0]), int(shape[1])
         if H < 1 or W < 1 or W > 65535 or H > 65535:
             raise ConfigError(f"events: invalid frame shape {shape}")
@@ -244,7 +245,7 @@ class _StreamingModel:
         self.n_tiles = self.tiles_x * self.tiles_y
         self.th_on = self._theta(theta_on, "theta_on")
         self.th_off = self._theta(theta_off, "theta_off")
-        if refractory_us < 0 or leak_rate_hz < 0 or shot_noise_rate_hz < 0:
+        if refractory_us < 0 or leak_rate_hz < 0 or shot_noise_rate_hz < 0 or leak_light_rate_hz < 0:
             raise ConfigError("events: refractory_us and noise rates must be >= 0")
         if not 0.0 <= shot_noise_on_fraction <= 1.0:
             raise ConfigError("events.shot_noise_on_fraction must be in [0, 1]")
@@ -252,6 +253,10 @@ class _StreamingModel:
             raise ConfigError("events.max_events_per_pixel must be >= 1")
         self.refractory_us = float(refractory_us)
         self.leak_rate_hz = float(leak_rate_hz)
+        self.leak_light_rate_hz = float(leak_light_rate_hz)
+        if not lum_max >= 1.0:
+            raise ConfigError(f"events: lum_max (the light's largest scale) must be >= 1, got {lum_max}")
+        self.lum_max = float(lum_max)  # bound of the luminance the noise's rates follow
         self.shot_noise_rate_hz = float(shot_noise_rate_hz)
         self.shot_noise_on_fraction = float(shot_noise_on_fraction)
         self.seed = int(seed) & 0xFFFFFFFFFFFFFFFF
@@ -295,7 +300,7 @@ class _StreamingModel:
 
     @property
     def noise_on(self) -> bool:
-        return self.leak_rate_hz > 0 or self.shot_noise_rate_hz > 0
+        return self.leak_rate_hz > 0 or self.shot_noise_rate_hz > 0 or self.leak_light_rate_hz > 0
 
     @property
     def horizon_us(self) -> int | None:
@@ -329,19 +334,20 @@ class _StreamingModel:
             i = int(np.argmin(finite))
             raise InputError(f"{self.source}: frame {first + i} (t={ts[i]} us) has NaN or "
                              f"infinite values")
-        bad = (lo < 0.0) | (hi > 1.0 + 1e-6)
+        bad = (lo < 0.0) | (hi > self.lum_max * (1.0 + 1e-6))
         if bad.any():
             i = int(np.argmax(bad))
             raise InputError(f"{self.source}: frame {first + i} (t={ts[i]} us) has values in "
-                             f"[{lo[i]:g}, {hi[i]:g}]; expected linear luminance in [0, 1]")
+                             f"[{lo[i]:g}, {hi[i]:g}]; expected linear luminance in [0, {self.lum_max:g}]"
+                             + (" (the light's largest scale)" if self.lum_max > 1 else ""))
         prev = np.concatenate([[self.t_prev], ts]) if self.t_prev is not None else ts
         dif = np.diff(prev)
         if np.any(dif <= 0):
             i = int(np.argmax(dif <= 0))
             raise InputError(f"{self.source}: timestamps must increase strictly; got "
                              f"t={prev[i + 1]} us after t={prev[i]} us")
-        if (hi > 1.0).any():
-            f = np.minimum(f, f.dtype.type(1.0))
+        if (hi > self.lum_max).any():  # within rounding of the bound: onto it
+            f = np.minimum(f, f.dtype.type(self.lum_max))
         return ts, f
 
     def start(self, t_us: int, frame: np.ndarray) -> None:
@@ -424,7 +430,9 @@ class _StreamingModel:
             self._ensure_noise(16, m)
             params = K.NoiseParams(self.seed, self.leak_rate_hz, self.shot_noise_rate_hz,
                                    self.shot_noise_on_fraction,
-                                   K.noise_block_us(self.leak_rate_hz, self.shot_noise_rate_hz, TILE))
+                                   K.noise_block_us(self.leak_rate_hz + self.leak_light_rate_hz * self.lum_max,
+                                                    self.shot_noise_rate_hz, TILE),
+                                   self.leak_light_rate_hz, self.lum_max)
         while True:
             noise = K.EventSlots(self.noise_cap, self._nz_t, self._nz_x, self._nz_y, self._nz_p,
                                  fn_noise)
@@ -482,7 +490,8 @@ class _StreamingModel:
 
     def metadata(self) -> dict:
         return {"model": self.name, "seed": self.seed, "refractory_us": self.refractory_us,
-                "leak_rate_hz": self.leak_rate_hz, "shot_noise_rate_hz": self.shot_noise_rate_hz,
+                "leak_rate_hz": self.leak_rate_hz, "leak_light_rate_hz": self.leak_light_rate_hz,
+                "shot_noise_rate_hz": self.shot_noise_rate_hz,
                 "shot_noise_on_fraction": self.shot_noise_on_fraction,
                 "theta_on_map": theta_summary(self.th_on),
                 "theta_off_map": theta_summary(self.th_off),
@@ -693,7 +702,7 @@ class IdealModel(_StreamingModel):
 
 
 def make_model(settings: EventSettings, shape: tuple[int, int], seed: int,
-               source: str = "frames"):
+               source: str = "frames", lum_max: float = 1.0):
     """Build a model from the ``events`` settings (or the validated section).
 
     Returns (model, info) with info = the sequence-level draws (nominal theta
@@ -711,7 +720,8 @@ def make_model(settings: EventSettings, shape: tuple[int, int], seed: int,
     on_map = threshold_map(rng, shape, th_on, noise_on["theta_mismatch_sigma"])
     off_map = threshold_map(rng, shape, th_off, noise_off["theta_mismatch_sigma"])
     common = dict(theta_on=on_map, theta_off=off_map, refractory_us=noise_on["refractory_us"],
-                  leak_rate_hz=noise_on["leak_rate_hz"],
+                  leak_rate_hz=noise_on["leak_rate_hz"], leak_light_rate_hz=noise_on["leak_light_rate_hz"],
+                  lum_max=float(lum_max),
                   shot_noise_rate_hz=noise_on["shot_noise_rate_hz"],
                   shot_noise_on_fraction=noise_on["shot_noise_on_fraction"], seed=int(seed),
                   max_events_per_pixel=cfg.max_events_per_pixel, source=source)

@@ -26,10 +26,12 @@ from gs2e.common.camera import render_camera
 from gs2e.common.errors import ConfigError, InputError
 from gs2e.common.settings import require
 from gs2e.events.models import TileBatch, log_contrast, model_class
-from gs2e.events.sensors import get_sensor
+from gs2e.events.sensors import get_sensor, resolve_cfa
 from gs2e.events.settings import EventSettings
-from gs2e.events.sampling import (MODES, SamplerStats, TileSampler, adaptive_samples,
-                                  image_luminance, motion_times)
+from gs2e.events.sampling import (MODES, SamplerStats, TileSampler, adaptive_samples, cfa_channels,
+                                  image_cfa, image_luminance, motion_times)
+from gs2e.light.curve import LightCurve
+from gs2e.light.settings import Condition
 from gs2e.splat.backend import resolve_backend_for
 from gs2e.splat.forward import ContinuousRenderer, ForwardRenderer, image_motion_px, order_knots
 from gs2e.splat.model import load_model, model_window, render
@@ -163,7 +165,7 @@ class RenderedSource:
                  settings: EventSettings,
                  background=(0.0, 0.0, 0.0), scale: float = 1.0, backend: str = "cpu",
                  batch_frames: int = 32, span_us: tuple[int, int] | None = None,
-                 order_step_px: float = 2.0):
+                 order_step_px: float = 2.0, light: "Condition | None" = None):
         settings = require(settings, EventSettings, "RenderedSource")
         sc = settings.sampling
         if sc.mode not in MODES:
@@ -190,6 +192,15 @@ class RenderedSource:
         self.renderer = (cpu if self.backend == "cpu"
                          else _GsplatRenderer(self.params, self.info, cpu, background))
         self.t0_us, self.t1_us = int(self.traj.t_us[0]), int(self.traj.t_us[-1])
+        # the run's light over the whole path (the frames' own), whatever span is simulated
+        self.light = LightCurve(light, self.t0_us, self.t1_us) if light is not None else None
+        self.lum_max = max(1.0, self.light.max_scale()) if self.light is not None else 1.0
+        cfa = resolve_cfa(settings)
+        self.cfa = cfa_channels(cfa) if cfa is not None else None
+        self.cfa_pattern = cfa
+        if sc.mode == "tile" and (self.light is not None or self.cfa is not None):
+            raise ConfigError("events.sampling.mode: tile renders tiles apart and takes neither a lighting "
+                              "condition nor a colour filter (events.cfa); use fixed, motion or adaptive")
         # continuous in time (smooth window): depth orders held at knots over the whole path
         if not order_step_px > 0:
             raise ConfigError(f"render.order_step_px must be > 0, got {order_step_px}")
@@ -223,6 +234,17 @@ class RenderedSource:
                          if sc.mode == "fixed" else None)
         self._sampler: TileSampler | None = None
 
+    def metadata(self) -> dict:
+        """What the outputs record of this source beyond the settings: the
+        light and the colour filter, each only when set (runs without them
+        keep their bytes)."""
+        out = {}
+        if self.light is not None:
+            out["light"] = self.light.describe()
+        if self.cfa_pattern is not None:
+            out["cfa"] = self.cfa_pattern
+        return out
+
     @property
     def duration_us(self) -> int:
         return self.t1_us - self.t0_us
@@ -239,7 +261,12 @@ class RenderedSource:
         img = (self.renderer.render(self.pose_at(t_us)) if self.continuous is None
                else self.continuous.render(t_us))
         out = np.empty(self.shape, np.float32) if out is None else out
-        image_luminance(img, out)
+        if self.cfa is None:
+            image_luminance(img, out)
+        else:
+            image_cfa(img, self.cfa, out)
+        if self.light is not None:  # the light scales the radiance, in linear light
+            out *= np.float32(self.light.scale(np.array([float(t_us)]))[0])
         self.stats.renders += 1
         self.stats.tiles_rendered += self.renderer.n_tiles
         self.stats.pixel_samples += self.shape[0] * self.shape[1]
@@ -335,11 +362,19 @@ class RenderedSource:
                         "max_motion_px: 0.5} bounds the motion per sample (docs/events.md)",
                         self.name, sc.fixed_fps, mx)
 
+    def _dt_max_us(self) -> int:
+        """Longest step of the adaptive and motion clocks: dt_max_us, and no
+        longer than a changing light allows (1/32 of a flicker period, 1/64
+        of a ramp: :meth:`gs2e.light.curve.LightCurve.max_step_us`)."""
+        light_step = self.light.max_step_us() if self.light is not None else None
+        dt = int(self.sc.dt_max_us)
+        return dt if light_step is None else max(int(self.sc.dt_min_us), min(dt, int(light_step)))
+
     def _first_step_us(self) -> int:
         """First step of the adaptive and motion clocks: the fixed_fps period,
         within [dt_min_us, dt_max_us]."""
         sc = self.sc
-        return int(min(sc.dt_max_us, max(sc.dt_min_us, 1e6 / sc.fixed_fps)))
+        return int(min(self._dt_max_us(), max(sc.dt_min_us, 1e6 / sc.fixed_fps)))
 
     def motion_clock(self) -> Iterator[int]:
         """Sample times after t0 of mode ``motion`` (:func:`motion_times`), one
@@ -350,7 +385,7 @@ class RenderedSource:
         for a, b in zip(edges[:-1], edges[1:]):
             times = motion_times(lambda t: self.renderer.centres(self.pose_at(t)), image_motion_px,
                                  int(a), int(b), float(sc.max_motion_px),
-                                 int(sc.dt_min_us), int(sc.dt_max_us), self._first_step_us(),
+                                 int(sc.dt_min_us), self._dt_max_us(), self._first_step_us(),
                                  self.stats)
             next(times)
             yield from times
@@ -371,7 +406,7 @@ class RenderedSource:
         edges = self.traj.monotone_spans(self.t0_us, self.t1_us).astype(np.int64)
         for a, b in zip(edges[:-1], edges[1:]):
             gen = adaptive_samples(render_log, int(a), int(b), self.bound, int(sc.dt_min_us),
-                                   int(sc.dt_max_us), dt0, self.stats, float(sc.outlier_fraction),
+                                   self._dt_max_us(), dt0, self.stats, float(sc.outlier_fraction),
                                    first_log=first)
             next(gen)
             self.stats.accepted -= 1  # start() or the previous span counted its first time

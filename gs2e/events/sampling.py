@@ -106,6 +106,29 @@ def image_luminance(image, out):
             out[y, x] = _srgb_lum(image[y, x, 0], image[y, x, 1], image[y, x, 2])
 
 
+# colour filter arrays: the channel (0 R, 1 G, 2 B) over pixel (y % 2, x % 2)
+CFA_CHANNELS = {"RGGB": ((0, 1), (1, 2)), "BGGR": ((2, 1), (1, 0)),
+                "GRBG": ((1, 0), (2, 1)), "GBRG": ((1, 2), (0, 1))}
+
+
+def cfa_channels(pattern: str) -> np.ndarray:
+    """(2, 2) int64 channel of each pixel of a 2x2 CFA tile (ConfigError if unknown)."""
+    if pattern not in CFA_CHANNELS:
+        raise ConfigError(f"events.cfa: unknown pattern '{pattern}' (choose from {', '.join(CFA_CHANNELS)})")
+    return np.array(CFA_CHANNELS[pattern], np.int64)
+
+
+@njit(cache=True, parallel=True)
+def image_cfa(image, channels, out):
+    """(H, W) linear value of each pixel's own channel of an (H, W, 3) sRGB
+    image, ``channels`` (2, 2) its CFA tile (:func:`cfa_channels`): what a
+    pixel under a colour filter sees, instead of the luminance."""
+    for y in prange(image.shape[0]):
+        for x in range(image.shape[1]):
+            c = channels[y % 2, x % 2]
+            out[y, x] = srgb_decode(min(max(float(image[y, x, c]), 0.0), 1.0))
+
+
 @njit(cache=True, parallel=True)
 def tile_samples(image, tiles, H, W, log_eps, g_last, lum, g_new, change):
     """For tiles ``tiles`` of an sRGB image: linear luminance lum (n, T, T),

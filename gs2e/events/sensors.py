@@ -48,6 +48,7 @@ from gs2e.events.settings import EventSettings
 
 # The pixel non-idealities a sensor sets, and their value without a sensor.
 NOISE_KEYS = {"theta_mismatch_sigma": 0.0, "refractory_us": 0.0, "leak_rate_hz": 0.0,
+              "leak_light_rate_hz": 0.0,
               "shot_noise_rate_hz": 0.0, "shot_noise_on_fraction": 0.5}
 
 # the sensor around the pixel (gs2e.events.readout) and the value without config or sensor
@@ -89,6 +90,7 @@ class Sensor:
     shot_noise_rate_hz: Sourced
     shot_noise_on_fraction: Sourced
     extra: dict = field(default_factory=dict)
+    leak_light_rate_hz: Sourced = Sourced(0.0, "assumed: a leak rate independent of the light")
 
     @property
     def size(self) -> tuple[int, int]:
@@ -98,6 +100,7 @@ class Sensor:
     def to_dict(self) -> dict:
         out = {"name": self.name, "description": self.description}
         for k in ("width", "height", "theta_mismatch_rel", "refractory_us", "leak_rate_hz",
+                  "leak_light_rate_hz",
                   "shot_noise_rate_hz", "shot_noise_on_fraction"):
             v = getattr(self, k)
             out[k] = {"value": v.value, "source": v.source}
@@ -124,20 +127,37 @@ _DVX = "the DVXplorer recording ../shared/data/events/dvxplorer_sample.aedat4 (3
 _STREET = ("the still region of the DAVIS346 recording ../shared/data/events/davis346_street_aps.aedat4 "
            "(APS std < 0.01 over 2.36 s, 2 px from any moving pixel: 83 % of the pixels, mean APS "
            "0.303; gs2e events-stats --aps, gs2e.events.stats.still_background)")
+_LEAK_FIT = (f"a line in brightness through the 5 brightness bins of {_STREET} less their shot noise "
+             "(gs2e.events.stats.leak_against_brightness; parasitic photocurrent, Nozaki and Delbruck, "
+             "IEEE TED 2017)")
 _SLIDER = ("fitted: to the real events of ECD slider_depth (DAVIS240C; ../shared/data/slider_depth) "
            "along its recorded path by gs2e bench-sim2real (make sim2real; gs2e.bench.sim2real.fit_model)")
 _BUILT_IN: dict[str, Sensor] = {
     "davis346": Sensor(
         "davis346", "iniVation DAVIS346 (DVS + APS)", Sourced(346, _RES), Sourced(260, _RES),
         Sourced(0.15, _MISMATCH), Sourced(100.0, _REFRACTORY),
-        Sourced(0.002213, f"measured: ON background events less the shot noise's, in {_STREET}; "
-                          "0.01 Hz (v2e's default) before"),
+        Sourced(0.001115, f"measured: the leak at zero brightness, {_LEAK_FIT}; 0.002213 (the leak "
+                          "at the mean brightness, constant) before, 0.01 Hz (v2e's default) before that"),
         Sourced(0.0003185, f"measured: twice the OFF background rate at the mean brightness, in "
                            f"{_STREET}; 0.001 Hz (v2e's default) before"),
         Sourced(0.5, "assumed: balanced shot noise (the background's excess ON events are leak)"),
         {"readout": {"hot_pixel_fraction": Sourced(0.0, f"measured: no still pixel fires over 10x the "
                                                         f"background rate in {_STREET} (the most "
-                                                        "active one: 4 events in 2.36 s)")}}),
+                                                        "active one: 4 events in 2.36 s)")}},
+        Sourced(0.003619, f"measured: the leak's growth per unit of APS brightness, {_LEAK_FIT}")),
+    "color_davis346": Sensor(
+        "color_davis346", "iniVation Color-DAVIS346 (DVS + APS under an RGBG Bayer filter)",
+        Sourced(346, _RES), Sourced(260, _RES),
+        Sourced(0.15, _MISMATCH), Sourced(100.0, _REFRACTORY),
+        Sourced(0.001115, "assumed: as davis346 (the same pixel; measured there)"),
+        Sourced(0.0003185, "assumed: as davis346 (the same pixel; measured there)"),
+        Sourced(0.5, "assumed: balanced shot noise, as davis346"),
+        {"cfa": {"value": "RGGB", "source": (
+            "assumed: the 2x2 phase of Color-DAVIS346's RGBG Bayer filter (Scheerlinck et al., 'CED: "
+            "Color Event Camera Dataset', CVPRW 2019) as EventNeRF's colour loader reads it: R at even "
+            "rows and even columns, B at odd rows and odd columns (nerf_sample_ray_split.py)")},
+         "readout": {"hot_pixel_fraction": Sourced(0.0, "assumed: as davis346")}},
+        Sourced(0.003619, "assumed: as davis346 (the same pixel; measured there)")),
     "davis240": Sensor(
         "davis240", "iniVation DAVIS240C (DVS + APS)", Sourced(240, _RES), Sourced(180, _RES),
         Sourced(0.05, _SLIDER), Sourced(300.0, _SLIDER),
@@ -191,7 +211,7 @@ def _sensor_file_cached(path: str, mtime_ns: int, size: int) -> Sensor:
 
 def read_sensor_file(path: str | Path) -> Sensor:
     """A ``custom`` sensor from YAML: ``width`` and ``height`` (required) and
-    any of ``theta_mismatch_rel``, ``refractory_us``, ``leak_rate_hz``,
+    any of ``theta_mismatch_rel``, ``refractory_us``, ``leak_rate_hz``, ``leak_light_rate_hz``,
     ``shot_noise_rate_hz``, ``shot_noise_on_fraction``; each a number or
     ``{value: ..., source: ...}``. Missing values are 0 (0.5 for the ON
     fraction), labelled as such. ``gs2e events-stats --write-preset`` writes
@@ -244,7 +264,7 @@ def read_sensor_file(path: str | Path) -> Sensor:
                   Sourced(int(w.value), w.source), Sourced(int(h.value), h.source),
                   val("theta_mismatch_rel", 0.0), val("refractory_us", 0.0),
                   val("leak_rate_hz", 0.0), val("shot_noise_rate_hz", 0.0), on,
-                  {"readout": readout} if readout else {})
+                  {"readout": readout} if readout else {}, val("leak_light_rate_hz", 0.0))
 
 
 def get_sensor(settings: "EventSettings") -> Sensor | None:
@@ -326,6 +346,18 @@ def fit_frame(frame: np.ndarray, sensor_w: int, sensor_h: int, fit: str = "cover
         out[(v < 0) | (v > H)] = 0.0
         out[:, (u < 0) | (u > W)] = 0.0
     return out
+
+
+def resolve_cfa(settings: "EventSettings") -> str | None:
+    """The colour filter over the event pixels: ``events.cfa`` when set
+    (``none``: no filter), else the sensor's (``Sensor.extra['cfa']``), else
+    None: every pixel sees the luminance."""
+    cfg = require(settings, EventSettings, "resolve_cfa")
+    if cfg.cfa is not None:
+        return None if cfg.cfa == "none" else cfg.cfa
+    sensor = get_sensor(cfg)
+    cfa = (sensor.extra.get("cfa") or {}) if sensor is not None else {}
+    return cfa.get("value")
 
 
 def sensor_table() -> list[dict]:

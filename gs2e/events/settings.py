@@ -65,6 +65,8 @@ class EventSettings:
     theta_mismatch_rel: float | None
     refractory_us: float | None
     leak_rate_hz: float | None
+    leak_light_rate_hz: float | None
+    cfa: str | None
     shot_noise_rate_hz: float | None
     shot_noise_on_fraction: float | None
     photoreceptor_cutoff_hz: float | None

@@ -187,11 +187,13 @@ def simulate_to_folder(source, settings: EventSettings, out_dir: str | Path, see
     _check_containers(settings.containers, name, W, H, int(t_first))
     threads = numba.get_num_threads()  # set by the caller (gs2e.common.threads); recorded only
     model_seed = int(seed) + int(settings.seed_offset)
-    model, info = make_model(settings, shape, model_seed, source=name)
+    model, info = make_model(settings, shape, model_seed, source=name,
+                             lum_max=float(getattr(source, "lum_max", 1.0)))
     readout, readout_sources = resolve_readout(settings)
     chain = SensorChain(model, readout, model_seed)  # the model itself when readout is all off
     meta = {"gs2e_version": __version__, "config": settings.as_dict(), "seed": model_seed,
-            "source": name, **info, **(extra_meta or {})}
+            "source": name, **info, **(extra_meta or {}),
+            **(source.metadata() if hasattr(source, "metadata") else {})}
     meta.update(model.describe(info["theta_on_nominal"]))
     meta["readout"] = {"values": dataclasses.asdict(readout), "sources": readout_sources}
     acc = StatsAccumulator(shape, name=name)

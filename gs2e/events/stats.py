@@ -311,7 +311,14 @@ def sensor_preset(cal: dict, name: str, shape: tuple[int, int], source: str,
                                      "mean rate",
                "hot_pixel_rate_hz": "mean rate of those pixels",
                "hot_pixel_on_fraction": "ON fraction of their events (0.5 when there are none)"}
-        vals = {"leak_rate_hz": still["leak_rate_hz"], "shot_noise_rate_hz": still["shot_noise_rate_hz"],
+        lit = np.isfinite(still["leak_light_rate_hz"])  # the leak as a line in brightness
+        if lit:
+            how["leak_rate_hz"] = "the leak at zero brightness (gs2e.events.stats.leak_against_brightness)"
+            how["leak_light_rate_hz"] = ("the leak's growth per unit of APS brightness, fitted to the "
+                                         "brightness bins (gs2e.events.stats.leak_against_brightness)")
+        vals = {"leak_rate_hz": still["leak_dark_rate_hz"] if lit else still["leak_rate_hz"],
+                **({"leak_light_rate_hz": still["leak_light_rate_hz"]} if lit else {}),
+                "shot_noise_rate_hz": still["shot_noise_rate_hz"],
                 "shot_noise_on_fraction": still["shot_noise_on_fraction"],
                 "hot_pixel_fraction": still["hot_fraction"], "hot_pixel_rate_hz": still["hot_rate_hz"],
                 "hot_pixel_on_fraction": (still["hot_on_fraction"] if still["n_hot"] else 0.5)}
@@ -509,5 +516,26 @@ def still_background(ev: Events, shape: tuple[int, int], aps: np.ndarray, still_
     else:
         out.update(lum_mean=float("nan"), leak_rate_hz=float("nan"), shot_noise_rate_hz=float("nan"),
                    shot_noise_on_fraction=float("nan"))
+    out.update(leak_against_brightness(bins, out["shot_noise_rate_hz"]))
     out["_mask"], out["_hot"] = mask, hot
     return out
+
+
+def leak_against_brightness(bins: list[dict], shot_noise_rate_hz: float) -> dict:
+    """The leak as a line in brightness, leak(L) = dark + light L, fitted
+    to the brightness bins of :func:`still_background` (their rate less the
+    shot noise's ``shot 2 (1 - L)``; least squares weighted by each bin's
+    pixels; the slope held >= 0). The leak grows with the light through
+    parasitic photocurrent (Nozaki and Delbruck, IEEE TED 2017).
+
+    Returns {``leak_dark_rate_hz``, ``leak_light_rate_hz``} (Hz per pixel,
+    and per pixel per unit of linear brightness); NaN with under two bins."""
+    if len(bins) < 2 or not np.isfinite(shot_noise_rate_hz):
+        return {"leak_dark_rate_hz": float("nan"), "leak_light_rate_hz": float("nan")}
+    L = np.array([b["lum_mean"] for b in bins])
+    w = np.array([b["n_pixels"] for b in bins], np.float64)
+    y = np.array([b["ba_rate_hz"] for b in bins]) - shot_noise_rate_hz * 2.0 * np.clip(1.0 - L, 0.0, None)
+    Lm, ym = np.average(L, weights=w), np.average(y, weights=w)
+    var = np.average((L - Lm) ** 2, weights=w)
+    slope = max(0.0, float(np.average((L - Lm) * (y - ym), weights=w) / var)) if var > 0 else 0.0
+    return {"leak_dark_rate_hz": float(ym - slope * Lm), "leak_light_rate_hz": slope}

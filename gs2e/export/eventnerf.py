@@ -47,15 +47,20 @@ min(50, N - 1) for N training frames.
 Poses are normalised as NeRF++ does (EventNeRF renders only inside the unit
 sphere): centre = mean camera centre, radius = 1.1 x the largest distance to a
 camera or to 99.9 % of the surface points the frames see. Train on the result
-with ``is_colored = False`` (gs2e events come from luminance, not a Bayer
-sensor) and ``polarity_offset = 0``; ``eventnerf.txt`` lists these settings.
+with ``polarity_offset = 0`` and ``is_colored = False`` for luminance events,
+``is_colored = True`` for events simulated under an RGGB colour filter
+(``events.cfa``, the ``color_davis346`` sensor): EventNeRF's colour loader
+masks each pixel to its channel with R at even rows and columns
+(nerf_sample_ray_split.py), so the pattern must be RGGB and a crop or pad
+must move the image by an even number of pixels (else an error);
+``eventnerf.txt`` lists these settings.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from gs2e.common.errors import ConfigError
+from gs2e.common.errors import ConfigError, InputError
 from gs2e.events.models import Events
 from gs2e.export.common import (ExportOut, SensorFit, check_increasing_bounds, matrix_text, scene_points,
                                 unit_sphere)
@@ -147,11 +152,28 @@ def loader_events(ev: Events, t_views_us: np.ndarray, lead: int, step_s: float,
             "p": np.append(signed_polarity(ev.p, where), np.int8(0))}
 
 
+def _colour_events(src, fit: SensorFit) -> bool:
+    """True for colour events EventNeRF's loader reads (RGGB, moved by an
+    even offset); False for luminance events; InputError otherwise."""
+    cfa = src.cfa
+    if cfa is None:
+        return False
+    if cfa != "RGGB":
+        raise InputError(f"{src.events_file}: events under a {cfa} filter; EventNeRF's colour loader "
+                         "reads RGGB only (events.cfa: RGGB)")
+    if fit.ox % 2 or fit.oy % 2:
+        raise InputError(f"{src.events_file}: fitting {src.width}x{src.height} frames onto EventNeRF's "
+                         f"sensor moves them by ({fit.ox}, {fit.oy}) px, which shifts the RGGB pattern "
+                         "(render at 346x260: events.sensor color_davis346)")
+    return True
+
+
 def export_eventnerf(src, out: ExportOut, cfg: ExportSettings) -> None:
     t_frames = src.frames["t_us"].to_numpy()
     frames = src.covered_frames()
     fit = SensorFit.centred(src.width, src.height, SENSOR_W, SENSOR_H, cfg.eventnerf_fit,
                             "EventNeRF (data_loader_split.py)")
+    colored = _colour_events(src, fit)
     c2w_all = src.c2w(frames)
     norm = unit_sphere(c2w_all[:, :3, 3], scene_points(src, frames))
     splits = split_frames(frames, int(cfg.eventnerf_holdout_every))
@@ -187,7 +209,7 @@ def export_eventnerf(src, out: ExportOut, cfg: ExportSettings) -> None:
              else "# datadir = this folder's parent, scene = its name\n")
     out.text("eventnerf.txt",
              "# EventNeRF config keys for this export (add your experiment's keys)\n" + place +
-             "is_colored = False\npolarity_offset = 0.0\nis_cycled = False\n"
+             f"is_colored = {colored}\npolarity_offset = 0.0\nis_cycled = False\n"
              f"trainskip = 1\ntestskip = 1\nwinsize = {winsize}\n")
     out.manifest.update({
         "target": "r00tman/EventNeRF data_loader_split.py",

@@ -14,6 +14,7 @@ from gs2e.common.errors import InputError
 from gs2e.events.models import Events
 from gs2e.export.conventions import check_events_in_sensor, check_polarity01, check_times_us
 from gs2e.export.windows import covered_frame_range, read_windows
+from gs2e.light.settings import split_run
 
 
 def windows_path(scene_dir: str | Path, traj: str) -> Path:
@@ -35,7 +36,8 @@ class TrajectorySource:
         self.frames_dir = self.scene_dir / "frames" / self.traj
         self.events_dir = self.scene_dir / "events" / self.traj
         self.events_file = self.events_dir / "events.h5"
-        self.trajectory_file = self.scene_dir / "trajectories" / f"{self.traj}.npz"
+        # a run <trajectory>@<condition> moves along its trajectory's file
+        self.trajectory_file = self.scene_dir / "trajectories" / f"{split_run(self.traj)[0]}.npz"
         wpath = Path(self.windows_file) if self.windows_file else windows_path(self.scene_dir, self.traj)
         for p in (self.frames_dir / "frames.parquet", self.events_file, wpath):
             if not p.exists():
@@ -103,6 +105,19 @@ class TrajectorySource:
         ev = Events(check_times_us(ev.t, where), ev.x, ev.y, check_polarity01(ev.p, where))
         check_events_in_sensor(ev.x, ev.y, self.width, self.height, where)
         return ev
+
+    @property
+    def cfa(self) -> str | None:
+        """The colour filter the events were simulated under (events.h5's
+        metadata ``cfa``, e.g. RGGB; None: luminance events)."""
+        import json
+
+        from gs2e.events.io import read_h5
+
+        _, attrs = read_h5(self.events_file, (0, 0))
+        meta = attrs.get("metadata")
+        meta = json.loads(meta) if isinstance(meta, (str, bytes)) else (meta or {})
+        return meta.get("cfa")
 
     def window_counts(self, kind: str, frames: np.ndarray) -> np.ndarray:
         """Event counts (i1 - i0) of the ``inter`` or ``exp`` windows of frames."""

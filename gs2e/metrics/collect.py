@@ -20,6 +20,7 @@ import pandas as pd
 from gs2e import __version__
 from gs2e.codeversion import STAGE_ENTRY, code_version
 from gs2e.common.errors import InputError
+from gs2e.light.settings import split_run
 from gs2e.config import scene_params_json
 from gs2e.metrics.table import read_metrics, read_table
 
@@ -75,7 +76,10 @@ def scene_table(scene_dir: str | Path, scene_id: str, trajectories: list[str], c
     rows = []
     for name in trajectories:
         row = dict(base, seed_events=_events_seed(scene_dir, name), trajectory=name)
-        t = traj_info.get(name, {})
+        traj, light = split_run(name)  # a run <trajectory>@<condition>: the light's own rows
+        if light is not None:
+            row["light"] = light
+        t = traj_info.get(traj, {})
         for k in ("kind", "method", "preset", "n_poses", "duration_us", "length", "max_rel_step_error"):
             row[f"trajectory_{k}"] = t.get(k)
         for stage, rel in (("render", f"frames/{name}/metrics.parquet"), ("events", f"events/{name}/stats.parquet")):

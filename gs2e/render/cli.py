@@ -25,6 +25,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "render.scale does not apply)")
     p.add_argument("--sensor-fit", default="cover", choices=["cover", "contain"],
                    help="how the sensor's view is fitted (events.sensor_fit; default cover)")
+    p.add_argument("--light-json", default=None, metavar="JSON",
+                   help="the run's lighting condition (gs2e.light; the workflow passes a run "
+                        "<trajectory>@<condition>'s)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the frame camera's noise (render.camera.model sensor)")
     add_config_args(p)
     p.set_defaults(func=run)
 
@@ -34,8 +39,12 @@ def run(args: argparse.Namespace) -> int:
     from gs2e.render.dataset import render_dataset
     from gs2e.render.settings import RenderSettings
 
+    from gs2e.light.settings import Condition
+
     cfg = RenderSettings.load(args.config_json, args.config)
+    light = Condition.from_json(args.light_json) if args.light_json else None
     set_threads(args.threads)
     render_dataset(args.model, args.trajectory, args.out, cfg, scene_id=args.scene_id,
-                   sensor=(args.sensor_size, args.sensor_fit) if args.sensor_size else None)
+                   sensor=(args.sensor_size, args.sensor_fit) if args.sensor_size else None,
+                   light=light, seed=args.seed)
     return 0

@@ -31,4 +31,5 @@ class RenderSettings(Section):
     background: list
     backend: str
     order_step_px: float
+    camera: dict
     min_coverage: float

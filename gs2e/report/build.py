@@ -122,9 +122,39 @@ def _scene_section(results_dir: Path, scene: str, summary: pd.DataFrame | None,
 SPEEDS = ("mild", "medium", "strong")
 
 
-def _base_rows(bench: pd.DataFrame) -> pd.DataFrame:
-    """The bench table's rows of the base trajectories with a speed preset."""
-    return bench[bench["trajectory"].astype(str).str.startswith("base_") & bench["preset"].notna()]
+def _base_rows(bench: pd.DataFrame, lit: bool = False) -> pd.DataFrame:
+    """The bench table's rows of the base trajectories with a speed preset:
+    at the trained radiance only, or (``lit``) under every light as well."""
+    keep = bench["trajectory"].astype(str).str.startswith("base_") & bench["preset"].notna()
+    if "light" in bench.columns and not lit:
+        keep &= bench["light"].isna()
+    return bench[keep]
+
+
+def light_tables(bench: pd.DataFrame) -> dict[str, pd.DataFrame]:
+    """Per task, the benchmark by light: one row per event model x method,
+    one column per speed x lighting condition ("PSNR / SSIM", mean over
+    scenes of the base trajectories; ``trained`` = the trained radiance).
+    Empty without lit runs."""
+    if "light" not in bench.columns or bench["light"].isna().all():
+        return {}
+    base = _base_rows(bench, lit=True).assign(light=lambda d: d["light"].fillna("trained"))
+    out = {}
+    for task, g in base.groupby("task", sort=False):
+        if "aee_px" in g.columns and g["aee_px"].notna().any():
+            continue  # optical flow: not scored in PSNR
+        speeds = [p for p in SPEEDS if p in set(g["preset"])] + sorted(set(g["preset"]) - set(SPEEDS))
+        lights = ["trained"] + sorted(set(g["light"]) - {"trained"})
+        rows = []
+        for (model, method), m in g.groupby(["model", "method"], sort=False):
+            row = {"events": model, "method": method}
+            for sp in speeds:
+                for li in lights:
+                    v = m[(m["preset"] == sp) & (m["light"] == li)]
+                    row[f"{sp} {li}"] = f"{v['psnr'].mean():.2f} / {v['ssim'].mean():.3f}" if len(v) else None
+            rows.append(row)
+        out[str(task)] = pd.DataFrame(rows)
+    return out
 
 
 def bench_tables(bench: pd.DataFrame) -> dict[str, pd.DataFrame]:
@@ -297,6 +327,15 @@ def _bench_section(results_dir: Path, scenes: list[str]) -> H.Section:
     for task, tab in tables.items():
         sec.add(H.paragraph(f"task: {task}", "meta"))
         sec.add(H.table(tab))
+    by_light = light_tables(bench)
+    if by_light:
+        sec.add(H.paragraph("By light (runs <trajectory>@<condition>, light.runs): the same tasks at each "
+                            "speed under each lighting condition, PSNR / SSIM, mean over scenes; trained = "
+                            "the trained radiance (no condition). Frames through render.camera; events "
+                            "under the same light (docs/light.md)."))
+        for task, tab in by_light.items():
+            sec.add(H.paragraph(f"task: {task}, by light", "meta"))
+            sec.add(H.table(tab))
     # the schema's task list (held equal to gs2e.bench.tasks by a test): importing the
     # registry would tie the report's code version to every task's code
     from gs2e.config import load_schema
@@ -318,9 +357,9 @@ def _bench_section(results_dir: Path, scenes: list[str]) -> H.Section:
                                  f"{scene}: {png.parent.name} on {png.stem}"))
     if items:
         sec.add(H.gallery(items))
-    cols = [c for c in ("scene_id", "trajectory", "task", "model", "method", "n_frames", "psnr",
+    cols = [c for c in ("scene_id", "trajectory", "light", "task", "model", "method", "n_frames", "psnr",
                         "ssim", "motion_px_median", "psnr_at_0_5s", "psnr_end", "drift_db_per_s",
-                        "psnr_raw", "psnr_rgb", "cpu_min", "aee_px", "out_3px", "aee_px_events",
+                        "psnr_raw", "psnr_rgb", "psnr_rgb_corrected", "cpu_min", "aee_px", "out_3px", "aee_px_events",
                         "time_s_per_frame") if c in bench.columns]
     sec.add(H.table(bench.loc[:, cols].reset_index(drop=True)))
     return sec

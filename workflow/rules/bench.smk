@@ -17,7 +17,8 @@ rule bench:
     params:
         cfg=stage_cfg("bench"),
         code=code_version("bench"),
-        trajectory=lambda wc, input: str(Path(input.trajectories, f"{wc.traj}.npz")),
+        trajectory=run_trajectory,
+        run=lambda wc: f"--run {wc.traj}" if split_run(wc.traj)[1] else "",
         seed=lambda wc: derive_seed(SCENE_CFG[wc.scene]["seed"], f"{wc.scene}/{wc.traj}", "bench"),
     conda:
         ENV
@@ -34,7 +35,7 @@ rule bench:
     shell:
         "{GS2E} bench --task {wildcards.task} --frames {input.frames:q}"
         " --events {input.events:q} --windows {input.windows:q} --trajectory {params.trajectory:q}"
-        " --out {output.table:q} --png {output.png:q} --scene-id {wildcards.scene}"
+        " --out {output.table:q} --png {output.png:q} --scene-id {wildcards.scene} {params.run}"
         " --seed {params.seed} --threads {threads} --config-json {params.cfg:q} 2> {log:q}"
 
 

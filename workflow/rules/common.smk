@@ -10,6 +10,7 @@ from gs2e.common.atomic import sweep_tree
 from snakemake.logging import logger
 from gs2e.config import (derive_seed, load_config, load_scenes, scene_config,
                          scene_params_json, section_json)
+from gs2e.light.settings import condition_json, run_names, split_run
 
 # Reject invalid config / scenes table before any job runs.
 config = load_config(config)
@@ -75,7 +76,8 @@ forward_interrupt_to_jobs()
 wildcard_constraints:
     scene="[A-Za-z0-9][A-Za-z0-9_.-]*",
     task="|".join(BENCH_TASKS),
-    traj="[A-Za-z0-9_.-]+",
+    # a run: a trajectory, optionally under a lighting condition (<trajectory>@<condition>)
+    traj="[A-Za-z0-9_.-]+(@[a-z0-9_]+)?",
     fmt="[a-z0-9]+",
 
 
@@ -176,11 +178,39 @@ def scene_source(wc):
     return row["path"]
 
 
+def scene_runs(sid):
+    """The runs of a scene: render.trajectories, and each plain trajectory
+    again under every condition of light.runs (gs2e.light.settings.run_names)."""
+    return run_names(SCENE_CFG[sid]["render"]["trajectories"], SCENE_CFG[sid]["light"]["runs"])
+
+
+def run_trajectory(wc, input):
+    """The trajectory file a run moves along (a run <trajectory>@<condition>: its trajectory's)."""
+    return str(Path(input.trajectories, f"{split_run(wc.traj)[0]}.npz"))
+
+
+def light_arg(wc):
+    """--light-json of a lit run (its one condition, resolved: editing another
+    condition reruns nothing); '' for a run at the trained radiance."""
+    cond = split_run(wc.traj)[1]
+    if cond is None:
+        return ""
+    return "--light-json " + shlex.quote(condition_json(SCENE_CFG[wc.scene]["light"], cond))
+
+
+def render_seed_arg(wc):
+    """--seed of the frame camera's noise (render.camera.model sensor only:
+    the ideal camera draws nothing, and its jobs' params stay as they were)."""
+    if SCENE_CFG[wc.scene]["render"]["camera"]["model"] != "sensor":
+        return ""
+    return f"--seed {derive_seed(SCENE_CFG[wc.scene]['seed'], f'{wc.scene}/{wc.traj}', 'render')}"
+
+
 def scene_products(sid):
     """Every product of one scene: model, trajectories, frames, events and the
     aligned event windows."""
     out = [res(sid, "sfm"), res(sid, "splat"), res(sid, "trajectories")]
-    for t in SCENE_CFG[sid]["render"]["trajectories"]:
+    for t in scene_runs(sid):
         out += [res(sid, "frames", t), res(sid, "events", t), res(sid, "windows", f"{t}.parquet")]
     return out
 
@@ -190,13 +220,13 @@ def scene_exports(sid):
     trajectory (export.trajectories; null: every rendered one)."""
     x = SCENE_CFG[sid]["export"]
     return [res(sid, "export", f, t) for f in x["formats"]
-            for t in (x["trajectories"] or SCENE_CFG[sid]["render"]["trajectories"])]
+            for t in (x["trajectories"] or scene_runs(sid))]
 
 
 def scene_bench(sid):
     """The bench tables bench.tasks asks for, one per task and trajectory."""
     return [res(sid, "bench", task, f"{t}.parquet") for task in SCENE_CFG[sid]["bench"]["tasks"]
-            for t in SCENE_CFG[sid]["render"]["trajectories"]]
+            for t in scene_runs(sid)]
 
 
 # The dataset's bench table exists when any scene runs a benchmark task.

@@ -18,7 +18,8 @@ rule events:
         order_step_px=lambda wc: SCENE_CFG[wc.scene]["render"]["order_step_px"],
         seed=lambda wc: derive_seed(SCENE_CFG[wc.scene]["seed"], f"{wc.scene}/{wc.traj}", "events"),
         code=code_version("events"),
-        trajectory=lambda wc, input: str(Path(input.trajectories, f"{wc.traj}.npz")),
+        trajectory=run_trajectory,
+        light=light_arg,
     conda:
         ENV
     log:
@@ -35,5 +36,5 @@ rule events:
         "{GS2E} events --model {input.model:q} --trajectory {params.trajectory:q}"
         " -o {output:q} --seed {params.seed} --threads {threads}"
         " --background {params.background} --scale {params.scale} --backend {params.backend}"
-        " --order-step-px {params.order_step_px}"
+        " --order-step-px {params.order_step_px} {params.light}"
         " --config-json {params.cfg:q} 2> {log:q}"

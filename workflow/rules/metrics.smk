@@ -24,7 +24,7 @@ rule scene_metrics:
     output:
         res("{scene}", "metrics.parquet"),
     params:
-        trajectories=lambda wc: " ".join(SCENE_CFG[wc.scene]["render"]["trajectories"]),
+        trajectories=lambda wc: " ".join(scene_runs(wc.scene)),
         config=lambda wc: scene_params(wc.scene),
         seeds=lambda wc: json.dumps({s: derive_seed(SCENE_CFG[wc.scene]["seed"], wc.scene, s)
                                      for s in ("sfm", "train", "trajectory")}),

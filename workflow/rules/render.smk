@@ -9,7 +9,10 @@ rule render:
         # the event sensor's camera (events.sensor), so frames and events share it
         sensor=render_sensor_arg,
         code=code_version("render"),
-        trajectory=lambda wc, input: str(Path(input.trajectories, f"{wc.traj}.npz")),
+        trajectory=run_trajectory,
+        # a run under a lighting condition: its light; the frame camera's noise seed
+        light=light_arg,
+        seed=render_seed_arg,
     conda:
         ENV
     log:
@@ -23,4 +26,5 @@ rule render:
     shell:
         "{GS2E} render --model {input.model:q} --trajectory {params.trajectory:q}"
         " --out {output:q} --threads {threads} --scene-id {wildcards.scene} {params.sensor}"
+        " {params.light} {params.seed}"
         " --config-json {params.cfg:q} 2> {log:q}"
