@@ -468,6 +468,8 @@ def _check_export(cfg: dict) -> None:
 
 def _check_export_inputs(cfg: dict) -> None:
     x, r = cfg["export"], cfg["render"]
+    # the runs gs2e.light.settings.run_names makes (by hand: importing it would tie every
+    # rule's code version to gs2e.light)
     runs = list(r["trajectories"]) + [f"{t}@{c}" for c in cfg["light"]["runs"] for t in r["trajectories"]
                                       if "@" not in t]
     for name in x["trajectories"] or ():

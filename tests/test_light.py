@@ -76,7 +76,7 @@ def test_condition_json_round_trip_and_errors():
     with pytest.raises(ConfigError, match="light.runs"):
         LightSettings.defaults(runs=["dusk"])
     with pytest.raises(ConfigError, match="flicker_depth"):
-        _cond(flicker_depth=1.5)
+        Condition.from_json(json.dumps({**json.loads(c.to_json()), "flicker_depth": 1.5}))
 
 
 def test_runs_cross_trajectories_with_conditions():

@@ -5,7 +5,6 @@ the shared scoring (:func:`score`: PSNR, SSIM, MSE)."""
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import dataclass, field
@@ -71,7 +70,7 @@ def load_dataset(task: str, frames_dir: str | Path, events_dir: str | Path,
     needs; one-line errors naming what is missing."""
     from gs2e.events.io import read_h5
     from gs2e.events.models import log_contrast
-    from gs2e.events.settings import read_settings
+    from gs2e.events.settings import read_metadata, read_settings
     from gs2e.export.windows import read_windows
     from gs2e.render.dataset import read_frames_table
 
@@ -95,7 +94,7 @@ def load_dataset(task: str, frames_dir: str | Path, events_dir: str | Path,
                          "(a windows table of another run)")
     ev, attrs = read_h5(events_dir / "events.h5")
     ev_cfg = read_settings(attrs, str(events_dir / "events.h5"))
-    cfa = json.loads(attrs["metadata"]).get("cfa") if "metadata" in attrs else None
+    cfa = read_metadata(attrs, str(events_dir / "events.h5")).get("cfa")
     if cfa is not None and not spec.colour_events:
         raise InputError(f"{events_dir / 'events.h5'}: events under a {cfa} colour filter; the {task} task "
                          "reads luminance events (simulate them without events.cfa, or run recon3d)")

@@ -5,7 +5,8 @@
 the stage passes that object on (models, sampling, writers) and records
 :meth:`EventSettings.as_dict` in ``events.h5`` (``metadata`` -> ``config``) and
 ``stats.json``. Readers of an event folder (the benchmark, the exports) get it
-back through :func:`read_settings`, never by parsing the attributes themselves.
+back through :func:`read_settings` (the rest of the metadata through
+:func:`read_metadata`), never by parsing the attributes themselves.
 """
 
 from __future__ import annotations
@@ -127,13 +128,26 @@ def event_settings(section: "Mapping[str, Any]") -> EventSettings:
     return EventSettings(**kw, _section=given)
 
 
-def read_settings(attrs: Mapping[str, Any], where: str) -> EventSettings:
-    """The settings an event folder was simulated with, from its ``events.h5``
-    attributes (:func:`gs2e.events.io.read_h5`); ``where`` names the file in errors."""
+def read_metadata(attrs: Mapping[str, Any], where: str) -> dict:
+    """The run's metadata of an ``events.h5`` (its attributes, as
+    :func:`gs2e.events.io.read_h5` gives them): the settings (``config``),
+    the source's light and colour filter (``light``, ``cfa``, where set) ...;
+    ``where`` names the file in errors."""
     meta = attrs.get("metadata")
     try:
         meta = json.loads(meta) if isinstance(meta, (str, bytes)) else meta
-        section = meta["config"]
-    except (TypeError, KeyError, json.JSONDecodeError) as exc:
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{where}: its metadata is not JSON ({exc!r})") from None
+    if not isinstance(meta, dict):
+        raise InputError(f"{where}: no metadata")
+    return meta
+
+
+def read_settings(attrs: Mapping[str, Any], where: str) -> EventSettings:
+    """The settings an event folder was simulated with, from its ``events.h5``
+    attributes (:func:`gs2e.events.io.read_h5`); ``where`` names the file in errors."""
+    try:
+        section = read_metadata(attrs, where)["config"]
+    except (InputError, KeyError) as exc:
         raise InputError(f"{where}: no events config in its metadata ({exc!r})") from None
     return event_settings(section)

@@ -110,14 +110,11 @@ class TrajectorySource:
     def cfa(self) -> str | None:
         """The colour filter the events were simulated under (events.h5's
         metadata ``cfa``, e.g. RGGB; None: luminance events)."""
-        import json
-
         from gs2e.events.io import read_h5
+        from gs2e.events.settings import read_metadata
 
         _, attrs = read_h5(self.events_file, (0, 0))
-        meta = attrs.get("metadata")
-        meta = json.loads(meta) if isinstance(meta, (str, bytes)) else (meta or {})
-        return meta.get("cfa")
+        return read_metadata(attrs, str(self.events_file)).get("cfa")
 
     def window_counts(self, kind: str, frames: np.ndarray) -> np.ndarray:
         """Event counts (i1 - i0) of the ``inter`` or ``exp`` windows of frames."""

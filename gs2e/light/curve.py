@@ -10,6 +10,7 @@ illuminance the trained radiance stands for (``light.reference_lux``).
 from __future__ import annotations
 
 import math
+from dataclasses import asdict
 
 import numpy as np
 
@@ -149,9 +150,5 @@ class LightCurve:
 
     def describe(self) -> dict:
         """What the outputs record of the light."""
-        c = self.condition
-        return {"condition": c.name, "reference_lux": c.reference_lux, "lux": c.lux,
-                "ramp_to_lux": c.ramp_to_lux, "ramp_start": c.ramp_start,
-                "ramp_duration": c.ramp_duration, "flicker_hz": c.flicker_hz,
-                "flicker_depth": c.flicker_depth, "flicker_waveform": c.flicker_waveform,
-                "scale_max": self.max_scale()}
+        c = asdict(self.condition)
+        return {"condition": c.pop("name"), **c, "scale_max": self.max_scale()}

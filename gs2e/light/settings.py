@@ -16,7 +16,6 @@ from gs2e.common.errors import ConfigError
 from gs2e.common.settings import Section
 
 RUN_SEP = "@"  # a run is <trajectory>@<condition>
-WAVEFORMS = ("sine", "square", "rectified")
 
 
 @dataclass(frozen=True)
@@ -39,7 +38,8 @@ class LightSettings(Section):
 
 @dataclass(frozen=True)
 class Condition:
-    """One lighting condition, resolved: illuminances in lux-equivalents,
+    """One lighting condition, resolved (built from the validated section:
+    :meth:`LightSettings.condition`, :meth:`from_json`): illuminances in lux-equivalents,
     ramp times as fractions of the run's duration, flicker in Hz of the
     light's intensity (twice the mains frequency) with its percent-flicker
     depth (max - min) / (max + min) (IEEE Std 1789-2015)."""
@@ -54,23 +54,15 @@ class Condition:
     flicker_depth: float
     flicker_waveform: str
 
-    def __post_init__(self):
-        if not self.reference_lux > 0 or not self.lux > 0:
-            raise ConfigError(f"light condition '{self.name}': lux and reference_lux must be > 0")
-        if self.ramp_to_lux is not None and not self.ramp_to_lux > 0:
-            raise ConfigError(f"light.conditions.{self.name}.ramp_to_lux must be > 0")
-        if not 0 <= self.flicker_depth <= 1:
-            raise ConfigError(f"light.conditions.{self.name}.flicker_depth must be in [0, 1]")
-        if self.flicker_waveform not in WAVEFORMS:
-            raise ConfigError(f"light.conditions.{self.name}.flicker_waveform: one of {WAVEFORMS}")
-
     def to_json(self) -> str:
         """Canonical JSON (sorted keys): what a lit run's jobs get."""
         return json.dumps(asdict(self), sort_keys=True)
 
     @classmethod
     def from_json(cls, text: str) -> "Condition":
-        """The condition of ``--light-json`` (ConfigError on bad JSON or keys)."""
+        """The condition of ``--light-json``, validated against the schema as
+        the ``light`` section is (ConfigError on bad JSON, keys or values,
+        naming the key)."""
         try:
             d = json.loads(text)
         except json.JSONDecodeError as exc:
@@ -80,7 +72,8 @@ class Condition:
             got = set(d) if isinstance(d, dict) else set()
             bad = sorted((got - names) | (names - got))
             raise ConfigError(f"--light-json: keys differ from a light condition's ({', '.join(bad)})")
-        return cls(**d)
+        name, ref = d.pop("name"), d.pop("reference_lux")
+        return LightSettings.defaults(reference_lux=ref, conditions={name: d}).condition(name)
 
 
 def split_run(run: str) -> tuple[str, str | None]:

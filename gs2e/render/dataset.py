@@ -32,13 +32,11 @@ log = get_logger("gs2e.render")
 MOTION_PERCENTILES = (50, 90, 99)
 
 
-def blurred_frame(r, t: float, exposure_us: float, rgb: np.ndarray, centres: np.ndarray,
-                  cfg: RenderSettings) -> tuple[np.ndarray, int, np.ndarray]:
-    """The blurred frame centred on ``t`` (us) over ``exposure_us``, from the
-    :class:`gs2e.render.renderer.TrajectoryRenderer` ``r`` (``rgb`` its sharp
-    (H, W, 3) sRGB image at ``t``; ``centres`` the Gaussian centres (N, 3)
-    whose image motion sets the sub-frames). Returns (blur (H, W, 3), the
-    sub-frames used, the motion percentiles (3,) px over the exposure)."""
+def exposure_motion(r, t: float, exposure_us: float, centres: np.ndarray,
+                    cfg: RenderSettings) -> tuple[np.ndarray, int]:
+    """(the motion percentiles (3,) px of the Gaussian ``centres`` (N, 3) over
+    the exposure centred on ``t`` (us), the sub-frames that motion needs) for
+    the :class:`gs2e.render.renderer.TrajectoryRenderer` ``r``."""
     ta = max(float(r.t0_us), t - exposure_us / 2)
     tb = min(float(r.t1_us), t + exposure_us / 2)
     # summed over the spans between turns: a back-and-forth path may reverse
@@ -47,7 +45,17 @@ def blurred_frame(r, t: float, exposure_us: float, rgb: np.ndarray, centres: np.
     motion = (sum(pixel_motion_px(centres, r.pose(a), r.pose(b), r.K, r.width, r.height,
                                   MOTION_PERCENTILES) for a, b in zip(spans[:-1], spans[1:]))
               if tb > ta else np.zeros(3))
-    n_sub = subframes_needed(float(motion[2]), cfg.blur_max_step_px, cfg.blur_max_subframes)
+    return motion, subframes_needed(float(motion[2]), cfg.blur_max_step_px, cfg.blur_max_subframes)
+
+
+def blurred_frame(r, t: float, exposure_us: float, rgb: np.ndarray, centres: np.ndarray,
+                  cfg: RenderSettings) -> tuple[np.ndarray, int, np.ndarray]:
+    """The blurred frame centred on ``t`` (us) over ``exposure_us``, from the
+    :class:`gs2e.render.renderer.TrajectoryRenderer` ``r`` (``rgb`` its sharp
+    (H, W, 3) sRGB image at ``t``; ``centres`` the Gaussian centres (N, 3)
+    whose image motion sets the sub-frames). Returns (blur (H, W, 3), the
+    sub-frames used, the motion percentiles (3,) px over the exposure)."""
+    motion, n_sub = exposure_motion(r, t, exposure_us, centres, cfg)
     if n_sub == 1:
         return rgb, n_sub, motion
     if cfg.blur_tolerance_db is not None:
@@ -78,7 +86,6 @@ class LitFrames:
         self.interval_us = 1e6 / cfg.fps
         self.ae = AutoExposure(cam, cfg.exposure_us, self.interval_us)
         self.primed = False
-        self.saturated = []
 
     def _scale(self, ta: float, tb: float) -> float:
         return 1.0 if self.curve is None else self.curve.mean_scale(ta, tb)
@@ -90,11 +97,7 @@ class LitFrames:
         if not varying:
             blur, n_sub, motion = blurred_frame(r, t, E, rgb, self.centres, cfg)
             return srgb_to_linear(blur, clip=True) * self._scale(ta, tb), n_sub, motion
-        spans = r.traj.monotone_spans(ta, tb)
-        motion = (sum(pixel_motion_px(self.centres, r.pose(a), r.pose(b), r.K, r.width, r.height,
-                                      MOTION_PERCENTILES) for a, b in zip(spans[:-1], spans[1:]))
-                  if tb > ta else np.zeros(3))
-        n_sub = subframes_needed(float(motion[2]), cfg.blur_max_step_px, cfg.blur_max_subframes)
+        motion, n_sub = exposure_motion(r, t, E, self.centres, cfg)
         edges = np.linspace(t - E / 2, t + E / 2, n_sub + 1)
         acc = np.zeros_like(rgb, dtype=np.float64)
         for k, tk in enumerate(np.clip(subframe_times_us(t, E, n_sub), r.t0_us, r.t1_us)):
