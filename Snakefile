@@ -26,6 +26,14 @@ rule all:
     default_target: True
 
 
+# Every scene's own outputs (products, metrics, gate, exports, bench tables), without the
+# dataset-wide tables: what `gs2e dataset` runs with --keep-going before it records which
+# scenes failed and why (results/scene_status.parquet; docs/dataset.md).
+rule scenes:
+    input:
+        [p for sid in SCENES for p in scene_outputs(sid)],
+
+
 include: "workflow/rules/ingest.smk"
 include: "workflow/rules/sfm.smk"
 include: "workflow/rules/splat.smk"
@@ -35,3 +43,4 @@ include: "workflow/rules/events.smk"
 include: "workflow/rules/export.smk"
 include: "workflow/rules/bench.smk"
 include: "workflow/rules/metrics.smk"
+include: "workflow/rules/dataset.smk"

@@ -49,10 +49,11 @@ def make_selection(root: Path, n: int) -> tuple[Path, int, int]:
     return root, n_mvi, n_dl
 
 
-def run_measured(cmd: list[str], env: dict, cwd: Path) -> tuple[float, int, int, str]:
-    """(wall s, peak RSS of the process in kB, return code, stdout)."""
+def run_measured(cmd: list[str], env: dict, cwd: Path) -> tuple[float, int, int, str, float]:
+    """(wall s, peak RSS of the process in kB, return code, stdout, CPU s: user +
+    system, less sensitive than wall time to other work on the machine)."""
     r = run_child(cmd, env, cwd)
-    return r.wall_s, int(round(r.peak_rss_mb * 1024)), r.returncode, r.output
+    return r.wall_s, int(round(r.peak_rss_mb * 1024)), r.returncode, r.output, r.cpu_s
 
 
 def bench_one(n: int, configfile: str | None, tmp: Path) -> dict:
@@ -65,20 +66,20 @@ def bench_one(n: int, configfile: str | None, tmp: Path) -> dict:
         cmd += ["--mvimgnet-root", str(wd / "mvimgnet"), "--mvimgnet-ids", str(wd / "mvi.txt")]
     if n_dl:
         cmd += ["--dl3dv-root", str(wd / "dl3dv"), "--dl3dv-ids", str(wd / "dl.txt")]
-    t_sel, rss_sel, rc, text = run_measured(cmd, env, wd)
+    t_sel, rss_sel, rc, text, _ = run_measured(cmd, env, wd)
     if rc != 0:
         raise SystemExit(f"gs2e scenes failed for N={n}:\n{text[-3000:]}")
     cmd = [str(BIN / "snakemake"), "--snakefile", str(REPO / "Snakefile"), "-n", "--quiet", "rules",
            "--directory", str(wd), "--config", f"scenes={wd / 'scenes.tsv'}"]
     if configfile:
         cmd[3:3] = ["--configfile", str(Path(configfile).resolve())]
-    wall, rss_kb, rc, text = run_measured(cmd, env, wd)
+    wall, rss_kb, rc, text, cpu = run_measured(cmd, env, wd)
     if rc != 0:
         raise SystemExit(f"snakemake -n failed for N={n}:\n{text[-3000:]}")
     m = re.search(r"^total\s+(\d+)\s*$", text, re.M)
     jobs = int(m.group(1)) if m else -1
     return {"n_scenes": n, "n_mvimgnet": n_mvi, "n_dl3dv": n_dl, "jobs": jobs,
-            "dryrun_s": round(wall, 3), "ms_per_scene": round(1000 * wall / n, 2),
+            "dryrun_s": round(wall, 3), "dryrun_cpu_s": round(cpu, 3), "ms_per_scene": round(1000 * wall / n, 2),
             "peak_rss_mb": round(rss_kb / 1024, 1), "scenes_cli_s": round(t_sel, 3),
             "scenes_cli_rss_mb": round(rss_sel / 1024, 1)}
 
@@ -116,15 +117,17 @@ def main() -> int:
     fig.suptitle(f"dry-run scaling ({rows[0]['config']})")
     png = save_plot(fig, "bench_dryrun", dpi=100)
 
-    table = [f"{'scenes':>7} {'jobs':>7} {'dry-run s':>10} {'ms/scene':>9} {'peak RSS MB':>12} "
+    table = [f"{'scenes':>7} {'jobs':>7} {'dry-run s':>10} {'CPU s':>7} {'ms/scene':>9} {'peak RSS MB':>12} "
              f"{'x time':>7} {'x RSS':>6} {'gs2e scenes s':>14}"]
     for r in rows:
-        table.append(f"{r['n_scenes']:>7} {r['jobs']:>7} {r['dryrun_s']:>10.2f} {r['ms_per_scene']:>9.1f} "
+        table.append(f"{r['n_scenes']:>7} {r['jobs']:>7} {r['dryrun_s']:>10.2f} {r['dryrun_cpu_s']:>7.1f} "
+                     f"{r['ms_per_scene']:>9.1f} "
                      f"{r['peak_rss_mb']:>12.0f} {r['time_ratio_vs_first']:>7.2f} "
                      f"{r['rss_ratio_vs_first']:>6.2f} {r['scenes_cli_s']:>14.2f}")
     last = rows[-1]
     report("\n".join(table),
-           f"dry-run over {last['n_scenes']} scenes: {last['dryrun_s']:.1f} s ({last['jobs']} jobs), "
+           f"dry-run over {last['n_scenes']} scenes: {last['dryrun_s']:.1f} s, {last['dryrun_cpu_s']:.1f} CPU-s "
+           f"({last['jobs']} jobs), "
            f"{last['ms_per_scene']:.1f} ms/scene, {last['time_ratio_vs_first']:.1f}x the 1-scene run's "
            f"{base['dryrun_s']:.1f} s; peak RSS {last['peak_rss_mb']:.0f} MB "
            f"({last['rss_ratio_vs_first']:.2f}x the 1-scene run's {base['peak_rss_mb']:.0f} MB)",

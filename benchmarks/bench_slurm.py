@@ -94,11 +94,11 @@ def bench_env() -> dict:
 
 
 def run_workflow(wd: Path, scene: str, overrides: str, cores: int, env: dict,
-                 slurm: bool, timeout_s: int) -> tuple[float, str]:
+                 slurm: bool, timeout_s: int, profile: Path = PROFILE) -> tuple[float, str]:
     """Run the whole workflow in ``wd``; returns (wall s, Snakemake's output)."""
     wd.mkdir(parents=True)
     (wd / "scenes.tsv").write_text(f"scene_id\tlayout\tpath\toverrides\n{scene}\tdemo\t\t{overrides}\n")
-    extra = ["--profile", str(PROFILE)] if slurm else []
+    extra = ["--profile", str(profile)] if slurm else []
     # coreutils `timeout` as well: a stuck status check must end the run and
     # Snakemake must get the chance to cancel its Slurm jobs
     cmd = ["timeout", "-k", "30", str(timeout_s), str(BIN / "snakemake"),
@@ -150,9 +150,23 @@ def event_files(wd: Path) -> dict[str, tuple[int, str]]:
 
 
 def submissions(out: str) -> dict[str, str]:
-    """Slurm job id -> rule, from Snakemake's submission messages."""
-    return dict(re.findall(r"has been submitted with SLURM jobid (\d+) "
-                           r"\(log: .*?/slurm_logs/rule_(\w+)/", out))
+    """Slurm job id -> rule (or ``group_<name>`` for a group job), from Snakemake's
+    submission messages."""
+    return {jid: (kind + "_" + name if kind == "group" else name) for jid, kind, name in re.findall(
+        r"has been submitted with SLURM jobid (\d+) \(log: .*?/slurm_logs/(rule|group)_(\w+)/", out)}
+
+
+def ungrouped_profile(root: Path) -> Path:
+    """A copy of the Slurm profile without its job groups (one sbatch per job)."""
+    import yaml
+
+    cfg = yaml.safe_load((PROFILE / "config.yaml").read_text())
+    cfg.pop("groups", None)
+    cfg.pop("group-components", None)
+    out = root / "profile_ungrouped"
+    out.mkdir(parents=True)
+    (out / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
+    return out
 
 
 def slurm_job_times(job_ids: list[str], env: dict) -> dict[str, tuple[float, float, float]]:
@@ -206,6 +220,9 @@ def main() -> None:
     ap.add_argument("--no-warmup", action="store_true",
                     help="skip the unmeasured tiny local run that fills numba's cache first")
     ap.add_argument("--keep", action="store_true", help="keep the run directories")
+    ap.add_argument("--ungrouped", action="store_true",
+                    help="the profile without its job groups (one sbatch per job): the baseline of "
+                         "the groups' saving")
     args = ap.parse_args()
 
     reason = why_no_slurm_cluster()
@@ -217,7 +234,7 @@ def main() -> None:
     demo, scene, overrides = (("tiny demo", "tiny", TINY_OVERRIDES) if args.quick else
                               ("default demo", "demo", default_demo_overrides()))
     timeout_s = 900 if args.quick else 2400
-    name = "bench_slurm_quick" if args.quick else "bench_slurm"
+    name = ("bench_slurm_quick" if args.quick else "bench_slurm") + ("_ungrouped" if args.ungrouped else "")
     env = bench_env()
     root = Path(tempfile.mkdtemp(prefix="gs2e-bench-slurm-"))
     started, start_s, ok = False, 0.0, False
@@ -244,7 +261,8 @@ def main() -> None:
         else:
             print("local Slurm cluster already running: using it (left running)", flush=True)
         load = os.getloadavg()[0]
-        wall, out = run_workflow(root / "slurm", scene, overrides, args.cores, env, True, timeout_s)
+        profile = ungrouped_profile(root) if args.ungrouped else PROFILE
+        wall, out = run_workflow(root / "slurm", scene, overrides, args.cores, env, True, timeout_s, profile)
         runs["slurm"] = collect(root / "slurm", wall, load)
         runs["slurm"]["submitted"] = submissions(out)
         runs["slurm"]["slurm_times"] = slurm_job_times(list(runs["slurm"]["submitted"]), env)
@@ -267,8 +285,10 @@ def main() -> None:
     n_sub = len(slu["submitted"])
     if set(loc["jobs"]) != set(slu["jobs"]):
         problems.append(f"job sets differ: local {sorted(loc['jobs'])} vs Slurm {sorted(slu['jobs'])}")
-    if n_sub != n_jobs:
+    if args.ungrouped and n_sub != n_jobs:
         problems.append(f"{n_sub} sbatch submissions for {n_jobs} jobs")
+    if not args.ungrouped and not n_sub < n_jobs:
+        problems.append(f"the profile's job groups did not group: {n_sub} sbatch submissions for {n_jobs} jobs")
     for lbl, r in (("local", loc), ("Slurm", slu)):
         if r["summary_rows"] is None:
             problems.append(f"{lbl} run: results/summary.parquet missing")
@@ -296,6 +316,8 @@ def main() -> None:
         rows.append({"demo": demo, "mode": mode, "cores": args.cores, "wall_s": round(r["wall_s"], 1),
                      "ratio_vs_local": round(r["wall_s"] / loc["wall_s"], 2),
                      "jobs": len(r["jobs"]), "job_wall_sum_s": round(compute, 1),
+                     "sbatch": n_sub if mode == "slurm" else 0,
+                     "groups": ("none" if args.ungrouped else "profile") if mode == "slurm" else "",
                      "job_cpu_sum_s": round(cpu, 1),
                      "non_job_s": round(r["wall_s"] - compute, 1),
                      "overhead_per_job_s": round(overhead, 1) if mode == "slurm" else 0.0,
@@ -386,9 +408,10 @@ def main() -> None:
     print(f"overhead per job without the jobs' own times: {rows[1]['non_job_overhead_per_job_s']:.1f} s")
     for p in problems:
         print(f"PROBLEM: {p}")
-    report(None, f"full pipeline on the {demo}: local {loc['wall_s']:.0f} s, Slurm {slu['wall_s']:.0f} s "
-                 f"({slu['wall_s'] / loc['wall_s']:.1f}x), {n_jobs} jobs, {overhead:.1f} s overhead per job; "
-                 f"events {identical}", files)
+    report(None, f"full pipeline on the {demo}: local {loc['wall_s']:.0f} s, Slurm "
+                 f"({'no job groups' if args.ungrouped else 'job groups'}) {slu['wall_s']:.0f} s "
+                 f"({slu['wall_s'] / loc['wall_s']:.1f}x), {n_jobs} jobs in {n_sub} sbatch submissions, "
+                 f"{overhead:.1f} s overhead per job; events {identical}", files)
     if problems:
         sys.exit(1)
 

@@ -41,6 +41,7 @@ STAGE_CLIS = (
     "gs2e.export.cli",
     "gs2e.bench.cli",
     "gs2e.metrics.cli",
+    "gs2e.dataset.cli",
     "gs2e.report.cli",
 )
 

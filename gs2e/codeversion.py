@@ -56,6 +56,9 @@ STAGE_ENTRY: dict[str, str] = {
     "bench_summary": "gs2e.bench.cli:run_summary",
     "bench_real": "gs2e.bench.cli:run_real",
     "sim2real": "gs2e.bench.cli:run_sim2real",
+    # one CLI module, two rules: the gate reads a scene's stats files, the datasheet a whole run
+    "gate": "gs2e.dataset.cli:run_gate",
+    "datasheet": "gs2e.dataset.cli:run_datasheet",
 }
 # What every stage's command goes through before its own module.
 COMMAND_ROOTS = ("gs2e.__main__", "gs2e.cli")

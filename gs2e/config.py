@@ -30,7 +30,7 @@ SCENES_SCHEMA = SCHEMA_DIR / "scenes.schema.yaml"
 # Where files are, not what a scene computes: left out of config hashes and params.
 LOCATION_KEYS = ("scenes", "results_dir")
 
-SECTIONS = ("demo", "ingest", "sfm", "splat", "trajectory", "light", "render", "events", "metrics", "export", "bench")
+SECTIONS = ("demo", "ingest", "sfm", "splat", "trajectory", "light", "render", "events", "metrics", "dataset", "export", "bench")
 
 
 def _with_defaults(cls):

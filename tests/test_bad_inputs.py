@@ -162,6 +162,13 @@ def _empty_ply(tmp: Path) -> Path:
     return m
 
 
+def _gate_scene(t: Path) -> Path:
+    """A finished scene's stats files (SfM, training), without events."""
+    _write(t / "s" / "sfm" / "sfm_stats.json", '{"n_views": 10, "n_registered": 10}')
+    _write(t / "s" / "splat" / "train_stats.json", '{"test_psnr": 12.5, "test_ssim": 0.5}')
+    return t / "s"
+
+
 # ---------------------------------------------------------------- the probes
 @dataclass
 class Probe:
@@ -421,6 +428,23 @@ PROBES = [
                                                       b"PAR1x").parents[2],
                      "--scenes", "s", "--no-real-events", "--out", t / "out.html"],
           ("curve.parquet",), "out.html"),
+    # ---- a dataset of many scenes (gs2e.dataset)
+    cfg_probe("cfg-gate-fraction", "a share of registered views above 1",
+              "dataset:\n  min_registered_fraction: 80\n", "dataset.min_registered_fraction"),
+    Probe("gate-no-events", "gating a scene whose events were never simulated",
+          lambda t: ["gate", "--scene-dir", _gate_scene(t), "--scene-id", "s", "--runs", "base_mild",
+                     "--out", t / "out.json"], ("events/base_mild/stats.json",), "out.json"),
+    Probe("gate-fails", "a scene below its quality gates",
+          lambda t: ["gate", "--scene-dir", _gate_scene(t), "--scene-id", "s", "--out", t / "out.json",
+                     "--config-json", '{"min_test_psnr_db": 30}'],
+          ("scene 's' fails its quality gates", "held-out PSNR 12.50 dB < 30.00 dB"), "out.json"),
+    Probe("dataset-bad-config", "a dataset run with a misspelt key in its config",
+          lambda t: ["dataset", "--configfile", _yaml(t, "scenes: x.tsv\nrender:\n  fsp: 30\n")],
+          ("render.fsp",), None),
+    Probe("datasheet-no-summary", "a datasheet before the summary exists",
+          lambda t: ["datasheet", "--summary", t / "summary.parquet", "--scenes-table",
+                     _write(t / "scenes.tsv", "scene_id\tlayout\tpath\toverrides\ndemo\tdemo\t\t\n"),
+                     "--out", t / "out.md"], ("summary.parquet",), "out.md"),
     Probe("clean-missing", "cleaning a results folder that does not exist",
           lambda t: ["clean", t / "nope"], ("nope", "no such folder"), None),
 ]

@@ -34,17 +34,20 @@ from tests.conftest import REPO, TINY_OVERRIDES, planned_jobs, run_snakemake
 FEEDS: dict[str, set[str]] = {
     "demo_scene": {"ingest"},
     "ingest": {"sfm"},
-    "sfm": {"train", "trajectory"},
-    "train": {"render", "events"},
+    "sfm": {"train", "trajectory", "gate"},
+    "train": {"render", "events", "gate"},
     "trajectory": {"render", "events"},
     # events renders its own samples from the model: of the render section it
     # takes only what changes pixels (background, scale, backend; events.smk)
     "render": {"windows", "scene_metrics"},
-    "events": {"windows", "scene_metrics"},
+    "events": {"windows", "scene_metrics", "gate"},
+    # the quality gates read the SfM, training and event statistics (gs2e.dataset)
+    "gate": set(),
     # the aligned event windows of a trajectory read its frames and events
     "windows": {"scene_metrics"},
     "scene_metrics": {"summary"},
-    "summary": set(),
+    "summary": {"datasheet"},
+    "datasheet": set(),
 }
 STAGE_RULES = set(FEEDS)
 # Target-only rules that may be planned on top (rule `all` has no output; a
@@ -64,8 +67,9 @@ def downstream(*rules: str) -> set[str]:
 
 
 def test_downstream_closure():
-    assert downstream("summary") == {"summary"}
-    assert downstream("train") == {"train", "render", "events", "windows", "scene_metrics", "summary"}
+    assert downstream("summary") == {"summary", "datasheet"}
+    assert downstream("train") == {"train", "render", "events", "windows", "gate", "scene_metrics", "summary",
+                                   "datasheet"}
     assert downstream("demo_scene") == STAGE_RULES
 
 

@@ -51,9 +51,10 @@ def _snakemake(args: list[str], env: dict, timeout_s: int) -> subprocess.Complet
 
 
 def _planned_resources(out: str) -> dict[str, dict[str, str]]:
-    """rule -> {resource: value} from a dry-run's job listing."""
+    """rule -> {resource: value} from a dry-run's job listing (a group job's
+    rules are listed indented below it)."""
     res = {}
-    for rule, body in re.findall(r"^rule (\w+):\n(.*?)(?=^\S|\Z)", out, flags=re.M | re.S):
+    for rule, body in re.findall(r"^[ \t]*rule (\w+):\n(.*?)(?=^\S|\Z)", out, flags=re.M | re.S):
         m = re.search(r"^\s+resources: (.*)$", body, flags=re.M)
         if m:
             res[rule] = dict(kv.split("=", 1) for kv in m.group(1).split(", "))
@@ -180,9 +181,10 @@ def slurm_runs(cluster, tmp_path_factory):
 
 
 def _submitted(out: str) -> dict[str, str]:
-    """Slurm job id -> rule, from Snakemake's submission messages."""
-    return dict(re.findall(r"Job \d+ has been submitted with SLURM jobid (\d+) "
-                           r"\(log: .*?/slurm_logs/rule_(\w+)/", out))
+    """Slurm job id -> rule, or ``group_<name>`` for a group job (the profile's
+    job groups), from Snakemake's submission messages."""
+    return {jid: (kind + "_" + name if kind == "group" else name) for jid, kind, name in re.findall(
+        r"Job \S+ has been submitted with SLURM jobid (\d+) \(log: .*?/slurm_logs/(rule|group)_(\w+)/", out)}
 
 
 @pytest.mark.slurm
@@ -201,18 +203,20 @@ def test_demo_workflow_through_slurm(slurm_runs):
         bench = (res / "benchmarks" / f"{rule}.tsv").read_text().splitlines()
         assert bench[0].startswith("s\t") and len(bench) == 2
 
-    # Each job went through sbatch: Snakemake names its Slurm job id, the
-    # plugin kept the job's Slurm log, and slurmctld saw the job complete in
-    # the requested partition.
+    # The three sub-minute-to-minute jobs went through one sbatch (the profile's
+    # job group `prep`: input and SfM): Snakemake names its Slurm job id, the
+    # plugin kept the group's Slurm log with every rule of it, and slurmctld saw
+    # the job complete in the requested partition.
     submitted = _submitted(out)
-    assert sorted(submitted.values()) == sorted(RULES), out[-3000:]
-    for job_id, rule in submitted.items():
-        slurm_log = wd / ".snakemake" / "slurm_logs" / f"rule_{rule}" / "demo" / f"{job_id}.log"
-        assert slurm_log.is_file(), f"no Slurm log for {rule}: {slurm_log}"
-        text = slurm_log.read_text()
-        assert "slurm-jobstep" in text and f"rule {rule}:" in text
+    # the plugin names a group job's log folder group_<group>_<its rules>
+    assert len(submitted) == 1 and list(submitted.values())[0].startswith("group_prep"), out[-3000:]
+    for job_id in submitted:
+        logs = list((wd / ".snakemake" / "slurm_logs").glob(f"group_prep*/**/{job_id}.log"))
+        assert len(logs) == 1, f"no Slurm log for group prep (job {job_id})"
+        text = logs[0].read_text()
+        assert "slurm-jobstep" in text and all(f"rule {rule}:" in text for rule in RULES), text[-2000:]
         state, partition, _ = slurm_runs["history"][job_id]
-        assert state == "COMPLETED" and partition == "gs2e", (rule, state, partition)
+        assert state == "COMPLETED" and partition == "gs2e", (state, partition)
 
 
 @pytest.mark.slurm

@@ -19,7 +19,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run_metrics)
 
     s = sub.add_parser("summary", help="concatenate scene metrics tables into the dataset summary")
-    s.add_argument("tables", nargs="+", help="scene metrics.parquet files")
+    s.add_argument("tables", nargs="*", help="scene metrics.parquet files")
+    s.add_argument("--status", default=None, help="scene_status.parquet of `gs2e dataset`: each scene's "
+                   "status joins its rows, and a failed scene without a table becomes one row")
     s.add_argument("--out", required=True, help="parquet file (written atomically)")
     s.set_defaults(func=run_summary)
 
@@ -43,7 +45,7 @@ def run_summary(args: argparse.Namespace) -> int:
     from gs2e.common.atomic import atomic_path
     from gs2e.metrics.collect import summary
 
-    df = summary(args.tables)
+    df = summary(args.tables, args.status)
     with atomic_path(args.out) as tmp:
         df.to_parquet(tmp, index=False)
     logging.getLogger("gs2e.metrics").info("summary: %d rows from %d scene tables", len(df), len(args.tables))

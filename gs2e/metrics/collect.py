@@ -90,6 +90,20 @@ def scene_table(scene_dir: str | Path, scene_id: str, trajectories: list[str], c
     return pd.DataFrame(rows)
 
 
-def summary(tables: list[str | Path]) -> pd.DataFrame:
-    """Concatenate scene tables (one row per scene x trajectory)."""
-    return read_metrics(tables)
+def summary(tables: list[str | Path], status: str | Path | None = None) -> pd.DataFrame:
+    """Concatenate scene tables (one row per scene x trajectory).
+
+    With ``status`` (the ``scene_status.parquet`` of ``gs2e dataset``,
+    :mod:`gs2e.dataset.status`), every row gets its scene's ``status``
+    (passed / failed), ``failed_stage`` and ``fail_reason``, and a failed scene
+    without a table becomes one row with only those (the rest missing).
+    """
+    df = read_metrics(tables) if tables else pd.DataFrame({"scene_id": pd.Series([], dtype=object)})
+    if status is None:
+        return df
+    st = pd.read_parquet(status)[["scene_id", "status", "failed_stage", "reason"]]
+    st = st.rename(columns={"reason": "fail_reason"})
+    df = df.drop(columns=[c for c in ("status", "failed_stage", "fail_reason") if c in df.columns])
+    out = df.merge(st, on="scene_id", how="left")
+    out["status"] = out["status"].fillna("passed")  # a scene the status table does not list
+    return pd.concat([out, st[~st["scene_id"].isin(df["scene_id"])]], ignore_index=True)

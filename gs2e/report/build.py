@@ -365,6 +365,31 @@ def _bench_section(results_dir: Path, scenes: list[str]) -> H.Section:
     return sec
 
 
+def _card_section(results_dir: Path, summary: pd.DataFrame | None) -> H.Section:
+    """The dataset page: one row per scene (status, views, registered views,
+    held-out PSNR/SSIM, Gaussians, events, CPU) and the distributions across
+    scenes (:mod:`gs2e.dataset.card`)."""
+    from gs2e.dataset.card import card_table
+
+    sec = H.Section("Dataset card", anchor="dataset")
+    status = R.read_scene_status(results_dir)
+    card = card_table(summary, status, R.scene_cpu_min(results_dir))
+    if card.empty:
+        sec.add(H.missing(f"dataset summary {results_dir / 'summary.parquet'}"))
+        return sec
+    n_fail = int((card["status"] == "failed").sum())
+    sec.add(H.paragraph(f"{len(card)} scene(s): {len(card) - n_fail} passed their quality gates, {n_fail} "
+                        "failed (reason per scene; a failed scene is not exported). Units: psnr_db dB, "
+                        "cpu_min CPU minutes of all the scene's jobs; events summed over its runs. The "
+                        "datasheet: datasheet.md beside this report."))
+    sec.add(H.table(card))
+    fig = P.card_figure(card)
+    if fig is not None:
+        sec.add(H.image(P.fig_png(fig), "distributions across scenes",
+                        "across scenes: passed filled, failed outlined"))
+    return sec
+
+
 def build_report(results_dir: str | Path, real_events: str | Path | None = None,
                  scenes: list[str] | None = None, cfg: MetricsSettings | None = None,
                  timings: dict[str, float] | None = None) -> str:
@@ -400,6 +425,10 @@ def build_report(results_dir: str | Path, real_events: str | Path | None = None,
                            "column units are in their names (_s seconds, _us microseconds, "
                            "_px pixels, _meps million events/s, _ms milliseconds, psnr dB)."))
         ov.add(H.table(overview_table(sub)))
+    sections.append(_card_section(results_dir, summary))
+    if summary is not None and "status" in summary and not scenes:  # failed scenes: on the card only
+        failed = set(summary.loc[summary["status"] == "failed", "scene_id"].astype(str))
+        all_scenes = [s for s in all_scenes if s not in failed]
     wb = R.read_benchmarks(results_dir / "benchmarks")
     if wb is not None:
         ov.add(H.image(P.fig_png(P.benchmark_figure(wb, "dataset-level jobs")), "dataset-level jobs"))

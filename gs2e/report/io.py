@@ -40,6 +40,11 @@ def read_summary(results_dir: Path) -> pd.DataFrame | None:
     return _read_parquet(Path(results_dir) / "summary.parquet")
 
 
+def read_scene_status(results_dir: Path) -> pd.DataFrame | None:
+    """The status table ``gs2e dataset`` wrote (gs2e.dataset.status), or None."""
+    return _read_parquet(Path(results_dir) / "scene_status.parquet")
+
+
 def list_scenes(results_dir: Path, summary: pd.DataFrame | None) -> list[str]:
     """Scene ids: those of the summary, else every sub-folder with a metrics
     table or a trained model."""
@@ -151,6 +156,17 @@ def read_results_benchmarks(results_dir: Path) -> list[dict]:
             scene = f.parent.parent.name if f.parent.parent != results_dir else None
             out.append({"scene": scene, "job": f.stem, "path": f, **row})
     return out
+
+
+def scene_cpu_min(results_dir: Path) -> dict[str, float]:
+    """CPU minutes of every scene's jobs (:func:`read_results_benchmarks`: exact
+    where the job's log has gs2e's usage line)."""
+    cpu: dict[str, float] = {}
+    for r in read_results_benchmarks(Path(results_dir)):
+        v = r.get("cpu_time", float("nan"))
+        if r["scene"] is not None and np.isfinite(v):
+            cpu[r["scene"]] = cpu.get(r["scene"], 0.0) + v / 60.0
+    return cpu
 
 
 def read_frames_index(frames_dir: Path) -> pd.DataFrame | None:

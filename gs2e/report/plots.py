@@ -273,3 +273,41 @@ def event_preview(ev: Events, shape: tuple[int, int], t0_us: int, t1_us: int,
     img[net > 0] = ON_RGB
     img[net < 0] = OFF_RGB
     return img
+
+
+# The card's columns the dataset page draws, with their axis labels.
+CARD_DISTRIBUTIONS = (("psnr_db", "held-out PSNR (dB)", False), ("ssim", "held-out SSIM", False),
+                      ("gaussians", "Gaussians", True), ("events", "events (all runs)", True),
+                      ("cpu_min", "CPU-min per scene", False), ("registered", "registered views", False))
+
+
+def card_figure(card: pd.DataFrame) -> Figure | None:
+    """Histograms across scenes of the dataset card's columns (passed scenes
+    filled, failed ones outlined); None when no column has a value."""
+    cols = [(c, lab, lg) for c, lab, lg in CARD_DISTRIBUTIONS
+            if c in card and pd.to_numeric(card[c], errors="coerce").notna().any()]
+    if not cols:
+        return None
+    fig = new_figure(3.0 * len(cols), 2.6)
+    axes = fig.subplots(1, len(cols), squeeze=False)[0]
+    ok = card["status"].eq("passed") if "status" in card else pd.Series(True, index=card.index)
+    for ax, (c, label, log_x) in zip(axes, cols):
+        v = pd.to_numeric(card[c], errors="coerce")
+        allv = v.dropna().to_numpy(float)
+        if log_x:
+            allv = allv[allv > 0]
+        if allv.size == 0:
+            continue
+        lo, hi = allv.min(), allv.max()
+        bins = (np.geomspace(lo, hi * 1.0001, 9) if log_x and hi > lo else
+                np.linspace(lo, hi + (1e-9 if hi == lo else 0.0), 9))
+        ax.hist(v[ok].dropna(), bins=bins, color="tab:blue", label="passed")
+        if (~ok).any() and v[~ok].notna().any():
+            ax.hist(v[~ok].dropna(), bins=bins, histtype="step", color="tab:red", lw=1.5, label="failed")
+            ax.legend(fontsize=7)
+        if log_x:
+            ax.set_xscale("log")
+        ax.set_xlabel(label)
+        ax.set_ylabel("scenes")
+        ax.grid(alpha=0.3)
+    return fig

@@ -1,5 +1,7 @@
 # Shared wiring: validated config, the scenes table, per-scene parameters.
+import functools
 import json
+import os
 import shlex
 import sys
 from pathlib import Path
@@ -15,7 +17,23 @@ from gs2e.light.settings import condition_json, run_names, split_run
 # Reject invalid config / scenes table before any job runs.
 config = load_config(config)
 SCENES = {row["scene_id"]: row for row in load_scenes(config["scenes"])}
-SCENE_CFG = {sid: scene_config(config, row) for sid, row in SCENES.items()}
+
+
+def scene_configs(config, scenes):
+    """{scene id: its validated config}. A scene's config depends on its overrides
+    only, so scenes with the same overrides share one (validated once, read-only):
+    at the paper's scale thousands of scenes have one or two distinct overrides, and
+    validating each took 80 ms (docs/scale.md, planning)."""
+    by_overrides, out = {}, {}
+    for sid, row in scenes.items():
+        key = row.get("overrides", "")
+        if key not in by_overrides:
+            by_overrides[key] = scene_config(config, row)
+        out[sid] = by_overrides[key]
+    return out
+
+
+SCENE_CFG = scene_configs(config, SCENES)
 RESULTS = config["results_dir"]
 ENV = "../../envs/gs2e.yaml"  # used with --sdm conda (relative to the rule files)
 
@@ -137,12 +155,16 @@ def train_runtime_min(wc, attempt):
 def sensor_size(sid):
     """The event sensor's pixel array 'WxH' of a scene (None: no sensor)."""
     ev = SCENE_CFG[sid]["events"]
-    if ev["sensor"] is None:
-        return None
+    return None if ev["sensor"] is None else _sensor_size(section_json(SCENE_CFG[sid], "events"))
+
+
+@functools.lru_cache(maxsize=None)
+def _sensor_size(events_json):
+    """'WxH' of an events section (as JSON): computed once per distinct section."""
     from gs2e.events.sensors import get_sensor
     from gs2e.events.settings import event_settings
 
-    w, h = get_sensor(event_settings(ev)).size
+    w, h = get_sensor(event_settings(json.loads(events_json))).size
     return f"{w}x{h}"
 
 
@@ -242,11 +264,31 @@ REAL_VIDEO = list(config["bench"]["real_video"])
 SIM2REAL = [res(sid, "sim2real") for sid in SCENES if SCENE_CFG[sid]["bench"]["sim2real"]]
 
 
+# Each scene's status from the last `gs2e dataset` (gs2e.dataset.run, which writes it):
+# the scenes that failed are left out of the dataset-wide summary, report and datasheet,
+# which list them with their reasons. A plain `snakemake` never writes it.
+STATUS = res("scene_status.parquet")
+FAILED = {}
+if os.path.exists(STATUS):
+    from gs2e.dataset.status import read_failed
+
+    FAILED = read_failed(STATUS)
+GOOD = [sid for sid in SCENES if sid not in FAILED]
+
+
+def scene_outputs(sid):
+    """Everything one scene makes: its products, metrics table, quality gate,
+    exports and bench tables."""
+    return (scene_products(sid) + [res(sid, "metrics.parquet"), res(sid, "gate.json")]
+            + scene_exports(sid) + scene_bench(sid))
+
+
 def all_targets():
     """The dataset summary (which needs every scene's metrics and products),
     the HTML report, the configured exports and, with bench.tasks, the bench
     table; with bench.real_video, the real recordings' table; with bench.sim2real,
     the scene's sim-to-real folder."""
-    return ([res("summary.parquet"), res("report.html")] + [p for sid in SCENES for p in scene_exports(sid)]
+    return ([res("summary.parquet"), res("report.html"), res("datasheet.md")]
+            + [p for sid in GOOD for p in [res(sid, "gate.json")] + scene_exports(sid)]
             + ([res("bench.parquet")] if BENCH else []) + ([res("bench_real.parquet")] if REAL_VIDEO else [])
             + SIM2REAL)

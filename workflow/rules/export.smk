@@ -33,6 +33,7 @@ rule export:
         windows=res("{scene}", "windows", "{traj}.parquet"),
         trajectories=res("{scene}", "trajectories"),
         sfm=res("{scene}", "sfm"),
+        gate=res("{scene}", "gate.json"),  # a scene that fails its quality gates is not exported
     output:
         directory(res("{scene}", "export", "{fmt}", "{traj}")),
     params:

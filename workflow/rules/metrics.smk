@@ -6,7 +6,7 @@ REAL_EVENTS = config["metrics"]["real_events"]
 def report_inputs(wildcards):
     """The summary, every scene's products and the real recording if configured."""
     out = {"summary": res("summary.parquet"),
-           "products": [p for sid in SCENES for p in scene_products(sid)]}
+           "products": [p for sid in GOOD for p in scene_products(sid)]}
     if REAL_EVENTS:
         out["real"] = REAL_EVENTS
     if BENCH:
@@ -42,12 +42,22 @@ rule scene_metrics:
         " --seeds-json {params.seeds:q} --out {output:q} 2> {log:q}"
 
 
+def summary_inputs(wildcards):
+    """The metrics of the scenes that did not fail, and the status table when
+    `gs2e dataset` wrote one (its failed scenes become rows with their reasons)."""
+    out = {"tables": [res(sid, "metrics.parquet") for sid in GOOD]}
+    if os.path.exists(STATUS):
+        out["status"] = STATUS
+    return out
+
+
 rule summary:
     input:
-        [res(sid, "metrics.parquet") for sid in SCENES],
+        unpack(summary_inputs),
     output:
         res("summary.parquet"),
     params:
+        status=lambda wc, input: f"--status {shlex.quote(input.status)}" if "status" in input.keys() else "",
         code=code_version("metrics"),
     conda:
         ENV
@@ -57,7 +67,7 @@ rule summary:
         res("benchmarks", "summary.tsv")
     threads: 1
     shell:
-        "{GS2E} summary {input:q} --out {output:q} 2> {log:q}"
+        "{GS2E} summary {input.tables:q} {params.status} --out {output:q} 2> {log:q}"
 
 
 rule report:
@@ -68,7 +78,7 @@ rule report:
                caption="../report/gs2e_report.rst"),
     params:
         cfg=section_json(config, "metrics"),  # carries real_events
-        scenes=" ".join(SCENES),
+        scenes=" ".join(GOOD),
         code=code_version("report"),
     conda:
         ENV

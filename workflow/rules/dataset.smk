@@ -1,0 +1,57 @@
+# A dataset of many scenes (gs2e.dataset, docs/dataset.md): each scene's quality gates
+# and the datasheet (the target `gs2e dataset` runs with --keep-going, rule `scenes`,
+# is in the Snakefile beside `all`).
+
+
+# The datasheet (Gebru et al.): the scenes, their sources and terms read from the input
+# folders, the gates, the statistics and the scenes that failed (gs2e.dataset.card).
+def datasheet_inputs(wildcards):
+    out = {"summary": res("summary.parquet"), "scenes": config["scenes"]}
+    if os.path.exists(STATUS):
+        out["status"] = STATUS
+    return out
+
+
+rule gate:
+    input:
+        sfm=res("{scene}", "sfm"),
+        splat=res("{scene}", "splat"),
+        events=lambda wc: [res(wc.scene, "events", t) for t in scene_runs(wc.scene)],
+    output:
+        res("{scene}", "gate.json"),
+    params:
+        cfg=stage_cfg("dataset"),
+        runs=lambda wc: " ".join(scene_runs(wc.scene)),
+        scene_dir=lambda wc: res(wc.scene),
+        code=code_version("gate"),
+    conda:
+        ENV
+    log:
+        res("{scene}", "logs", "gate.log"),
+    benchmark:
+        res("{scene}", "benchmarks", "gate.tsv")
+    threads: 1
+    shell:
+        "{GS2E} gate --scene-dir {params.scene_dir:q} --scene-id {wildcards.scene} --runs {params.runs}"
+        " --out {output:q} --config-json {params.cfg:q} 2> {log:q}"
+
+
+rule datasheet:
+    input:
+        unpack(datasheet_inputs),
+    output:
+        res("datasheet.md"),
+    params:
+        cfg=section_json(config, "dataset"),
+        status=lambda wc, input: f"--status {shlex.quote(input.status)}" if "status" in input.keys() else "",
+        code=code_version("datasheet"),
+    conda:
+        ENV
+    log:
+        res("logs", "datasheet.log"),
+    benchmark:
+        res("benchmarks", "datasheet.tsv")
+    threads: 1
+    shell:
+        "{GS2E} datasheet --summary {input.summary:q} {params.status} --scenes-table {input.scenes:q}"
+        " --out {output:q} --config-json {params.cfg:q} 2> {log:q}"
