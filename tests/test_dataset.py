@@ -48,6 +48,13 @@ def test_measure_reads_the_stats_and_takes_the_least_events_per_pixel(tmp_path):
     assert v["n_events"] == 1050
 
 
+def test_measure_never_passes_on_a_run_without_a_count(tmp_path):
+    # NaN first or last: min() would depend on the order; the gate's value is missing either way
+    for runs in ((("a", 1000, 10, 10), ("b", None, 10, 10)), (("b", None, 10, 10), ("a", 1000, 10, 10))):
+        d = _scene(tmp_path / f"s{runs[0][0]}", runs=runs)
+        assert math.isnan(measure(d, ["a", "b"])["events_per_pixel"])
+
+
 def test_measure_names_a_missing_stats_file(tmp_path):
     d = _scene(tmp_path / "s")
     with pytest.raises(InputError, match="events/zz/stats.json"):
@@ -61,7 +68,7 @@ def test_gates_pass_fail_and_missing():
     bad = {"registered_fraction": 0.5, "test_psnr_db": 19.99, "events_per_pixel": 0.0}
     reasons = failed_gates(bad, cfg)
     assert len(reasons) == 3
-    assert "registered views 50% < 80%" in reasons[0] and "dataset.min_registered_fraction" in reasons[0]
+    assert "registered views 50.0% < 80.0%" in reasons[0] and "dataset.min_registered_fraction" in reasons[0]
     assert "19.99 dB < 20.00 dB" in reasons[1]
     # a value that was not measured fails as missing, never passes
     reasons = failed_gates({**good, "test_psnr_db": math.nan}, cfg)
@@ -141,8 +148,11 @@ def test_summary_joins_the_status_and_keeps_failed_scenes_as_rows(tmp_path):
     assert list(s["scene_id"]) == ["ok", "ok", "bad"]
     assert list(s["status"]) == ["passed", "passed", "failed"]
     assert s.loc[2, "fail_reason"] == "registered 2 of 9 views" and np.isnan(s.loc[2, "train_test_psnr"])
-    # every scene failed: the summary is the failed rows alone
-    assert list(summary([], tmp_path / "st.parquet")["scene_id"]) == ["ok", "bad"]
+    # no tables at all: the failed scenes' rows alone (a passed scene without a table is not invented)
+    assert list(summary([], tmp_path / "st.parquet")["scene_id"]) == ["bad"]
+    # a table that is not a status table is named
+    with pytest.raises(InputError, match="ok.parquet: not a scene status table"):
+        summary([tmp_path / "ok.parquet"], tmp_path / "ok.parquet")
 
 
 # ------------------------------------------------------------------ card

@@ -20,6 +20,7 @@ import pandas as pd
 
 from gs2e.common.settings import require
 from gs2e.dataset.settings import DatasetSettings
+from gs2e.dataset.status import stage_label
 
 # Per-scene columns of the card, in order (units in the names: CPU minutes,
 # dB; counts otherwise).
@@ -134,8 +135,7 @@ def card_table(summary: pd.DataFrame, status: pd.DataFrame | None, cpu_min: dict
         for r in status.itertuples():
             row = rows.setdefault(r.scene_id, {"scene_id": r.scene_id})
             row["status"] = r.status
-            row["reason"] = (f"{r.failed_stage}: {r.reason}" if r.failed_stage else r.reason) \
-                if r.status == "failed" else None
+            row["reason"] = f"{stage_label(r.failed_stage)}: {r.reason}" if r.status == "failed" else None
             for k, v in (("views", r.n_views), ("registered", r.n_registered), ("psnr_db", r.test_psnr_db),
                          ("ssim", r.test_ssim), ("gaussians", r.n_gaussians), ("events", r.n_events)):
                 if pd.isna(row.get(k, np.nan)):

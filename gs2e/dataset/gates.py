@@ -27,7 +27,7 @@ from gs2e.dataset.settings import DatasetSettings
 
 # gate -> (threshold key of the dataset section, what it is, how a value reads)
 GATES = {
-    "registered_fraction": ("min_registered_fraction", "registered views", "{:.0%}"),
+    "registered_fraction": ("min_registered_fraction", "registered views", "{:.1%}"),
     "test_psnr_db": ("min_test_psnr_db", "held-out PSNR", "{:.2f} dB"),
     "events_per_pixel": ("min_events_per_pixel", "events per pixel", "{:.3g}"),
 }
@@ -82,7 +82,8 @@ def measure(scene_dir: str | Path, runs: list[str]) -> dict[str, float]:
     return {
         "registered_fraction": n_reg / n_views if n_views > 0 else math.nan,
         "test_psnr_db": _finite(train.get("test_psnr")),
-        "events_per_pixel": min(per_pixel) if per_pixel else math.nan,
+        # the least over the runs; NaN if any run's count is missing (never passed on a gap)
+        "events_per_pixel": math.nan if not per_pixel or any(map(math.isnan, per_pixel)) else min(per_pixel),
         "n_views": n_views, "n_registered": n_reg,
         "test_ssim": _finite(train.get("test_ssim")),
         "n_gaussians": _finite(train.get("n_gaussians")),

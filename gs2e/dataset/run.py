@@ -1,8 +1,10 @@
 """``gs2e dataset``: the workflow over many scenes, a scene's failure recorded
 instead of stopping the others.
 
-1. The config files are loaded and validated, and the scenes table read, before
-   any job runs (a bad key or row: one line, exit 2, nothing run).
+1. The config files are loaded and validated (after the workflow's own
+   ``config/config.yaml``, as Snakemake merges them), and the scenes table read;
+   then ``snakemake -n`` plans the run. A bad key, row or plan: one line, exit
+   2, nothing run.
 2. ``snakemake --keep-going scenes``: every scene's own outputs (rule ``scenes``);
    a failed job stops only the jobs that need its outputs.
 3. ``snakemake --summary scenes``: every output each scene should make, with its
@@ -10,10 +12,13 @@ instead of stopping the others.
    status, written to ``<results_dir>/scene_status.parquet``.
 4. ``snakemake``: the dataset's summary, report and datasheet over the scenes that
    passed, the failed ones as rows with their reasons (the workflow reads the
-   status table: ``workflow/rules/dataset.smk``).
-5. The last line says how many scenes passed and why the others failed;
-   the exit status is 0 when all passed and 3 when some failed
-   (:data:`EXIT_SCENES_FAILED`).
+   status table: ``workflow/rules/common.smk``).
+5. The last line of its standard output says how many scenes passed and why
+   the others failed (the first ten); the exit status is 0 when all passed
+   and 3 when some failed (:data:`EXIT_SCENES_FAILED`).
+
+It runs in the current folder (where the Snakefile is, or ``-- --snakefile
+PATH``); relative paths of the config (scenes table, results) are read from there.
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ import sys
 import time
 from pathlib import Path
 
-from gs2e.common.errors import GS2EError
+from gs2e.common.errors import ConfigError, GS2EError
 
 log = logging.getLogger("gs2e.dataset")
 
@@ -44,7 +49,14 @@ def _snakemake(configfiles: list[str], cores: str, extra: list[str], *args: str,
     cmd = [sys.executable, "-m", "snakemake", "--cores", str(cores), "--configfile", *configfiles,
            *extra, *args]
     log.info("running: %s", " ".join(cmd))
-    return subprocess.run(cmd, text=True, stdout=subprocess.PIPE if capture else None)
+    return subprocess.run(cmd, text=True, stdout=subprocess.PIPE if capture else None,
+                          stderr=subprocess.STDOUT if capture else None)
+
+
+def _last_error(text: str) -> str:
+    """Snakemake's error in a captured output: its last non-empty lines, joined."""
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    return " ".join(lines[-3:])[:500] if lines else "no message"
 
 
 def run_dataset(configfiles: list[str], cores: str = "all", extra: list[str] | None = None) -> int:
@@ -69,12 +81,22 @@ def run_dataset(configfiles: list[str], cores: str = "all", extra: list[str] | N
     from gs2e.dataset.status import read_snakemake_summary, scene_status, status_line, write_status
 
     extra = list(extra or [])
+    for a in extra:
+        if a in ("-d", "--directory") or a.startswith("--directory="):
+            raise ConfigError("run it in the workflow's folder (cd there) instead of "
+                              "passing --directory to Snakemake")
+    dry = any(a in ("-n", "--dry-run", "--dryrun") or (a.startswith("-") and not a.startswith("--")
+                                                        and "n" in a[1:]) for a in extra)
     merged: dict = {}
-    for f in configfiles:
+    snakefile = next((extra[i + 1] for i, a in enumerate(extra[:-1]) if a in ("-s", "--snakefile")), "Snakefile")
+    base = Path(snakefile).resolve().parent / "config" / "config.yaml"  # the Snakefile's configfile
+    for f in ([str(base)] if base.is_file() else []) + list(configfiles):
         try:
             merged = deep_merge(merged, yaml.safe_load(Path(f).read_text()) or {})
         except OSError as exc:
-            raise GS2EError(f"{f}: cannot be read ({exc.strerror})") from None
+            raise ConfigError(f"cannot read config file {f}: {exc.strerror}") from None
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"config file {f} is not valid YAML: {exc}") from None
     cfg = load_config(merged)
     scenes = load_scenes(cfg["scenes"])
     for row in scenes:
@@ -84,11 +106,17 @@ def run_dataset(configfiles: list[str], cores: str = "all", extra: list[str] | N
     log.info("dataset: %d scenes from %s into %s", len(ids), cfg["scenes"], results)
     t0 = time.monotonic()
 
+    plan = _snakemake(configfiles, cores, [a for a in extra if a not in ("-n", "--dry-run", "--dryrun")],
+                      "scenes", "--dry-run", "--quiet", "rules", capture=True)
+    if plan.returncode:
+        raise WorkflowFailed(f"snakemake cannot plan the run (exit {plan.returncode}): "
+                             f"{_last_error(plan.stdout)}")
+    if dry:
+        print(plan.stdout, end="")
+        return 0
     run = _snakemake(configfiles, cores, extra, "--keep-going", "scenes")
     if run.returncode:
         log.warning("some jobs failed (snakemake exit %d); recording which scenes and why", run.returncode)
-    if "-n" in extra or "--dry-run" in extra:
-        return 0
     summ = _snakemake(configfiles, cores, [a for a in extra if a != "--keep-going"], "--summary", "scenes",
                       capture=True)
     if summ.returncode:

@@ -111,8 +111,12 @@ def scene_status(results_dir: str | Path, outputs: dict[str, list[tuple[str, str
         if not outs:
             row.update(status="failed", reason="the workflow planned no outputs for this scene")
         elif missing:
+            # the failed logs of the jobs whose outputs are missing; without those in
+            # Snakemake's record (its metadata dropped), every failed log of the scene
             logs = {Path(log).resolve() for _, log in missing if log and log != "-"}
-            fails = [f for f in failed_jobs(sdir / "logs") if (sdir / "logs" / f"{f[1]}.log").resolve() in logs]
+            fails = failed_jobs(sdir / "logs")
+            if logs:
+                fails = [f for f in fails if (sdir / "logs" / f"{f[1]}.log").resolve() in logs]
             if fails:
                 stage, job, reason = fails[0]
             else:
@@ -161,6 +165,12 @@ def write_status(table: pd.DataFrame, path: str | Path) -> bool:
     return True
 
 
+def stage_label(value) -> str:
+    """A failed scene's stage for its reason ('run' when no job's log failed;
+    the table's missing stage may read None or NaN)."""
+    return value if isinstance(value, str) and value else "run"
+
+
 def read_failed(path: str | Path) -> dict[str, str]:
     """{scene id: "stage: reason"} of the failed scenes of a status table ({} if absent)."""
     p = Path(path)
@@ -168,7 +178,7 @@ def read_failed(path: str | Path) -> dict[str, str]:
         return {}
     t = pd.read_parquet(p)
     t = t[t["status"] == "failed"]
-    return {r.scene_id: f"{r.failed_stage or 'run'}: {r.reason}" for r in t.itertuples()}
+    return {r.scene_id: f"{stage_label(r.failed_stage)}: {r.reason}" for r in t.itertuples()}
 
 
 def status_line(table: pd.DataFrame, max_listed: int = 10) -> str:
@@ -179,7 +189,7 @@ def status_line(table: pd.DataFrame, max_listed: int = 10) -> str:
     failed = table[table["status"] == "failed"]
     if failed.empty:
         return f"dataset: all {n} scenes passed"
-    why = "; ".join(f"{r.scene_id} ({r.failed_stage or 'run'}: {r.reason})"
+    why = "; ".join(f"{r.scene_id} ({stage_label(r.failed_stage)}: {r.reason})"
                     for r in failed.head(max_listed).itertuples())
     if len(failed) > max_listed:
         why += f"; and {len(failed) - max_listed} more (scene_status.parquet)"

@@ -101,9 +101,14 @@ def summary(tables: list[str | Path], status: str | Path | None = None) -> pd.Da
     df = read_metrics(tables) if tables else pd.DataFrame({"scene_id": pd.Series([], dtype=object)})
     if status is None:
         return df
-    st = pd.read_parquet(status)[["scene_id", "status", "failed_stage", "reason"]]
+    cols = ["scene_id", "status", "failed_stage", "reason"]
+    st = read_table(status)
+    if set(cols) - set(st.columns):
+        raise InputError(f"{status}: not a scene status table (no column {sorted(set(cols) - set(st.columns))[0]})")
+    st = st[cols]
     st = st.rename(columns={"reason": "fail_reason"})
     df = df.drop(columns=[c for c in ("status", "failed_stage", "fail_reason") if c in df.columns])
     out = df.merge(st, on="scene_id", how="left")
     out["status"] = out["status"].fillna("passed")  # a scene the status table does not list
-    return pd.concat([out, st[~st["scene_id"].isin(df["scene_id"])]], ignore_index=True)
+    lost = st[(st["status"] == "failed") & ~st["scene_id"].isin(df["scene_id"])]
+    return pd.concat([out, lost], ignore_index=True)

@@ -415,6 +415,9 @@ def build_report(results_dir: str | Path, real_events: str | Path | None = None,
             raise InputError(f"{results_dir}: no results for scene(s) {', '.join(unknown)}")
         all_scenes = list(scenes)
 
+    if summary is not None and "status" in summary and not scenes:  # failed scenes: on the card only
+        failed = set(summary.loc[summary["status"] == "failed", "scene_id"].astype(str))
+        all_scenes = [s for s in all_scenes if s not in failed]
     sections = []
     ov = H.Section("Dataset overview", anchor="overview")
     if summary is None:
@@ -425,14 +428,11 @@ def build_report(results_dir: str | Path, real_events: str | Path | None = None,
                            "column units are in their names (_s seconds, _us microseconds, "
                            "_px pixels, _meps million events/s, _ms milliseconds, psnr dB)."))
         ov.add(H.table(overview_table(sub)))
-    sections.append(_card_section(results_dir, summary))
-    if summary is not None and "status" in summary and not scenes:  # failed scenes: on the card only
-        failed = set(summary.loc[summary["status"] == "failed", "scene_id"].astype(str))
-        all_scenes = [s for s in all_scenes if s not in failed]
     wb = R.read_benchmarks(results_dir / "benchmarks")
     if wb is not None:
         ov.add(H.image(P.fig_png(P.benchmark_figure(wb, "dataset-level jobs")), "dataset-level jobs"))
     sections.append(ov)
+    sections.append(_card_section(results_dir, summary))
 
     with timed("speed against error", log, timings):
         tr = H.Section("Speed against error (training)", anchor="training")

@@ -41,7 +41,7 @@ rule bench:
 
 rule bench_summary:
     input:
-        [t for sid in SCENES for t in scene_bench(sid)],
+        [t for sid in GOOD for t in scene_bench(sid)],
     output:
         res("bench.parquet"),
     params:

@@ -237,6 +237,18 @@ def scene_products(sid):
     return out
 
 
+# Each scene's status from the last `gs2e dataset` (gs2e.dataset.run, which writes it):
+# the scenes that failed are left out of the dataset-wide summary, report and datasheet,
+# which list them with their reasons. A plain `snakemake` never writes it.
+STATUS = res("scene_status.parquet")
+FAILED = {}
+if os.path.exists(STATUS):
+    from gs2e.dataset.status import read_failed
+
+    FAILED = read_failed(STATUS)
+GOOD = [sid for sid in SCENES if sid not in FAILED]
+
+
 def scene_exports(sid):
     """The exports export.formats asks for, one per format and exported
     trajectory (export.trajectories; null: every rendered one)."""
@@ -252,7 +264,7 @@ def scene_bench(sid):
 
 
 # The dataset's bench table exists when any scene runs a benchmark task.
-BENCH = any(scene_bench(sid) for sid in SCENES)
+BENCH = any(scene_bench(sid) for sid in GOOD)
 
 
 # Real recordings the video task's methods run on once (bench.real_video; load_config
@@ -261,19 +273,7 @@ REAL_VIDEO = list(config["bench"]["real_video"])
 
 
 # Scenes with a real recording to compare with (bench.sim2real): their sim2real folders.
-SIM2REAL = [res(sid, "sim2real") for sid in SCENES if SCENE_CFG[sid]["bench"]["sim2real"]]
-
-
-# Each scene's status from the last `gs2e dataset` (gs2e.dataset.run, which writes it):
-# the scenes that failed are left out of the dataset-wide summary, report and datasheet,
-# which list them with their reasons. A plain `snakemake` never writes it.
-STATUS = res("scene_status.parquet")
-FAILED = {}
-if os.path.exists(STATUS):
-    from gs2e.dataset.status import read_failed
-
-    FAILED = read_failed(STATUS)
-GOOD = [sid for sid in SCENES if sid not in FAILED]
+SIM2REAL = [res(sid, "sim2real") for sid in GOOD if SCENE_CFG[sid]["bench"]["sim2real"]]
 
 
 def scene_outputs(sid):
