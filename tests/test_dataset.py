@@ -110,24 +110,25 @@ def test_scene_status_from_snakemake_summary(tmp_path):
     ok = _scene(root / "ok")
     (ok / "gate.json").write_text(json.dumps({"values": measure(ok, ["a"])}))
     bad = _scene(root / "bad", psnr=12.0)
-    _log(bad, "gate", "gs2e gate: error: scene 'bad' fails its quality gates: held-out PSNR 12.00 dB < 20.00 dB\n")
+    _log(bad, "model_gate", "gs2e gate: error: scene 'bad' fails its quality gates: held-out PSNR 12.00 dB < 20.00 dB\n")
     _log(bad, "sfm", "gs2e sfm finished in 1 s\n")
     late = root / "late"  # nothing ran, no log: interrupted
     late.mkdir(parents=True)
     rows = ["output_file\tdate\trule\tlog-file(s)\tstatus\tplan"]
     for sid in ("ok", "bad", "late"):
-        for rel, rule in (("sfm", "sfm"), ("gate.json", "gate")):
+        for rel, rule in (("sfm", "sfm"), ("model_gate.json", "model_gate"), ("gate.json", "gate")):
             rows.append(f"{root / sid / rel}\t-\t{rule}\t{root / sid / 'logs' / (rule + '.log')}\tok\tno update")
     rows.append(f"{root / 'summary.parquet'}\t-\tsummary\t-\tmissing\tupdate pending")  # dataset-wide: ignored
     outs = read_snakemake_summary("\n".join(rows), root)
-    assert list(outs) == ["ok", "bad", "late"] and len(outs["ok"]) == 2
+    assert list(outs) == ["ok", "bad", "late"] and len(outs["ok"]) == 3
+    (ok / "model_gate.json").write_text("{}")
     t = scene_status(root, outs)
     assert list(t["status"]) == ["passed", "failed", "failed"]
-    assert t.loc[1, "failed_stage"] == "gate" and "held-out PSNR 12.00 dB" in t.loc[1, "reason"]
+    assert t.loc[1, "failed_stage"] == "model_gate" and "held-out PSNR 12.00 dB" in t.loc[1, "reason"]
     assert t.loc[1, "test_psnr_db"] == 12.0  # measured for the card, though it failed
     assert t.loc[2, "reason"].startswith("not finished:")
     line = status_line(t)
-    assert line.startswith("dataset: 1 of 3 scenes passed, 2 failed: bad (gate: scene 'bad' fails")
+    assert line.startswith("dataset: 1 of 3 scenes passed, 2 failed: bad (model_gate: scene 'bad' fails")
     # many failures: the line names the first ten, the table has them all
     many = pd.concat([t.iloc[[1]]] * 12, ignore_index=True)
     assert status_line(many).endswith("; and 2 more (scene_status.parquet)")
@@ -200,9 +201,10 @@ def test_datasheet_lists_scenes_sources_and_failures():
 
 def test_gs2e_dataset_finishes_the_good_scenes_and_reports_the_failed_ones(tmp_path):
     """Three tiny scenes through `gs2e dataset`: one passes; one fails its PSNR gate
-    (a scene override sets it out of reach); one fails structure from motion (four
-    views of noise). The good one is exported; the failed ones are not, and are rows
-    with their reasons in scene_status, summary, report and datasheet; exit status 3."""
+    (a scene override sets it out of reach), so nothing is rendered from its model; one
+    fails structure from motion (four views of noise). The good one is exported; the
+    failed ones are not, and are rows with their reasons in scene_status, summary,
+    report and datasheet; exit status 3."""
     rng = np.random.default_rng(0)
     noise = tmp_path / "noise"
     noise.mkdir()
@@ -225,15 +227,17 @@ def test_gs2e_dataset_finishes_the_good_scenes_and_reports_the_failed_ones(tmp_p
     proc = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=1800)
     assert proc.returncode == 3, proc.stderr[-3000:]
     line = proc.stdout.strip().splitlines()[-1]
-    assert line.startswith("dataset: 1 of 3 scenes passed, 2 failed: blurry (gate: scene 'blurry' fails its "
-                           "quality gates: held-out PSNR"), line
+    assert line.startswith("dataset: 1 of 3 scenes passed, 2 failed: blurry (model_gate: scene 'blurry' fails "
+                           "its quality gates: held-out PSNR"), line
     assert "noise (sfm: " in line
     res = tmp_path / "results"
     st = pd.read_parquet(res / "scene_status.parquet").set_index("scene_id")
     assert st.loc["good", "status"] == "passed" and st.loc["noise", "failed_stage"] == "sfm"
     assert (res / "good" / "export" / "imu" / "mini00_medium").is_dir()
-    assert not (res / "blurry" / "export").exists()  # failed its gate: not exported
-    assert (res / "blurry" / "events" / "mini00_medium").is_dir()  # ... but its products are kept
+    assert not (res / "blurry" / "export").exists()  # failed its gate: not exported ...
+    assert not (res / "blurry" / "events").exists()  # ... nor rendered or simulated
+    assert (res / "blurry" / "splat" / "model.json").is_file()  # its model is kept for inspection
+    assert (res / "good" / "gate.json").is_file() and (res / "good" / "model_gate.json").is_file()
     summ = pd.read_parquet(res / "summary.parquet")
     assert set(summ["scene_id"]) == {"good", "blurry", "noise"}
     assert summ.set_index("scene_id").loc["noise", "fail_reason"] == st.loc["noise", "reason"]

@@ -34,14 +34,16 @@ from tests.conftest import REPO, TINY_OVERRIDES, planned_jobs, run_snakemake
 FEEDS: dict[str, set[str]] = {
     "demo_scene": {"ingest"},
     "ingest": {"sfm"},
-    "sfm": {"train", "trajectory", "gate"},
-    "train": {"render", "events", "gate"},
+    "sfm": {"train", "trajectory", "model_gate", "gate"},
+    "train": {"render", "events", "model_gate", "gate"},
     "trajectory": {"render", "events"},
     # events renders its own samples from the model: of the render section it
     # takes only what changes pixels (background, scale, backend; events.smk)
     "render": {"windows", "scene_metrics"},
     "events": {"windows", "scene_metrics", "gate"},
-    # the quality gates read the SfM, training and event statistics (gs2e.dataset)
+    # the quality gates read the SfM, training and event statistics (gs2e.dataset); the
+    # model's gates come before anything is rendered from it
+    "model_gate": {"render", "events"},
     "gate": set(),
     # the aligned event windows of a trajectory read its frames and events
     "windows": {"scene_metrics"},
@@ -68,8 +70,8 @@ def downstream(*rules: str) -> set[str]:
 
 def test_downstream_closure():
     assert downstream("summary") == {"summary", "datasheet"}
-    assert downstream("train") == {"train", "render", "events", "windows", "gate", "scene_metrics", "summary",
-                                   "datasheet"}
+    assert downstream("train") == {"train", "model_gate", "render", "events", "windows", "gate", "scene_metrics",
+                                   "summary", "datasheet"}
     assert downstream("demo_scene") == STAGE_RULES
 
 

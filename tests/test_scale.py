@@ -269,8 +269,9 @@ def test_dry_run_over_many_scenes_is_bounded(tmp_path):
     assert proc.returncode == 0, out[-3000:]
     n_traj = len(load_config({})["render"]["trajectories"])
     # per scene: ingest, sfm, train, trajectory, render + events + windows per
-    # trajectory, quality gate, metrics; + summary, datasheet, report, all
-    assert f"total {(6 + 3 * n_traj) * n + 4}" in " ".join(out.split())
+    # trajectory, the model's and the scene's quality gates, metrics; + summary, datasheet,
+    # report, all
+    assert f"total {(7 + 3 * n_traj) * n + 4}" in " ".join(out.split())
     print(f"dry run: {n} scenes in {wall:.1f} s, peak {peak_kb / 1024:.0f} MB")
     assert 0 < peak_kb / 1024 < 600, peak_kb  # MB; 1-scene dry-run ~160 MB, 1050 scenes ~330 MB
 

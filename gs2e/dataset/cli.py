@@ -18,6 +18,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scene-dir", required=True, help="results/<scene>")
     p.add_argument("--scene-id", required=True)
     p.add_argument("--runs", nargs="*", default=[], help="the scene's runs (render.trajectories)")
+    p.add_argument("--model-only", action="store_true",
+                   help="only the gates of the trained model (registered views, held-out PSNR), "
+                        "before anything is rendered from it")
     p.add_argument("--out", required=True, help="gate.json (written atomically)")
     add_config_args(p)
     p.set_defaults(func=run_gate)
@@ -29,16 +32,16 @@ def run_gate(args: argparse.Namespace) -> int:
 
     from gs2e.common.atomic import write_json_atomic
     from gs2e.common.errors import InputError
-    from gs2e.dataset.gates import failed_gates, measure
+    from gs2e.dataset.gates import GATES, MODEL_GATES, failed_gates, measure
     from gs2e.dataset.settings import DatasetSettings
 
     cfg = DatasetSettings.load(args.config_json, args.config)
-    values = measure(args.scene_dir, args.runs)
-    reasons = failed_gates(values, cfg)
+    values = measure(args.scene_dir, [] if args.model_only else args.runs)
+    reasons = failed_gates(values, cfg, MODEL_GATES if args.model_only else tuple(GATES))
     if reasons:
         raise InputError(f"scene '{args.scene_id}' fails its quality gates: {'; '.join(reasons)}")
-    write_json_atomic(args.out, {"scene_id": args.scene_id, "passed": True, "values": values,
-                                 "thresholds": cfg.as_dict()})
+    write_json_atomic(args.out, {"scene_id": args.scene_id, "passed": True, "model_only": args.model_only,
+                                 "values": values, "thresholds": cfg.as_dict()})
     logging.getLogger("gs2e.dataset").info("scene %s passes its quality gates", args.scene_id)
     return 0
 

@@ -33,6 +33,10 @@ GATES = {
 }
 
 
+# The gates a trained model can be judged by, before any render or event job.
+MODEL_GATES = ("registered_fraction", "test_psnr_db")
+
+
 def _read_json(path: Path) -> dict:
     try:
         return json.loads(path.read_text())
@@ -91,15 +95,19 @@ def measure(scene_dir: str | Path, runs: list[str]) -> dict[str, float]:
     }
 
 
-def failed_gates(values: dict[str, float], settings: DatasetSettings) -> list[str]:
+def failed_gates(values: dict[str, float], settings: DatasetSettings,
+                 gates: tuple[str, ...] = tuple(GATES)) -> list[str]:
     """One reason per gate the values fail, in the order of :data:`GATES`.
 
-    A gate whose threshold is ``None`` is not checked; a NaN value fails its
-    gate as missing. ``[]`` = the scene passes.
+    ``gates``: the gates checked (:data:`MODEL_GATES` before anything is
+    rendered). A gate whose threshold is ``None`` is not checked; a NaN value
+    fails its gate as missing. ``[]`` = the scene passes.
     """
     cfg = require(settings, DatasetSettings, "failed_gates")
     reasons = []
     for gate, (key, what, fmt) in GATES.items():
+        if gate not in gates:
+            continue
         limit = getattr(cfg, key)
         if limit is None:
             continue

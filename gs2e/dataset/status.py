@@ -24,8 +24,8 @@ from gs2e.common.errors import InputError
 from gs2e.dataset.gates import measure
 
 # Jobs in pipeline order (a log's name starts with its rule's name).
-STAGE_ORDER = ("demo_scene", "ingest", "sfm", "train", "trajectory", "render", "events", "windows",
-               "gate", "metrics", "export", "bench")
+STAGE_ORDER = ("demo_scene", "ingest", "sfm", "train", "trajectory", "model_gate", "render", "events",
+               "windows", "gate", "metrics", "export", "bench")
 _ERROR = re.compile(r"^gs2e [\w-]+: error: (.*)$")
 _DONE = " finished in "
 # The columns of the status table (scene_status.parquet), in order.

@@ -12,6 +12,30 @@ def datasheet_inputs(wildcards):
     return out
 
 
+# The gates a trained model can be judged by (registered views, held-out PSNR), before
+# anything is rendered from it: a scene that fails them costs no render or event job.
+rule model_gate:
+    input:
+        sfm=res("{scene}", "sfm"),
+        splat=res("{scene}", "splat"),
+    output:
+        res("{scene}", "model_gate.json"),
+    params:
+        cfg=stage_cfg("dataset"),
+        scene_dir=lambda wc: res(wc.scene),
+        code=code_version("gate"),
+    conda:
+        ENV
+    log:
+        res("{scene}", "logs", "model_gate.log"),
+    benchmark:
+        res("{scene}", "benchmarks", "model_gate.tsv")
+    threads: 1
+    shell:
+        "{GS2E} gate --model-only --scene-dir {params.scene_dir:q} --scene-id {wildcards.scene}"
+        " --out {output:q} --config-json {params.cfg:q} 2> {log:q}"
+
+
 rule gate:
     input:
         sfm=res("{scene}", "sfm"),

@@ -2,6 +2,8 @@ rule events:
     input:
         model=res("{scene}", "splat"),
         trajectories=res("{scene}", "trajectories"),
+        # a scene below its model's quality gates is not rendered (gs2e.dataset)
+        model_gate=res("{scene}", "model_gate.json"),
         # a custom sensor's YAML: editing it reruns the scene's event jobs
         sensor=lambda wc: SCENE_CFG[wc.scene]["events"]["sensor_file"] or [],
     output:

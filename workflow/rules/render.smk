@@ -2,6 +2,8 @@ rule render:
     input:
         model=res("{scene}", "splat"),
         trajectories=res("{scene}", "trajectories"),
+        # a scene below its model's quality gates is not rendered (gs2e.dataset)
+        model_gate=res("{scene}", "model_gate.json"),
     output:
         directory(res("{scene}", "frames", "{traj}")),
     params:
