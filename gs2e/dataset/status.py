@@ -173,10 +173,14 @@ def stage_label(value) -> str:
 
 def read_failed(path: str | Path) -> dict[str, str]:
     """{scene id: "stage: reason"} of the failed scenes of a status table ({} if absent)."""
+    from gs2e.metrics.table import read_table
+
     p = Path(path)
     if not p.is_file():
         return {}
-    t = pd.read_parquet(p)
+    t = read_table(p)  # InputError naming the file if it is corrupt
+    if not {"scene_id", "status", "failed_stage", "reason"} <= set(t.columns):
+        raise InputError(f"{p}: not a scene status table (delete it, or run gs2e dataset again)")
     t = t[t["status"] == "failed"]
     return {r.scene_id: f"{stage_label(r.failed_stage)}: {r.reason}" for r in t.itertuples()}
 
