@@ -189,12 +189,13 @@ def test_report_of_synthetic_tree_shows_sections_images_and_missing(tmp_path):
     timings = {}
     text = build_report(res, timings=timings)
     doc = _Parsed(text)
-    assert doc.h2 == ["Dataset overview", "Speed against error (training)",
+    assert doc.h2 == ["Dataset overview", "Dataset card", "Speed against error (training)",
                       "Benchmark: deblurring, video and 3D reconstruction, optical flow", "Real recording",
                       "Scene a", "Scene b"]
     assert doc.h3.count("Event statistics") == 2 and doc.h3.count("Thumbnails") == 2
-    # a: speed-error, costs, event stats, sharp + blur thumbnails, preview; b: nothing
-    assert len(doc.img_src) == n_images(text) == 6
+    # the card's distributions; a: speed-error, costs, event stats, sharp + blur thumbnails,
+    # preview; b: nothing
+    assert len(doc.img_src) == n_images(text) == 7
     assert all(s.startswith("data:image/png;base64,") for s in doc.img_src) and not doc.links
     joined = "\n".join(doc.missing)
     for what in ("real recording for comparison", "training curve " + str(res / "b" / "splat"),
@@ -258,7 +259,7 @@ def test_real_recording_series_matches_exact_statistics(tmp_path):
     res = _results_tree(tmp_path)
     text = build_report(res, real_events=path)
     assert "real: DVXplorer 320x240 (dvxplorer_sample.aedat4)" in text
-    assert n_images(text) == 6
+    assert n_images(text) == 7
     assert not any("real recording" in m for m in _Parsed(text).missing)
 
 

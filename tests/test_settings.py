@@ -90,6 +90,7 @@ SETTINGS = {"demo": "gs2e.demo.settings:DemoSettings", "ingest": "gs2e.io.settin
             "sfm": "gs2e.sfm.settings:SfmSettings", "splat": "gs2e.splat.settings:SplatSettings",
             "trajectory": "gs2e.trajectory.settings:TrajectorySettings",
             "render": "gs2e.render.settings:RenderSettings", "metrics": "gs2e.report.settings:MetricsSettings",
+            "dataset": "gs2e.dataset.settings:DatasetSettings",
             "export": "gs2e.export.settings:ExportSettings"}
 
 
