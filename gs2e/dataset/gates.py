@@ -91,7 +91,7 @@ def measure(scene_dir: str | Path, runs: list[str]) -> dict[str, float]:
         "n_views": n_views, "n_registered": n_reg,
         "test_ssim": _finite(train.get("test_ssim")),
         "n_gaussians": _finite(train.get("n_gaussians")),
-        "n_events": float(n_events),
+        "n_events": float(n_events) if per_pixel else math.nan,  # no run measured: missing, not 0
     }
 
 

@@ -2,8 +2,10 @@ rule events:
     input:
         model=res("{scene}", "splat"),
         trajectories=res("{scene}", "trajectories"),
-        # a scene below its model's quality gates is not rendered (gs2e.dataset)
-        model_gate=res("{scene}", "model_gate.json"),
+        # a scene below its model's quality gates is not rendered (gs2e.dataset); ancient:
+        # its existence counts, not its time, so a gate rerun (a threshold or its code
+        # edited) does not rerender what passed
+        model_gate=ancient(res("{scene}", "model_gate.json")),
         # a custom sensor's YAML: editing it reruns the scene's event jobs
         sensor=lambda wc: SCENE_CFG[wc.scene]["events"]["sensor_file"] or [],
     output:

@@ -33,7 +33,9 @@ rule export:
         windows=res("{scene}", "windows", "{traj}.parquet"),
         trajectories=res("{scene}", "trajectories"),
         sfm=res("{scene}", "sfm"),
-        gate=res("{scene}", "gate.json"),  # a scene that fails its quality gates is not exported
+        # a scene that fails its quality gates is not exported; ancient: a gate rerun does not
+        # rewrite what was exported
+        gate=ancient(res("{scene}", "gate.json")),
     output:
         directory(res("{scene}", "export", "{fmt}", "{traj}")),
     params:
