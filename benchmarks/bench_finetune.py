@@ -1,14 +1,18 @@
 """Benchmark: PIE-Net-Lite fine-tuned on gs2e data, against its shipped weights.
 
 The data is ``make finetune``'s results folder (``results/finetune_data``,
-built by the workflow from ``config/finetune.tsv``: demo, temple_ring,
-llff_fern and mouse_colmap at about 320 px, the three speeds of each base path,
-DVS-Voltmeter events over 1.5 s). The fine-tuning is one child process,
-``gs2e bench-finetune`` (gs2e.bench.finetune), timed by its own rusage: it trains on
-the ``--train`` scenes and scores the shipped and the fine-tuned weights on
-the held-out ``--eval`` scenes' trajectories and on the two real recordings
-with APS frames (slider_depth, DAVIS346 street), each from a reset state,
-after EVREAL's robust normalisation (1st / 99th percentiles), PSNR and SSIM.
+built by ``gs2e dataset`` from ``config/finetune.yaml`` and
+``config/finetune.tsv``: every real capture of ``../shared/data`` plus the demo
+scene at about 320 px, the three speeds of each base path, DVS-Voltmeter events
+over 1.5 s, each scene checked against the dataset's quality gates). The
+fine-tuning is one child process, ``gs2e bench-finetune``
+(gs2e.bench.finetune), timed by its own rusage: it trains on the ``--train``
+scenes (by default every scene that passed its gates in the folder's
+``scene_status.parquet``, except the held-out ones) and scores the shipped and
+the fine-tuned weights on the held-out ``--eval`` scenes' trajectories and on
+the two real recordings with APS frames (slider_depth, DAVIS346 street), each
+from a reset state, after EVREAL's robust normalisation (1st / 99th
+percentiles), PSNR and SSIM.
 
 The baseline is the shipped network in the same run, scored on the same frames.
 
@@ -27,8 +31,22 @@ from pathlib import Path
 
 from harness import REPO, RESULTS, SHARED, parser, pyplot, report, run_child, save_plot, write_csv
 
-TRAIN, EVAL = "temple_ring,mouse_colmap", "llff_fern,demo"
+EVAL = "llff_fern,demo"
+PASSED = "passed"  # --train's default: every scene that passed its gates, less the held-out
 REAL = (SHARED / "slider_depth", SHARED / "events" / "davis346_street_aps.aedat4")
+
+
+def passed_scenes(root: Path, held_out: list[str]) -> list[str]:
+    """The scenes of ``root``'s ``scene_status.parquet`` (``gs2e dataset``) that
+    passed their gates, less ``held_out``; exits with a message where there is none."""
+    import pandas as pd
+
+    status = root / "scene_status.parquet"
+    if not status.is_file():
+        sys.exit(f"{status}: no scene status; build the data with `gs2e dataset` (make finetune) "
+                 "or name the scenes with --train")
+    st = pd.read_parquet(status)
+    return [s for s in st.loc[st["status"] == "passed", "scene_id"] if s not in held_out]
 
 
 def per_sequence(scores):
@@ -82,7 +100,8 @@ def main() -> None:
     ap = parser(__doc__, quick="8 steps, real data: slider_depth only (about 2 min)")
     ap.add_argument("--root", default=str(REPO / "results" / "finetune_data"),
                     help="results folder of config/finetune.tsv (make finetune)")
-    ap.add_argument("--train", default=TRAIN, help=f"scenes to train on (default {TRAIN})")
+    ap.add_argument("--train", default=PASSED, help="scenes to train on, comma-separated (default: every "
+                    "scene that passed its gates in the folder's scene_status.parquet, less --eval)")
     ap.add_argument("--eval", default=EVAL, help=f"held-out scenes (default {EVAL})")
     ap.add_argument("--steps", type=int, default=None, help="optimiser steps (default: gs2e's)")
     args = ap.parse_args()
@@ -91,7 +110,10 @@ def main() -> None:
         sys.exit(f"{root}: no finished workflow run here; `make finetune` builds it")
     name = "bench_finetune_quick" if args.quick else "bench_finetune"
     out = RESULTS / name
-    cmd = [sys.executable, "-m", "gs2e", "bench-finetune", "--root", str(root), "--train", args.train,
+    train = (",".join(passed_scenes(root, args.eval.split(","))) if args.train == PASSED else args.train)
+    if not train:
+        sys.exit(f"{root}: no scene passed its gates outside the held-out {args.eval}")
+    cmd = [sys.executable, "-m", "gs2e", "bench-finetune", "--root", str(root), "--train", train,
            "--eval", args.eval, "--out", str(out)]
     cmd += [a for p in (REAL[:1] if args.quick else REAL) for a in ("--real", str(p))]
     steps = 8 if args.quick and args.steps is None else args.steps
@@ -108,7 +130,7 @@ def main() -> None:
     train_min = info["train_cpu_s"] / 60.0
     print(f"gs2e bench-finetune: {run.wall_s:.0f} s wall, {run.cpu_s / 60:.1f} CPU-min in all "
           f"({train_min:.1f} training, {info['settings']['steps']} steps on {info['train_intervals']} "
-          f"intervals of {', '.join(info['train'])}), peak RSS {run.peak_rss_mb:.0f} MB")
+          f"intervals of {len(info['train'])} scenes: {', '.join(info['train'])}), peak RSS {run.peak_rss_mb:.0f} MB")
     held, real = pooled(scores, "heldout"), {r: pooled(scores[scores["sequence"] == r], "real")
                                              for r in dict.fromkeys(scores[scores["data"] == "real"]["sequence"])}
     report(table, "headline: PIE-Net-Lite fine-tuned on gs2e data, mean PSNR shipped -> fine-tuned: "

@@ -227,14 +227,18 @@ def test_robust_loss_is_the_scored_normalisation():
 
 
 def test_make_finetune_data_plan_is_valid(tmp_path):
-    """config/finetune.tsv (make finetune's data) passes the workflow's checks:
-    four scenes, the three base speeds each, no benchmark jobs."""
+    """config/finetune.yaml (make finetune's data) passes the workflow's checks:
+    every real capture plus the demo scene, the three base speeds each, sharp
+    frames, events and windows only (no benchmark or export jobs), gated."""
     from gs2e.testing import run_snakemake
     from tests.conftest import REPO, planned_jobs
 
-    shared_data("mouse_colmap")
-    proc = run_snakemake("-n", "--cores", "2", "--directory", str(REPO), "--config",
-                         f"scenes={REPO / 'config' / 'finetune.tsv'}", f"results_dir={tmp_path / 'out'}")
+    shared_data("captures")
+    proc = run_snakemake("-n", "--cores", "2", "--directory", str(REPO), "--configfile",
+                         str(REPO / "config" / "config.yaml"), str(REPO / "config" / "finetune.yaml"),
+                         "--config", f"results_dir={tmp_path / 'out'}", "--", "scenes")
     assert proc.returncode == 0, proc.stderr[-3000:]
     jobs = planned_jobs(proc.stdout)
-    assert jobs["train"] == 4 and jobs["events"] == 12 and jobs["windows"] == 12 and "bench" not in jobs
+    assert jobs["train"] == 16 and jobs["events"] == 48 and jobs["windows"] == 48
+    assert jobs["model_gate"] == 16 and jobs["gate"] == 16
+    assert "bench" not in jobs and "export" not in jobs

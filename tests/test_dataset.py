@@ -248,3 +248,20 @@ def test_gs2e_dataset_finishes_the_good_scenes_and_reports_the_failed_ones(tmp_p
     # a second run changes nothing that passed and reports the same
     again = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=900)
     assert again.returncode == 3 and again.stdout.strip().splitlines()[-1] == line
+
+
+@pytest.mark.parametrize("with_config", [False, True])
+def test_gs2e_dataset_plans_as_make_dataset_calls_it(tmp_path, with_config):
+    """`make dataset`'s own call (no Snakemake arguments but the dry run, which is
+    taken off) and one ending in --config, which takes every word after it: the
+    targets and config files must still reach Snakemake as such."""
+    (tmp_path / "scenes.tsv").write_text(f"scene_id\tlayout\tpath\toverrides\nmini\tdemo\t\t{TINY_OVERRIDES}\n")
+    (tmp_path / "ds.yaml").write_text(f"scenes: {tmp_path / 'scenes.tsv'}\nresults_dir: {tmp_path / 'res'}\n")
+    extra = ["--config", f"results_dir={tmp_path / 'res'}"] if with_config else []
+    env = {**os.environ, "GS2E_PROGRESS": "0", "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}"}
+    proc = subprocess.run([sys.executable, "-m", "gs2e", "dataset", "--configfile", "config/config.yaml",
+                           str(tmp_path / "ds.yaml"), "--cores", "1", "--", "-n", *extra],
+                          cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "model_gate" in proc.stdout and "train" in proc.stdout  # the plan of the scene's jobs
+    assert not (tmp_path / "res").exists()  # a dry run writes nothing

@@ -46,8 +46,9 @@ class WorkflowFailed(GS2EError):
 
 def _snakemake(configfiles: list[str], cores: str, extra: list[str], *args: str,
                capture: bool = False) -> subprocess.CompletedProcess:
-    cmd = [sys.executable, "-m", "snakemake", "--cores", str(cores), "--configfile", *configfiles,
-           *extra, *args]
+    # --configfile (like --config) takes every word after it: targets first, config files last.
+    cmd = [sys.executable, "-m", "snakemake", "--cores", str(cores), *args, *extra, "--configfile",
+           *configfiles]
     log.info("running: %s", " ".join(cmd))
     return subprocess.run(cmd, text=True, stdout=subprocess.PIPE if capture else None,
                           stderr=subprocess.STDOUT if capture else None)
