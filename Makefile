@@ -79,12 +79,14 @@ bench: $(STAMP)
 dataset: $(STAMP)
 	$(BIN)/python -m gs2e dataset --configfile config/config.yaml config/dataset.yaml --cores $(CORES)
 
-# The data of every real capture plus the demo scene at cheap settings, each checked
+# The data of every real capture plus the demo scene at the dataset's settings (events
+# over 1.5 s), each checked
 # against the dataset's gates (config/finetune.yaml, about 130 min on 2 cores; exit
 # status 3 of gs2e dataset = some scenes failed their gates, which is expected), then
 # gs2e bench-finetune through benchmarks/bench_finetune.py: trained on every scene that
-# passed, less llff_fern and demo, which are held out (about 20 CPU-min).
-FINETUNE_DATA := results/finetune_data# results_dir of config/finetune.yaml
+# passed, less llff_fern and demo, which are held out (about 20 CPU-min). FINETUNE_DATA
+# is config/finetune.yaml's results_dir.
+FINETUNE_DATA := results/finetune_data
 finetune: $(STAMP)
 	$(BIN)/python -m gs2e dataset --configfile config/config.yaml config/finetune.yaml --cores $(CORES) \
 	  || [ $$? -eq 3 ]

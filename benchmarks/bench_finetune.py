@@ -3,8 +3,9 @@
 The data is ``make finetune``'s results folder (``results/finetune_data``,
 built by ``gs2e dataset`` from ``config/finetune.yaml`` and
 ``config/finetune.tsv``: every real capture of ``../shared/data`` plus the demo
-scene at about 320 px, the three speeds of each base path, DVS-Voltmeter events
-over 1.5 s, each scene checked against the dataset's quality gates). The
+scene at the dataset's settings (DAVIS346, the three speeds of each base path)
+with DVS-Voltmeter events over the first 1.5 s, each scene checked against the
+dataset's quality gates). The
 fine-tuning is one child process, ``gs2e bench-finetune``
 (gs2e.bench.finetune), timed by its own rusage: it trains on the ``--train``
 scenes (by default every scene that passed its gates in the folder's
@@ -39,13 +40,14 @@ REAL = (SHARED / "slider_depth", SHARED / "events" / "davis346_street_aps.aedat4
 def passed_scenes(root: Path, held_out: list[str]) -> list[str]:
     """The scenes of ``root``'s ``scene_status.parquet`` (``gs2e dataset``) that
     passed their gates, less ``held_out``; exits with a message where there is none."""
-    import pandas as pd
+    from gs2e.dataset.run import STATUS_FILE
+    from gs2e.metrics.table import read_table
 
-    status = root / "scene_status.parquet"
+    status = root / STATUS_FILE
     if not status.is_file():
         sys.exit(f"{status}: no scene status; build the data with `gs2e dataset` (make finetune) "
                  "or name the scenes with --train")
-    st = pd.read_parquet(status)
+    st = read_table(status)
     return [s for s in st.loc[st["status"] == "passed", "scene_id"] if s not in held_out]
 
 
