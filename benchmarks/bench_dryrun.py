@@ -1,8 +1,9 @@
 """Benchmark: planning the workflow over many scenes (`snakemake -n`) - time and memory.
 
 For N synthetic scenes (the paper's mix: 1000/1050 MVImgNet clips, the rest
-DL3DV scenes) it creates empty dataset folders (what a dry-run needs on disk:
-the ingest inputs must exist), writes the scenes table with `gs2e scenes`
+DL3DV scenes) it creates dataset folders of empty frame files, as many per
+scene as the releases hold (what a dry-run needs on disk: ingest's inputs are
+a scene's files, listed while planning), writes the scenes table with `gs2e scenes`
 (folders checked), and times `snakemake -n --quiet rules` over it, recording
 the job count and the peak RSS of the snakemake process (os.wait4). The
 baseline is the same dry-run over 1 scene; the headline is the time per scene
@@ -29,21 +30,29 @@ from pathlib import Path
 from harness import REPO, gs2e_env, parser, pyplot, report, run_child, save_plot, write_csv
 
 BIN = Path(sys.executable).parent
+MVIMGNET_FRAMES = 30  # frames of an MVImgNet clip (about 6.5 M frames over 219 k videos)
+DL3DV_FRAMES = 300  # frames of a DL3DV scene, one resolution (images_4 of the 960P release)
 
 
 def make_selection(root: Path, n: int) -> tuple[Path, int, int]:
-    """Empty MVImgNet/DL3DV folders and id lists for n scenes (1000:50 mix)."""
+    """MVImgNet/DL3DV folders of empty frame files and id lists for n scenes (1000:50 mix)."""
     n_dl = round(n * 50 / 1050)
     n_mvi = n - n_dl
     mvi, dl = root / "mvimgnet", root / "dl3dv"
     mvi_ids = [f"{i % 238}/{i:08x}" for i in range(n_mvi)]  # 238 categories as in MVImgNet
     # hash-like ids: a long run of one character would trip Snakemake's periodic-wildcard check
     dl_ids = [f"{(i % 10) + 1}K/{hashlib.sha256(str(i).encode()).hexdigest()}" for i in range(n_dl)]
+    # empty frame files, as many as a release holds: ingest's inputs are a scene's
+    # files (gs2e.io.selection.source_files), listed while planning
     for i in mvi_ids:
         (mvi / i / "images").mkdir(parents=True)
+        for k in range(MVIMGNET_FRAMES):
+            (mvi / i / "images" / f"{k:03d}.jpg").touch()
     for i in dl_ids:
-        (dl / i).mkdir(parents=True)
+        (dl / i / "images_4").mkdir(parents=True)
         (dl / i / "transforms.json").write_text("{}")
+        for k in range(DL3DV_FRAMES):
+            (dl / i / "images_4" / f"frame_{k:05d}.png").touch()
     (root / "mvi.txt").write_text("\n".join(mvi_ids) + "\n")
     (root / "dl.txt").write_text("\n".join(dl_ids) + "\n" if dl_ids else "")
     return root, n_mvi, n_dl

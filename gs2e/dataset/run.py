@@ -44,11 +44,20 @@ class WorkflowFailed(GS2EError):
     dataset-wide summary, report or datasheet."""
 
 
+# Largest input file Snakemake compares by checksum before rerunning a job on a newer
+# one (its default: 1 MB). A scene's capture files copied anew (re-staged, rsync
+# without -t) then rerun nothing where their bytes are the ones ingested
+# (gs2e.io.selection.source_files); COLMAP images.bin and event files pass 1 MB.
+MAX_CHECKSUM_FILE_BYTES = 64 << 20
+
+
 def _snakemake(configfiles: list[str], cores: str, extra: list[str], *args: str,
                capture: bool = False) -> subprocess.CompletedProcess:
     # --configfile (like --config) takes every word after it: targets first, config files last.
-    cmd = [sys.executable, "-m", "snakemake", "--cores", str(cores), *args, *extra, "--configfile",
-           *configfiles]
+    size = ([] if any(a.startswith("--max-checksum-file-size") for a in extra)
+            else ["--max-checksum-file-size", str(MAX_CHECKSUM_FILE_BYTES)])
+    cmd = [sys.executable, "-m", "snakemake", "--cores", str(cores), *size, *args, *extra,
+           "--configfile", *configfiles]
     log.info("running: %s", " ".join(cmd))
     return subprocess.run(cmd, text=True, stdout=subprocess.PIPE if capture else None,
                           stderr=subprocess.STDOUT if capture else None)

@@ -22,6 +22,7 @@ outside ``[A-Za-z0-9_.-]`` replaced by ``_`` (the workflow's wildcard constraint
 from __future__ import annotations
 
 import logging
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -203,3 +204,26 @@ def write_scenes_table(rows: list[dict], out: str | Path, comment: str = "") -> 
         tmp.write_text(text)
         table = load_scenes(tmp)
     return table
+
+
+def source_files(path: str | Path) -> list[str]:
+    """Every file of a scene's source: ``path`` itself if it is a file, else the
+    regular files below it (symbolic links followed, names starting with ``.``
+    skipped), sorted; ``[path]`` if it does not exist (the caller names it).
+
+    These are the ingest rule's inputs. Listed as files, not as the folder, so
+    that Snakemake judges a copy by its content: after a copy that gives every
+    file a new mtime but keeps its bytes (a dataset staged to a cluster, an
+    rsync without ``-t``), Snakemake compares each newer file with the checksum
+    it recorded when ingest ran (files up to ``--max-checksum-file-size``) and
+    reruns nothing; a folder's mtime alone would rerun every stage of the
+    scene. A changed, added or removed file reruns the scene.
+    """
+    p = Path(path)
+    if not p.is_dir():
+        return [str(p)]
+    out = []
+    for root, dirs, files in os.walk(p, followlinks=True):
+        dirs[:] = [d for d in dirs if not d.startswith(".")]
+        out.extend(os.path.join(root, f) for f in files if not f.startswith("."))
+    return sorted(out)

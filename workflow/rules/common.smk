@@ -12,6 +12,7 @@ from gs2e.common.atomic import sweep_tree
 from snakemake.logging import logger
 from gs2e.config import (derive_seed, load_config, load_scenes, scene_config,
                          scene_params_json, section_json)
+from gs2e.io.selection import source_files
 from gs2e.light.settings import condition_json, run_names, split_run
 
 # Reject invalid config / scenes table before any job runs.
@@ -193,11 +194,19 @@ def scene_layout(wc):
 
 
 def scene_source(wc):
-    """Input of ingest: the generated demo scene or the scene's folder."""
+    """Inputs of ingest: the generated demo scene, or the files of the scene's
+    folder (gs2e.io.selection.source_files: a copy with new mtimes and the same
+    bytes reruns nothing)."""
     row = SCENES[wc.scene]
     if row["layout"] == "demo":
         return res(wc.scene, "source")
-    return row["path"]
+    return source_files(row["path"])
+
+
+def scene_source_path(wc):
+    """The folder (or file) ingest reads: --src."""
+    row = SCENES[wc.scene]
+    return res(wc.scene, "source") if row["layout"] == "demo" else row["path"]
 
 
 def scene_runs(sid):

@@ -21,6 +21,7 @@ rule ingest:
     output:
         directory(res("{scene}", "ingest")),
     params:
+        src=scene_source_path,
         layout=scene_layout,
         cfg=stage_cfg("ingest"),
         code=code_version("ingest"),
@@ -32,5 +33,5 @@ rule ingest:
         res("{scene}", "benchmarks", "ingest.tsv")
     threads: 1
     shell:
-        "{GS2E} ingest --layout {params.layout} --src {input:q} --out {output:q}"
+        "{GS2E} ingest --layout {params.layout} --src {params.src:q} --out {output:q}"
         " --config-json {params.cfg:q} 2> {log:q}"
