@@ -10,6 +10,7 @@ import math
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -265,3 +266,32 @@ def test_gs2e_dataset_plans_as_make_dataset_calls_it(tmp_path, with_config):
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "model_gate" in proc.stdout and "train" in proc.stdout  # the plan of the scene's jobs
     assert not (tmp_path / "res").exists()  # a dry run writes nothing
+
+
+def test_gs2e_dataset_plans_after_a_run_killed_outright(tmp_path):
+    """A workflow killed with SIGKILL (a lost node, an OOM kill of Snakemake) leaves
+    its running job marked incomplete; the job finishes as an orphan and writes its
+    output. A plain `snakemake -n` then refuses to plan; `gs2e dataset` reruns the job."""
+    (tmp_path / "scenes.tsv").write_text(f"scene_id\tlayout\tpath\toverrides\nmini\tdemo\t\t{TINY_OVERRIDES}\n")
+    (tmp_path / "ds.yaml").write_text("scenes: scenes.tsv\nresults_dir: res\n")
+    env = {**os.environ, "GS2E_PROGRESS": "0", "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}"}
+    sm = [sys.executable, "-m", "snakemake", "--cores", "1", "--snakefile", str(REPO / "Snakefile")]
+    proc = subprocess.Popen([*sm, "res/mini/source", "--configfile", "ds.yaml"], cwd=tmp_path, env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    log, out = tmp_path / "res" / "mini" / "logs" / "demo_scene.log", tmp_path / "res" / "mini" / "source"
+    t0 = time.monotonic()
+    while not log.exists() and time.monotonic() - t0 < 120:
+        time.sleep(0.1)
+    proc.kill()
+    proc.wait()
+    while not out.exists() and time.monotonic() - t0 < 240:
+        time.sleep(0.2)
+    assert out.is_dir() and list((tmp_path / ".snakemake" / "incomplete").iterdir())
+    plain = subprocess.run([*sm, "scenes", "-n", "--configfile", "ds.yaml"], cwd=tmp_path, env=env,
+                           capture_output=True, text=True, timeout=300)
+    assert plain.returncode != 0 and "IncompleteFilesException" in plain.stdout + plain.stderr
+    ours = subprocess.run([sys.executable, "-m", "gs2e", "dataset", "--configfile", "ds.yaml", "--cores", "1",
+                           "--", "-n", "--snakefile", str(REPO / "Snakefile")],
+                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert ours.returncode == 0, ours.stderr[-2000:]
+    assert "demo_scene" in ours.stdout  # the killed job is planned again

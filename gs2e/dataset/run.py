@@ -56,7 +56,10 @@ def _snakemake(configfiles: list[str], cores: str, extra: list[str], *args: str,
     # --configfile (like --config) takes every word after it: targets first, config files last.
     size = ([] if any(a.startswith("--max-checksum-file-size") for a in extra)
             else ["--max-checksum-file-size", str(MAX_CHECKSUM_FILE_BYTES)])
-    cmd = [sys.executable, "-m", "snakemake", "--cores", str(cores), *size, *args, *extra,
+    # a run killed outright (SIGKILL, a node lost) leaves its running jobs marked
+    # incomplete, and Snakemake would refuse to plan until told to redo them
+    redo = [] if "--rerun-incomplete" in extra or "--ri" in extra else ["--rerun-incomplete"]
+    cmd = [sys.executable, "-m", "snakemake", "--cores", str(cores), *size, *redo, *args, *extra,
            "--configfile", *configfiles]
     log.info("running: %s", " ".join(cmd))
     return subprocess.run(cmd, text=True, stdout=subprocess.PIPE if capture else None,
