@@ -44,6 +44,12 @@ error, per-pixel count L1, timestamp error of matched events (p50, p99). Its
 headline: how much longer a step the Hermite crossings allow while no worse
 than fixed 2400 fps in count error, L1 and timestamp p50.
 
+``--window smooth`` (issue 67): the models trained with the smooth window by
+``bench_window.py`` (cached there), rendered continuous in time
+(:class:`gs2e.splat.forward.ContinuousRenderer`, the event stage's own depth-order
+knots), each against its own dense reference; with no jumps left, the
+one-sided differences are the derivative everywhere.
+
 Scenes: ``demo``, ``temple_ring``, ``llff_fern`` and ``mouse_colmap`` as built
 (cached) by bench_event_sampling.py. ``--quick``: the demo at ``mild``, steps of 0.5,
 1 and 2 px and fixed 2400 fps's.
@@ -52,8 +58,8 @@ Usage: python benchmarks/bench_event_between.py [--quick] [--scenes demo,temple_
        [--speeds mild,medium,strong] [--sensor davis346] [--steps 0.0625,0.125,0.25,0.5,1,2,4]
        [--trials 4]
        python benchmarks/bench_event_between.py --events [--quick] [--ratios 1,1.5,2,3]
-       [--ref-renders 500]
-Writes benchmarks/results/bench_event_between[_events][_quick].csv and .png; the
+       [--ref-renders 500] [--window smooth]
+Writes benchmarks/results/bench_event_between[_events][_smooth][_quick].csv and .png; the
 last line printed is the headline.
 """
 
@@ -76,18 +82,22 @@ def case(model_dir, traj_path, sensor: str, steps_px, trials: int) -> list[dict]
     from gs2e.events.rendered import RenderedSource
     from gs2e.events.sampling import image_luminance
     from gs2e.events.settings import event_settings
-    from gs2e.splat.forward import ForwardRenderer
+    from gs2e.splat.forward import ContinuousRenderer, ForwardRenderer
 
     cfg = event_settings(events_cfg("voltmeter", "fixed", extra={"sensor": sensor}))
     src = RenderedSource(model_dir, traj_path, cfg)
     eps = src.log_eps
     K, (H, W) = src.K, src.shape
     fr = ForwardRenderer(src.params, int(src.info["sh_degree"]), K[0, 0], K[1, 1], K[0, 2], K[1, 2],
-                         W, H, dtype=np.float64)
+                         W, H, dtype=np.float64, window=src.window)
     lum = np.empty((H, W), np.float64)
+    # a smooth-window model renders continuous in time, with the event stage's own knots
+    cont = (None if src.continuous is None
+            else ContinuousRenderer(fr, src.continuous.pose_at, src.continuous.knots, src.continuous.t1_us))
 
     def G(t_us: float) -> np.ndarray:
-        image_luminance(fr.render(src.traj.pose_at(np.array([t_us]))[0]), lum)
+        img = fr.render(src.traj.pose_at(np.array([t_us]))[0]) if cont is None else cont.render(t_us)
+        image_luminance(img, lum)
         return np.log(lum + eps)
 
     t_mid = 0.5 * (src.t0_us + src.t1_us)
@@ -348,6 +358,9 @@ def main() -> None:
     ap.add_argument("--ref-renders", type=int, default=500,
                     help="--events: renders the reference may take per case (sets the span)")
     ap.add_argument("--max-span-ms", type=float, default=100.0)
+    ap.add_argument("--window", choices=["cut", "smooth"], default="cut",
+                    help="the models' compositing window (smooth: bench_window.py's models, "
+                         "rendered continuous in time)")
     args = ap.parse_args()
     if args.quick:
         args.scenes, args.speeds, args.steps, args.trials = "demo", "mild", "0.5,1,2", 2
@@ -359,15 +372,19 @@ def main() -> None:
     rows = []
     with harness.clock() as total:
         for scene, d in build_scenes(args.scenes.split(",")).items():
+            model = d / "splat" if args.window == "cut" else harness.RESULTS / "bench_window_cache" / scene / "smooth"
+            if not (model / "model.json").exists():
+                raise SystemExit(f"{model} is missing: run benchmarks/bench_window.py first")
             for speed in args.speeds.split(","):
                 traj = d / "trajectories" / f"base_{speed}.npz"
-                rows += [{"scene": scene, "speed": speed, "sensor": args.sensor, **r}
-                         for r in (events_case(d / "splat", traj, args.sensor, ratios, args.ref_renders,
+                rows += [{"scene": scene, "speed": speed, "sensor": args.sensor, "window": args.window, **r}
+                         for r in (events_case(model, traj, args.sensor, ratios, args.ref_renders,
                                                int(args.max_span_ms * 1e3)) if args.events
-                                   else case(d / "splat", traj, args.sensor, steps, args.trials))]
+                                   else case(model, traj, args.sensor, steps, args.trials))]
                 print(f"{scene} {speed}: done", flush=True)
     df = pd.DataFrame(rows)
-    name = "bench_event_between" + ("_events" if args.events else "") + ("_quick" if args.quick else "")
+    name = ("bench_event_between" + ("_events" if args.events else "") + ("_smooth" if args.window == "smooth" else "")
+            + ("_quick" if args.quick else ""))
     csv = harness.write_csv(name, df.to_dict("records"))
     png = harness.save_plot((events_plot if args.events else plot)(df), name, dpi=110)
     print(f"measured in {total.wall_s:.0f} s")

@@ -32,7 +32,9 @@ by ``bench_window.py`` (cached there), rendered continuous in time, each
 against its own dense reference; their rows' methods are named ``smooth:
 ...``, so that ``--report cut.csv,smooth.csv`` compares them with the cut
 window's ``fixed 2400`` case by case. Methods ``... cubic k`` feed k points
-per step on the cubic through the renders (``events.sampling.substeps``).
+per step on the cubic through the renders (``events.sampling.substeps``);
+``fixed F slopes k`` do so with each render's own slope
+(``events.sampling.slopes: difference``: a second render 2 us later).
 
 Scenes: ``demo``, ``temple_ring``, ``llff_fern`` and ``mouse_colmap`` as built
 (cached) by bench_event_sampling.py (``event_runs.build_scenes``). ``--quick``: the tests' textured plane
@@ -67,6 +69,9 @@ METHODS = {  # name -> (mode, fps, sampling overrides)
     "tile": ("tile", 2400.0, {}),
     "motion 1 cubic 4": ("motion", 2400.0, {"max_motion_px": 1.0, "substeps": 4}),
     "motion 2 cubic 8": ("motion", 2400.0, {"max_motion_px": 2.0, "substeps": 8}),
+    # a render and its 2 us difference per step, points on the Hermite curve with those slopes
+    "fixed 1200 slopes 2": ("fixed", 1200.0, {"substeps": 2, "slopes": "difference"}),
+    "fixed 600 slopes 4": ("fixed", 600.0, {"substeps": 4, "slopes": "difference"}),
 }
 DEFAULT_METHODS = ("fixed 2400", "fixed 1200", "motion 0.1", "motion 0.25", "motion 0.5", "motion 1", "tile")
 

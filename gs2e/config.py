@@ -351,6 +351,9 @@ def _check_events(cfg: dict) -> None:
     if e["sampling"]["substeps"] > 1 and e["sampling"]["mode"] == "tile":
         raise ConfigError("events.sampling.substeps: points between renders need a whole-image mode "
                           "(fixed, motion or adaptive), not tile")
+    if e["sampling"]["slopes"] != "neighbours" and e["sampling"]["substeps"] < 2:
+        raise ConfigError(f"events.sampling.slopes={e['sampling']['slopes']} shapes the points between "
+                          "renders: set events.sampling.substeps > 1")
     if e["sampling"]["mode"] == "motion" and e["sampling"]["max_motion_px"] is None:
         raise ConfigError("events.sampling.mode=motion needs events.sampling.max_motion_px "
                           "(the largest image motion between samples, px)")

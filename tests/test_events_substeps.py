@@ -65,3 +65,79 @@ def test_substeps_need_a_whole_image_mode():
 
     with pytest.raises(ConfigError, match="substeps"):
         check_config(load_config({"events": {"sampling": {"mode": "tile", "substeps": 4}}}))
+
+
+def test_exact_slopes_make_a_cubic_exact_where_the_neighbours_do_not():
+    """A cubic g(t) is reproduced to rounding by Hermite steps with its own
+    derivative at each render; the neighbours' (Catmull-Rom) slopes miss it."""
+    def g(t):
+        x = (np.asarray(t, np.float64) - 1000.0) * 1e-4
+        return np.stack([x ** 3 - 2 * x, 0.5 * x * x - 1.0], -1)[..., None, :] * 0.3
+
+    def dg(t):  # per us
+        x = (float(t) - 1000.0) * 1e-4
+        return np.array([3 * x * x - 2, x], np.float64)[None, :] * 0.3e-4
+
+    times = np.arange(21) * 1000 + 1000
+    lum = {int(t): (np.exp(g(t)) - EPS).astype(np.float32) for t in times}
+    # the slopes of the float32 renders' own log, as RenderedSource.log_slope gives them
+    exact = [(int(t), lum[int(t)], dg(t)) for t in times]
+    guess = [(int(t), lum[int(t)]) for t in times]
+    errs = {}
+    for name, frames in (("exact", exact), ("neighbours", guess)):
+        out = [(t, f) for t, f in cubic_substeps(iter(frames[1:]), 8, EPS, frames[0]) if t not in lum]
+        errs[name] = max(np.abs(np.log(f.astype(np.float64) + EPS) - g(t)).max() for t, f in out)
+    assert errs["exact"] < 1e-5 < 0.01 * errs["neighbours"], errs
+
+
+def test_slopes_by_difference_need_substeps_and_a_model_continuous_in_time(tmp_path):
+    from gs2e.config import check_config
+    from gs2e.events.rendered import RenderedSource
+    from gs2e.events.settings import event_settings
+    from gs2e.testing import plane_model, straight_trajectory
+
+    with pytest.raises(ConfigError, match="events.sampling.slopes=difference.*substeps"):
+        check_config(load_config({"events": {"sampling": {"slopes": "difference"}}}))
+    cfg = check_config(load_config({"events": {"model": "ideal", "sampling": {
+        "fixed_fps": 600.0, "substeps": 4, "slopes": "difference"}}}))["events"]
+    model, traj = plane_model(tmp_path), straight_trajectory(tmp_path, 0.2)
+    with pytest.raises(ConfigError, match=f"slopes: difference needs a model continuous in time.*{model}"):
+        RenderedSource(model, traj, event_settings(cfg))
+
+
+def test_slopes_by_difference_follow_the_continuous_render_between_renders(tmp_path):
+    """A smooth-window plane panning by ~320 px/s, rendered at 600 fps with 4
+    points per step: with each render's own slope the points lie closer to the
+    true continuous render at their times than with the neighbours' slopes, and
+    every step costs two renders."""
+    import json
+
+    from gs2e.config import check_config
+    from gs2e.events.rendered import RenderedSource
+    from gs2e.events.settings import event_settings
+    from gs2e.testing import plane_model, straight_trajectory
+
+    model, traj = plane_model(tmp_path), straight_trajectory(tmp_path, 20.0)  # ~0.5 px per step
+    info = json.loads((model / "model.json").read_text())
+    (model / "model.json").write_text(json.dumps({**info, "window": "smooth"}))
+    errs, renders = {}, {}
+    for slopes in ("neighbours", "difference"):
+        cfg = check_config(load_config({"events": {"model": "ideal", "sampling": {
+            "fixed_fps": 600.0, "substeps": 4, "slopes": slopes}}}))["events"]
+        src = RenderedSource(model, traj, event_settings(cfg))
+        mid = (src.t0_us + src.t1_us) // 2  # the camera over the plane's middle
+        src = RenderedSource(model, traj, event_settings(cfg), span_us=(mid, mid + 50_000))
+        src.start()
+        ts, frames = zip(*[(t.copy(), f.copy()) for t, f in src.batches()])
+        ts, frames = np.concatenate(ts), np.concatenate(frames)
+        renders[slopes] = src.stats.renders
+        truth = RenderedSource(model, traj, event_settings(cfg), span_us=(mid, mid + 50_000))
+        e = []
+        for t, f in zip(ts, frames):
+            if (t - src.t0_us) % 1667 > 5:  # a point between renders
+                ref = truth.frame(int(t))
+                e.append(np.abs(np.log(f.astype(np.float64) + 1e-3) - np.log(ref.astype(np.float64) + 1e-3)))
+        errs[slopes] = float(np.mean(np.concatenate([x.ravel() for x in e])))
+    n_steps = 30  # 50 ms at 600 fps
+    assert renders["neighbours"] == n_steps + 1 and renders["difference"] == 2 * (n_steps + 1)
+    assert errs["difference"] < 0.5 * errs["neighbours"], errs

@@ -45,6 +45,10 @@ STEP_MOTION_PROBES = 64
 # image motion per step (px) above which a fixed clock's events bunch on its
 # sample times (docs/events.md: fixed 2400 fps at strong, 1.1-4.8 px per step)
 STEP_MOTION_WARN_PX = 1.0
+# events.sampling.slopes: difference - the step of the one-sided difference (us):
+# short against any step between renders, long enough that float32 renders
+# resolve it (an edge moves ~1e-3 px in it at mild)
+SLOPE_DT_US = 2
 
 
 def bound_log(settings: EventSettings) -> float:
@@ -72,38 +76,45 @@ def sampling_log_eps(settings: EventSettings) -> float:
     return log_contrast(settings)[2]
 
 
-def cubic_substeps(frames, substeps: int, log_eps: float, first: tuple[int, np.ndarray]):
+def cubic_substeps(frames, substeps: int, log_eps: float, first: tuple):
     """Frames between renders on a cubic: yields (t_us, (H, W) float32
     luminance), ``substeps`` per step between consecutive renders of
-    ``frames`` (an iterator of (t_us, luminance) after ``first``, the
-    render at the span's start, which is not yielded), the render itself
-    last in each step.
+    ``frames`` (an iterator of (t_us, luminance) or (t_us, luminance, slope)
+    after ``first``, the render at the span's start, which is not yielded),
+    the render itself last in each step.
 
     In g = log(L + log_eps), each step [t_i, t_{i+1}] is the cubic Hermite
-    curve through g_i and g_{i+1} with slopes from the neighbouring renders,
-    m_i = (g_{i+1} - g_{i-1}) / (t_{i+1} - t_{i-1}) (Catmull-Rom on the
-    renders' own, uneven, times; one-sided at the span's ends); its error is
-    O(h^3) on a signal smooth in time against a line's O(h^2). Points fall
-    at whole microseconds (fewer where the step is shorter than
-    ``substeps`` us); luminance is clamped at 0; the renders are passed on
-    as they are. Reads one render ahead.
+    curve through g_i and g_{i+1}. Its slopes are a render's own ``slope``
+    ((H, W) float64, dg/dt per us) where given, else from the neighbouring
+    renders, m_i = (g_{i+1} - g_{i-1}) / (t_{i+1} - t_{i-1}) (Catmull-Rom on
+    the renders' own, uneven, times; one-sided at the span's ends). On a
+    signal smooth in time the error is O(h^3) with the neighbours' slopes and
+    O(h^4) with exact ones, against a line's O(h^2). Points fall at whole
+    microseconds (fewer where the step is shorter than ``substeps`` us);
+    luminance is clamped at 0; the renders are passed on as they are. Reads
+    one render ahead.
     """
     k = int(substeps)
     t_prev, g_prev = None, None
-    t0, l0 = first
-    g0 = np.log(l0.astype(np.float64) + log_eps)
+
+    def parts(item):
+        t, lum = item[0], item[1]
+        return t, lum, np.log(lum.astype(np.float64) + log_eps), (item[2] if len(item) > 2 else None)
+
+    t0, _, g0, d0 = parts(first)
     it = iter(frames)
     nxt = next(it, None)
     if nxt is None:
         return
-    t1, l1, g1 = nxt[0], nxt[1], np.log(nxt[1].astype(np.float64) + log_eps)
+    t1, l1, g1, d1 = parts(nxt)
     while True:
         nxt = next(it, None)
-        t2, l2, g2 = ((None, None, None) if nxt is None
-                      else (nxt[0], nxt[1], np.log(nxt[1].astype(np.float64) + log_eps)))
+        t2, l2, g2, d2 = (None, None, None, None) if nxt is None else parts(nxt)
         h = float(t1 - t0)
-        m0 = (g1 - g0) / h if t_prev is None else (g1 - g_prev) / float(t1 - t_prev)
-        m1 = (g1 - g0) / h if t2 is None else (g2 - g0) / float(t2 - t0)
+        m0 = (d0 if d0 is not None else (g1 - g0) / h if t_prev is None
+              else (g1 - g_prev) / float(t1 - t_prev))
+        m1 = (d1 if d1 is not None else (g1 - g0) / h if t2 is None
+              else (g2 - g0) / float(t2 - t0))
         done = set()
         for j in range(1, k):
             t = int(round(t0 + h * j / k))
@@ -118,7 +129,7 @@ def cubic_substeps(frames, substeps: int, log_eps: float, first: tuple[int, np.n
         yield t1, l1  # the render itself
         if t2 is None:
             return
-        t_prev, g_prev, t0, g0, t1, l1, g1 = t0, g0, t1, g1, t2, l2, g2
+        t_prev, g_prev, t0, g0, d0, t1, l1, g1, d1 = t0, g0, t1, g1, d1, t2, l2, g2, d2
 
 
 class _GsplatRenderer:
@@ -211,6 +222,10 @@ class RenderedSource:
         self.continuous = (None if self.window == "cut" else ContinuousRenderer(
             cpu, path_pose, order_knots(cpu, path_pose, self.t0_us, self.t1_us, order_step_px),
             self.t1_us))
+        if sc.slopes == "difference" and self.continuous is None:
+            raise ConfigError("events.sampling.slopes: difference needs a model continuous in time "
+                              f"(splat.window: smooth); {model_dir} was trained with the cut window, "
+                              "whose renders jump where a Gaussian crosses its cut-off")
         if self.continuous is not None and settings.sampling.mode == "tile":
             log.warning("events %s: mode tile renders tiles in each render's own depth order; "
                         "only the whole-image modes (fixed, motion, adaptive) render continuous "
@@ -308,8 +323,10 @@ class RenderedSource:
         else:
             frames = self._adaptive_frames()
         if self.sc.substeps > 1:
-            frames = cubic_substeps(self._rendered(frames), self.sc.substeps, self.log_eps,
-                                    (self.t0_us, self.luminance.copy()))
+            first = (self.t0_us, self.luminance.copy())
+            if self.sc.slopes == "difference":
+                first += (self.log_slope(*first),)
+            frames = cubic_substeps(self._rendered(frames), self.sc.substeps, self.log_eps, first)
         ts = []
         for t, f in frames:
             if f is None:
@@ -326,14 +343,29 @@ class RenderedSource:
             self.luminance[:] = buf[len(ts) - 1]
             yield np.array(ts, np.int64), buf[:len(ts)]
 
-    def _rendered(self, frames) -> Iterator[tuple[int, np.ndarray]]:
+    def _rendered(self, frames) -> Iterator[tuple]:
         """``frames`` ((t, frame or None: render it)) with every frame rendered
-        into its own array (:func:`cubic_substeps` holds four)."""
+        into its own array (:func:`cubic_substeps` holds four), and its
+        :meth:`log_slope` with ``events.sampling.slopes: difference``."""
         for t, f in frames:
             if f is None:
                 self.stats.accepted += 1
                 f = self.frame(t)
-            yield t, f
+            yield (t, f, self.log_slope(t, f)) if self.sc.slopes == "difference" else (t, f)
+
+    def log_slope(self, t_us: int, lum: np.ndarray) -> np.ndarray | None:
+        """d/dt log(L + log_eps) at ``t_us`` ((H, W) float64, per us) from
+        ``lum`` = :meth:`frame` (t_us) and a second render
+        :data:`SLOPE_DT_US` later (earlier at the span's end): a one-sided
+        difference, the derivative up to O(SLOPE_DT_US) on a model continuous
+        in time. None on a span shorter than that (the cubic then takes the
+        neighbours' slopes)."""
+        dt = (SLOPE_DT_US if t_us + SLOPE_DT_US <= self.t1_us
+              else -SLOPE_DT_US if t_us - SLOPE_DT_US >= self.t0_us else 0)
+        if not dt:
+            return None
+        g = np.log(lum.astype(np.float64) + self.log_eps)
+        return (np.log(self.frame(t_us + dt).astype(np.float64) + self.log_eps) - g) / dt
 
     def step_motion_px(self, step_us: int, n: int = STEP_MOTION_PROBES) -> np.ndarray:
         """Image motion (px, :func:`gs2e.splat.forward.image_motion_px`: the
