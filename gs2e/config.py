@@ -515,9 +515,18 @@ def _check_window_backend(cfg: dict) -> None:
                           f"{cfg['splat']['window']} (use render.backend cpu or auto)")
 
 
+def _check_window_slopes(cfg: dict) -> None:
+    """Slopes by difference need renders continuous in time: the smooth window's."""
+    if cfg["events"]["sampling"]["slopes"] == "difference" and cfg["splat"]["window"] == "cut":
+        raise ConfigError("events.sampling.slopes: difference needs a model continuous in time "
+                          "(splat.window: smooth); the cut window's renders jump where a Gaussian "
+                          "crosses its cut-off")
+
+
 WORKFLOW_CHECKS = (
     (("render", "trajectory"), _check_render_trajectories),
     (("splat", "render"), _check_window_backend),
+    (("splat", "events"), _check_window_slopes),
     (("bench", "render"), _check_bench_inputs),
     (("export", "render", "light"), _check_export_inputs),
 )

@@ -270,8 +270,9 @@ def test_gs2e_dataset_plans_as_make_dataset_calls_it(tmp_path, with_config):
 
 def test_gs2e_dataset_plans_after_a_run_killed_outright(tmp_path):
     """A workflow killed with SIGKILL (a lost node, an OOM kill of Snakemake) leaves
-    its running job marked incomplete; the job finishes as an orphan and writes its
-    output. A plain `snakemake -n` then refuses to plan; `gs2e dataset` reruns the job."""
+    its running job marked incomplete and its locks; the job finishes as an orphan and
+    writes its output. A plain `snakemake -n` then refuses to plan; `gs2e dataset -n`
+    plans the job again, and the run itself stops at the locks with what to do."""
     (tmp_path / "scenes.tsv").write_text(f"scene_id\tlayout\tpath\toverrides\nmini\tdemo\t\t{TINY_OVERRIDES}\n")
     (tmp_path / "ds.yaml").write_text("scenes: scenes.tsv\nresults_dir: res\n")
     env = {**os.environ, "GS2E_PROGRESS": "0", "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}"}
@@ -295,3 +296,10 @@ def test_gs2e_dataset_plans_after_a_run_killed_outright(tmp_path):
                           cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
     assert ours.returncode == 0, ours.stderr[-2000:]
     assert "demo_scene" in ours.stdout  # the killed job is planned again
+    # the run itself stops at the killed run's locks, with what to do, before any job
+    run = subprocess.run([sys.executable, "-m", "gs2e", "dataset", "--configfile", "ds.yaml", "--cores", "1",
+                          "--", "--snakefile", str(REPO / "Snakefile")],
+                         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    msg = run.stdout + run.stderr
+    assert run.returncode not in (0, 3) and "is locked" in msg and "snakemake --unlock" in msg, msg[-2000:]
+    assert not (tmp_path / "res" / "mini" / "ingest").exists()

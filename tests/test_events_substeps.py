@@ -80,7 +80,7 @@ def test_exact_slopes_make_a_cubic_exact_where_the_neighbours_do_not():
 
     times = np.arange(21) * 1000 + 1000
     lum = {int(t): (np.exp(g(t)) - EPS).astype(np.float32) for t in times}
-    # the slopes of the float32 renders' own log, as RenderedSource.log_slope gives them
+    # the signal's own derivative at each render
     exact = [(int(t), lum[int(t)], dg(t)) for t in times]
     guess = [(int(t), lum[int(t)]) for t in times]
     errs = {}
@@ -98,8 +98,11 @@ def test_slopes_by_difference_need_substeps_and_a_model_continuous_in_time(tmp_p
 
     with pytest.raises(ConfigError, match="events.sampling.slopes=difference.*substeps"):
         check_config(load_config({"events": {"sampling": {"slopes": "difference"}}}))
-    cfg = check_config(load_config({"events": {"model": "ideal", "sampling": {
-        "fixed_fps": 600.0, "substeps": 4, "slopes": "difference"}}}))["events"]
+    slopes = {"events": {"model": "ideal", "sampling": {"fixed_fps": 600.0, "substeps": 4, "slopes": "difference"}}}
+    with pytest.raises(ConfigError, match="slopes: difference needs .*splat.window: smooth"):
+        check_config(load_config(slopes), workflow=True)  # the workflow trains with the cut window
+    check_config(load_config({**slopes, "splat": {"window": "smooth"}}), workflow=True)
+    cfg = check_config(load_config(slopes))["events"]
     model, traj = plane_model(tmp_path), straight_trajectory(tmp_path, 0.2)
     with pytest.raises(ConfigError, match=f"slopes: difference needs a model continuous in time.*{model}"):
         RenderedSource(model, traj, event_settings(cfg))
@@ -116,6 +119,7 @@ def test_slopes_by_difference_follow_the_continuous_render_between_renders(tmp_p
     from gs2e.events.rendered import RenderedSource
     from gs2e.events.settings import event_settings
     from gs2e.testing import plane_model, straight_trajectory
+    from gs2e.trajectory import fixed_times_us
 
     model, traj = plane_model(tmp_path), straight_trajectory(tmp_path, 20.0)  # ~0.5 px per step
     info = json.loads((model / "model.json").read_text())
@@ -132,9 +136,10 @@ def test_slopes_by_difference_follow_the_continuous_render_between_renders(tmp_p
         ts, frames = np.concatenate(ts), np.concatenate(frames)
         renders[slopes] = src.stats.renders
         truth = RenderedSource(model, traj, event_settings(cfg), span_us=(mid, mid + 50_000))
+        renders_at = set(fixed_times_us(src.t0_us, src.t1_us, 600.0).tolist())
         e = []
         for t, f in zip(ts, frames):
-            if (t - src.t0_us) % 1667 > 5:  # a point between renders
+            if int(t) not in renders_at:  # a point between renders
                 ref = truth.frame(int(t))
                 e.append(np.abs(np.log(f.astype(np.float64) + 1e-3) - np.log(ref.astype(np.float64) + 1e-3)))
         errs[slopes] = float(np.mean(np.concatenate([x.ravel() for x in e])))

@@ -18,6 +18,37 @@ from tests.conftest import REPO, run_cli, run_snakemake, shared_data
 
 # ---------------------------------------------------------------- id lists
 
+def test_source_files_are_the_regular_files_of_a_capture(tmp_path):
+    """ingest's inputs: every regular file below the path, sorted; hidden names,
+    dangling links and FIFOs skipped; a linked folder walked once, even in a loop."""
+    import os
+
+    from gs2e.io.selection import source_files
+
+    cap = tmp_path / "cap"
+    (cap / "images").mkdir(parents=True)
+    (cap / "images" / "b.png").write_bytes(b"b")
+    (cap / "images" / "a.png").write_bytes(b"a")
+    (cap / "poses.json").write_text("{}")
+    (cap / ".DS_Store").write_bytes(b"x")
+    (cap / ".git").mkdir()
+    (cap / ".git" / "HEAD").write_text("ref")
+    os.symlink(cap / "gone.png", cap / "images" / "dangling.png")
+    os.mkfifo(cap / "pipe")
+    other = tmp_path / "shared"
+    other.mkdir()
+    (other / "calib.txt").write_text("1")
+    os.symlink(other, cap / "linked")
+    os.symlink(cap, cap / "images" / "loop")  # a link back up the tree
+    got = source_files(cap)
+    assert got == sorted(str(cap / p) for p in ("images/a.png", "images/b.png", "linked/calib.txt",
+                                                  "poses.json"))
+    assert source_files(cap / "poses.json") == [str(cap / "poses.json")]
+    assert source_files(tmp_path / "missing") == [str(tmp_path / "missing")]
+    (tmp_path / "empty").mkdir()
+    assert source_files(tmp_path / "empty") == []  # ingest then says it holds no images
+
+
 def test_parse_id_list_comments_blanks_and_normalisation():
     text = "# header\n\n 7/0a1b2c3d \n26/1f00e8a4   # trailing comment\n26//1f00e8a5/\n"
     ids = parse_id_list(text, "m.txt", "mvimgnet")

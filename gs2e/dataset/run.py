@@ -127,6 +127,13 @@ def run_dataset(configfiles: list[str], cores: str = "all", extra: list[str] | N
     if dry:
         print(plan.stdout, end="")
         return 0
+    locks = Path(".snakemake", "locks")
+    if locks.is_dir() and any(locks.iterdir()):
+        # a dry run only warns; the run itself would stop at once (Snakemake's LockException)
+        raise WorkflowFailed(
+            f"the workflow folder is locked ({locks}): another Snakemake is running here, or one was "
+            "killed and left its locks (and maybe jobs still running: stop them first); then "
+            f"`snakemake --unlock --configfile {' '.join(configfiles)}` and run this again")
     run = _snakemake(configfiles, cores, extra, "--keep-going", "scenes")
     if run.returncode:
         log.warning("some jobs failed (snakemake exit %d); recording which scenes and why", run.returncode)

@@ -208,8 +208,9 @@ def write_scenes_table(rows: list[dict], out: str | Path, comment: str = "") -> 
 
 def source_files(path: str | Path) -> list[str]:
     """Every file of a scene's source: ``path`` itself if it is a file, else the
-    regular files below it (symbolic links followed, names starting with ``.``
-    skipped), sorted; ``[path]`` if it does not exist (the caller names it).
+    regular files below it (symbolic links followed, each folder once; names
+    starting with ``.``, dangling links, FIFOs and sockets skipped), sorted;
+    ``[path]`` if it does not exist (the caller names it).
 
     These are the ingest rule's inputs. Listed as files, not as the folder, so
     that Snakemake judges a copy by its content: after a copy that gives every
@@ -222,8 +223,15 @@ def source_files(path: str | Path) -> list[str]:
     p = Path(path)
     if not p.is_dir():
         return [str(p)]
-    out = []
+    out, seen = [], set()
     for root, dirs, files in os.walk(p, followlinks=True):
+        st = os.stat(root)
+        if (st.st_dev, st.st_ino) in seen:  # a link back up the tree: walked already
+            dirs[:] = []
+            continue
+        seen.add((st.st_dev, st.st_ino))
         dirs[:] = [d for d in dirs if not d.startswith(".")]
-        out.extend(os.path.join(root, f) for f in files if not f.startswith("."))
+        # regular files only: a dangling link, a FIFO or a socket is nothing ingest reads
+        out.extend(f for f in (os.path.join(root, n) for n in files if not n.startswith("."))
+                   if os.path.isfile(f))
     return sorted(out)

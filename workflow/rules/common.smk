@@ -200,7 +200,12 @@ def scene_source(wc):
     row = SCENES[wc.scene]
     if row["layout"] == "demo":
         return res(wc.scene, "source")
-    return source_files(row["path"])
+    files = source_files(row["path"])
+    odd = next((f for f in files if "{" in f or "}" in f), None)
+    if odd is not None:  # Snakemake reads braces in an input as a wildcard
+        raise ValueError(f"scene '{wc.scene}': file {odd}: braces in a file name are not supported "
+                         "(Snakemake takes them for a wildcard); rename it")
+    return files
 
 
 def scene_source_path(wc):
