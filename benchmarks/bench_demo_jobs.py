@@ -91,19 +91,27 @@ def side_env(name: str, root: Path, tmp: Path) -> dict:
 _UNKNOWN = re.compile(r"config: unknown key (?P<keys>[\w., ]+)")
 
 
-def without_null_keys(args: list[str], keys: list[str]) -> list[str] | None:
-    """``args`` with the dotted ``keys`` (``section.key``) removed from its
-    ``--config-json``, if each holds null there (a setting an older gs2e does
-    not have, left at its default: the same job); None if any does not."""
+def without_default_keys(args: list[str], keys: list[str]) -> list[str] | None:
+    """``args`` with the dotted ``keys`` (``section.key`` or ``section.sub.key``)
+    removed from its ``--config-json``, if each holds its default there (today's
+    schema default: a setting an older gs2e does not have, left as it was: the
+    same job); None if any does not."""
+    from gs2e.config import load_config
+
     if "--config-json" not in args:
         return None
     i = args.index("--config-json") + 1
     cfg = json.loads(args[i])
+    defaults = load_config({})
     for key in keys:
-        name = key.split(".", 1)[-1]
-        if name not in cfg or cfg[name] is not None:
+        section, *path = key.split(".")
+        node, default = cfg, defaults.get(section, {})
+        for part in path[:-1]:
+            node, default = node.get(part, {}), default.get(part, {})
+        name = path[-1] if path else section
+        if name not in node or node[name] != default.get(name, object()):
             return None
-        del cfg[name]
+        del node[name]
     return args[:i] + [json.dumps(cfg)] + args[i + 1:]
 
 
@@ -113,7 +121,7 @@ def run_job(name: str, root: Path, env: dict, job: str, log: Path, out: Path, wo
     r = harness.run_child([sys.executable, "-m", "gs2e", *args], env=env, cwd=root)
     for _ in range(3):  # a baseline older than some settings, all at their default here
         m = _UNKNOWN.search(r.output) if r.returncode != 0 else None
-        args = without_null_keys(args, [k.strip() for k in m["keys"].split(",")]) if m else None
+        args = without_default_keys(args, [k.strip() for k in m["keys"].split(",")]) if m else None
         if args is None:
             break
         r = harness.run_child([sys.executable, "-m", "gs2e", *args], env=env, cwd=root)
