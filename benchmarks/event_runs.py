@@ -288,16 +288,17 @@ def scenes_of_cost_run(ap, args, what: str) -> bool:
 
 
 def run_events(scene_dir: Path, traj: str, events_cfg: dict, mode: str, fps: float, bound: float,
-               seed: int, span_s: float, out: Path, repo: Path = REPO) -> dict:
+               seed: int, span_s: float, out: Path, repo: Path = REPO, model: Path | None = None) -> dict:
     """``gs2e events`` (a fresh process, 2 threads) on the first ``span_s`` seconds
-    of trajectory ``traj`` of ``scene_dir`` with the code of checkout ``repo``:
-    CPU seconds of the process (all its threads), wall seconds, its stats and events."""
+    of trajectory ``traj`` of ``scene_dir`` with the code of checkout ``repo``
+    and the scene's model (or ``model``): CPU seconds of the process (all its
+    threads), wall seconds, its stats and events."""
     from gs2e.events.io import read_h5
 
     cfg = json.loads(json.dumps(events_cfg))
     cfg.update(max_duration_s=span_s, containers=[], preview=False, write_text=False, write_npz=False)
     cfg["sampling"].update(mode=mode, fixed_fps=fps, bound_fraction=bound)
-    cmd = [sys.executable, "-m", "gs2e", "events", "--model", str(scene_dir / "splat"),
+    cmd = [sys.executable, "-m", "gs2e", "events", "--model", str(model or scene_dir / "splat"),
            "--trajectory", str(scene_dir / "trajectories" / f"{traj}.npz"), "-o", str(out),
            "--seed", str(seed), "--threads", "2", "--config-json", json.dumps(cfg)]
     r = run_child(cmd, env=gs2e_env(repo), cwd=repo)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import pytest
 import torch
@@ -100,6 +101,41 @@ def test_continuous_renderer_cross_fades_a_depth_swap_and_equals_a_render_at_kno
     for t in (0.42e6, 0.49e6, 0.56e6):  # knots
         np.testing.assert_array_equal(cr.render(t), r.render(pose(t)))
     assert order_knots(r, pose, 0.0, 1e6, 2.0).dt_us > 0
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_render_blended_in_one_pass_is_two_renders_blended(dtype):
+    """The cross-fade composites both orders in one pass, sharing a Gaussian's
+    alphas where both lists hold it at the same position: the same bits as
+    the image in each order alone, blended as (1 - s) a + s b."""
+    p = random_scene(n=400, seed=7, sh_degree=1)
+    cam = look_at_camera(48, 40)
+    params = {k: v.detach().numpy() for k, v in p.items() if k != "background"}
+    params = {"sh_dc": params["sh"][:, :1], "sh_rest": params["sh"][:, 1:], **params}
+    del params["sh"]
+    r = ForwardRenderer(params, 1, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height,
+                        background=(0.1, 0.2, 0.3), dtype=dtype, window="smooth")
+    c2w = np.linalg.inv(cam.viewmat)
+    side = np.linalg.inv(look_at_camera(48, 40, eye=(2.0, 0.5, -3.5)).viewmat)
+    shuffled = np.random.default_rng(0).permutation(r.n_gaussians)  # nearly no position shared
+    a = r.depth_order_at(c2w)
+    for b in (r.depth_order_at(side), shuffled):  # another pose's order: shared and swapped
+        img_a = r.render_blended(c2w, a, a, 0.0).copy()
+        img_b = r.render_blended(c2w, b, b, 0.0).copy()
+        assert np.abs(img_a - img_b).max() > 1e-3  # the orders differ on the image
+        for s in (0.25, 1.0):
+            r.tiles_blended = 0
+            got = r.render_blended(c2w, a, b, s)
+            np.testing.assert_array_equal(got, img_a + dtype(s) * (img_b - img_a))
+            assert r.tiles_blended > 0
+    np.testing.assert_array_equal(r.render_blended(c2w, a, a, 0.5), r.render(c2w))
+    both = r.render_blended(c2w, a, shuffled, 0.5).copy()
+    threads = numba.get_num_threads()
+    try:  # tiles split over one thread instead of several: the same bits
+        numba.set_num_threads(1)
+        np.testing.assert_array_equal(r.render_blended(c2w, a, shuffled, 0.5), both)
+    finally:
+        numba.set_num_threads(threads)
 
 
 def test_windows_are_checked():

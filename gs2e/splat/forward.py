@@ -225,46 +225,18 @@ def _tile_lists(tiles, c_off, c_gids, rect, depths, width, tile):
 
 
 @njit(cache=True)
-def _differing_lists(offsets, gids_a, gids_b):
-    """Tiles whose lists differ between two orders of the same members
-    (int64 tile numbers), and their lists in order b as (offsets, gids) of
-    just those tiles. (Only swaps of Gaussians that share a pixel change a
-    composite, but on trained models nearly every tile that holds a swap
-    holds such a one: demo, 1-4 px of motion between the orders.)"""
-    n = offsets.shape[0] - 1
-    diff = np.zeros(n, np.bool_)
-    m = 0
-    for t in range(n):
+def _differing_tiles(offsets, gids_a, gids_b) -> int:
+    """How many tiles' lists differ between two orders of the same members.
+    (Only swaps of Gaussians that share a pixel change a composite, but on
+    trained models nearly every tile that holds a swap holds such a one:
+    demo, 1-4 px of motion between the orders.)"""
+    n = 0
+    for t in range(offsets.shape[0] - 1):
         for k in range(offsets[t], offsets[t + 1]):
             if gids_a[k] != gids_b[k]:
-                diff[t] = True
-                m += offsets[t + 1] - offsets[t]
+                n += 1
                 break
-    tiles = np.flatnonzero(diff).astype(np.int64)
-    sub_off = np.zeros(tiles.shape[0] + 1, np.int64)
-    sub = np.empty(m, np.int64)
-    c = 0
-    for s in range(tiles.shape[0]):
-        t = tiles[s]
-        for k in range(offsets[t], offsets[t + 1]):
-            sub[c] = gids_b[k]
-            c += 1
-        sub_off[s + 1] = c
-    return tiles, sub_off, sub
-
-
-@njit(cache=True, parallel=True)
-def _blend_tiles(image, other, tiles, s, width, tile):
-    """image = (1 - s) image + s other on the pixels of ``tiles``."""
-    tiles_x = (width + tile - 1) // tile
-    H = image.shape[0]
-    for q in prange(tiles.shape[0]):
-        ty = tiles[q] // tiles_x
-        tx = tiles[q] - ty * tiles_x
-        for i in range(ty * tile, min(H, ty * tile + tile)):
-            for j in range(tx * tile, min(width, tx * tile + tile)):
-                for c in range(image.shape[2]):
-                    image[i, j, c] = image[i, j, c] + s * (other[i, j, c] - image[i, j, c])
+    return n
 
 
 @njit(cache=True, parallel=True)
@@ -359,8 +331,7 @@ class ForwardRenderer:
         self._mark = 0
         self.image = np.zeros((self.height, self.width, 3), self.dtype)
         self._T = np.empty((self.height, self.width), self.dtype)
-        self._other = None  # second image of an order blend (render_blended)
-        self.tiles_blended = 0  # tiles composited a second time by render_blended
+        self.tiles_blended = 0  # tiles composited in two orders by render_blended
         self._nc = np.empty((self.height, self.width), np.int32)
         self.renders = 0          # calls of render / render_tiles
         self.tiles_rendered = 0   # tiles composited
@@ -405,11 +376,14 @@ class ForwardRenderer:
         self.tiles_rendered += self.n_tiles
         return self.image
 
-    def _composite(self, tiles, offsets, gids, image) -> None:
-        _raster.forward_kernel(self.dtype, offsets, self.window)(
+    def _composite(self, tiles, offsets, gids, image, gids_b=None, s: float = 0.0) -> None:
+        """Composite ``tiles``; ``gids_b``: a second order to cross-fade with
+        by ``s`` (:func:`gs2e.splat.raster._make_forward`)."""
+        two = () if gids_b is None else (gids_b, float(s))
+        _raster.forward_kernel(self.dtype, offsets, self.window, two_orders=bool(two))(
             tiles, offsets, gids, self.m2_dt, self.cn_dt, self.opac_dt, self.colors, self.bg,
             self.width, self.height, TILE, image, self._T, self._nc,
-            *_raster.tile_schedule(offsets))
+            *_raster.tile_schedule(offsets), *two)
 
     def depth_order_at(self, c2w) -> np.ndarray:
         """(N,) int64: every Gaussian (culled or not) by increasing camera depth
@@ -421,10 +395,12 @@ class ForwardRenderer:
     def render_blended(self, c2w, order_a: np.ndarray, order_b: np.ndarray, s: float) -> np.ndarray:
         """The whole image at pose ``c2w`` composited in two held depth orders
         and cross-faded: (1 - s) x the image in ``order_a`` + s x the one in
-        ``order_b`` ((N,) from :meth:`depth_order_at` at two poses). Only the
-        tiles whose lists the two orders change are composited twice. With
-        order_a at this pose and s = 0 this is :meth:`render`. Returns
-        :attr:`image` (overwritten by the next call)."""
+        ``order_b`` ((N,) from :meth:`depth_order_at` at two poses). One pass:
+        a tile whose lists the two orders change is composited in both at once,
+        each Gaussian's alphas computed once where both lists hold it at the
+        same position (the same bits as two renders blended). With order_a at
+        this pose and s = 0 this is :meth:`render`. Returns :attr:`image`
+        (overwritten by the next call)."""
         vm = self._viewmat(c2w)
         self._project(vm, None)
         vis = (self.radii > 0) & self._binned
@@ -432,18 +408,12 @@ class ForwardRenderer:
         lists = [_raster.bin_rects_kernel(o, self.rect[o], self.width, self.height, TILE,
                                           numba.get_num_threads()) for o in orders]
         (offsets, gids_a), (_, gids_b) = lists
-        self._composite(np.arange(self.n_tiles, dtype=np.int64), offsets, gids_a, self.image)
+        self._composite(np.arange(self.n_tiles, dtype=np.int64), offsets, gids_a, self.image,
+                        None if s == 0.0 else gids_b, s)
         self.renders += 1
         self.tiles_rendered += self.n_tiles
-        if s == 0.0:
-            return self.image
-        tiles, sub_off, sub = _differing_lists(offsets, gids_a, gids_b)
-        if len(tiles):
-            if self._other is None:
-                self._other = np.zeros_like(self.image)
-            self._composite(tiles, sub_off, sub, self._other)
-            _blend_tiles(self.image, self._other, tiles, self.dtype.type(s), self.width, TILE)
-            self.tiles_blended += len(tiles)
+        if s != 0.0:
+            self.tiles_blended += _differing_tiles(offsets, gids_a, gids_b)
         return self.image
 
     def centres(self, c2w) -> CentreProjection:

@@ -659,43 +659,69 @@ def _row_segments(reached, ii, u, v, a, b, det, m2, inv_a, x0, y0, tw, lanes, ns
 
 
 @njit(inline="always", fastmath=False)
-def _segment_forward(s, jx, u, a, b, c, dy, lpm, o, f0, f1, f2, f3, kf, mf, lanes, lane_f, kc):
+def _lane_alpha(jx, lf, u, a, b, c, dy, lpm, o, kc):
+    """One lane's alpha with the cut window (column jx + lf at offset dy from
+    the centre row) and whether the Gaussian reaches that pixel (the cut:
+    3 sigma and alpha >= ALPHA_MIN), before the pixel's own state."""
+    zero, one, half, a_max, a_min, t_min, p_min = kc
+    dx = u - ((jx + lf) + half)
+    # -1/2 (a dx^2 + c dy^2) - b dx dy
+    power = _mul_add(-(b * dx), dy, -half * _mul_add(a * dx, dx, c * dy * dy))
+    # exp's argument is clamped to its domain, not masked by the pixel
+    # state: the exp then does not wait for the previous Gaussian's
+    # result on these pixels (a loop-carried chain; 1.1-1.2x faster)
+    alpha = min(a_max, o * _exp_neg_any(min(max(power, p_min), zero)))
+    return alpha, (power <= zero) & (power >= lpm) & (power >= p_min) & (alpha >= a_min)
+
+
+@njit(inline="always", fastmath=False)
+def _lane_apply(s, at, lane, lanes, alpha, reach, f0, f1, f2, f3, kf, mf, kc):
+    """Composite one lane's alpha (:func:`_lane_alpha`) into the pixel state
+    at s[at:] of a segment block with the cut window."""
+    zero, one, half, a_max, a_min, t_min, p_min = kc
+    FT, F0, F1, F2, F3, FL = at, at + lanes, at + 2 * lanes, at + 3 * lanes, at + 4 * lanes, at + 5 * lanes
+    ok = reach & (s[FL + lane] == mf)
+    T = s[FT + lane]
+    t_next = T * (one - alpha)
+    upd = ok & (t_next >= t_min)
+    w = alpha * T
+    # Every store unconditional and no select between a stored value and
+    # the value loaded from the same place: LLVM turns that into a masked
+    # store (see _select). The same bits: a lane not updated adds f * 0 to
+    # a sum that is never -0 (it starts at +0; features are finite),
+    # multiplies T by 1 and adds 0 to its stop index (exact integers).
+    wu = _select(upd, w, zero)
+    s[F0 + lane] = _mul_add(f0, wu, s[F0 + lane])
+    s[F1 + lane] = _mul_add(f1, wu, s[F1 + lane])
+    s[F2 + lane] = _mul_add(f2, wu, s[F2 + lane])
+    s[F3 + lane] = _mul_add(f3, wu, s[F3 + lane])
+    s[FT + lane] = T * _select(upd, one - alpha, one)  # t_next where updated
+    s[FL + lane] = s[FL + lane] + _select(ok & (t_next < t_min), kf - mf, zero)  # open = mf
+
+
+@njit(inline="always", fastmath=False)
+def _segment_forward(s, at, pair, jx, u, a, b, c, dy, lpm, o, f0, f1, f2, f3, kf, mf, lanes,
+                     lane_f, kc):
     """Composite Gaussian k (kf = k) over the ``lanes`` pixels of one segment
-    block ``s`` (columns jx .. jx + lanes - 1 at offset dy from the centre
-    row; jx given in the float type), in the float type of the block and
-    values. Branch-free: every lane computes and stores, selects decide what. A
+    block (columns jx .. jx + lanes - 1 at offset dy from the centre row; jx
+    given in the float type), in the float type of the block and values: into
+    the pixel state at s[at:], or with ``pair`` into both states s[0:] and
+    s[6 lanes:] (the same pixels composited in two depth orders,
+    :func:`_make_forward`), each alpha computed once.
+    Branch-free: every lane computes and stores, selects decide what. A
     pixel is open while its stop index equals mf (list length). lane_f = 0 ..
     lanes - 1; kc = (0, 1, 0.5, ALPHA_MAX, ALPHA_MIN, T_MIN, POWER_MIN); all
     in that type. Multiply-adds go through :func:`_mul_add` (fused in float32)
     and exp through :func:`_exp_neg_any`."""
-    zero, one, half, a_max, a_min, t_min, p_min = kc
-    FT, F0, F1, F2, F3, FL = 0, lanes, 2 * lanes, 3 * lanes, 4 * lanes, 5 * lanes
-    for lane in range(lanes):
-        dx = u - ((jx + lane_f[lane]) + half)
-        # -1/2 (a dx^2 + c dy^2) - b dx dy
-        power = _mul_add(-(b * dx), dy, -half * _mul_add(a * dx, dx, c * dy * dy))
-        # exp's argument is clamped to its domain, not masked by the pixel
-        # state: the exp then does not wait for the previous Gaussian's
-        # result on these pixels (a loop-carried chain; 1.1-1.2x faster)
-        alpha = min(a_max, o * _exp_neg_any(min(max(power, p_min), zero)))
-        ok = ((power <= zero) & (power >= lpm) & (power >= p_min) & (s[FL + lane] == mf)
-              & (alpha >= a_min))
-        T = s[FT + lane]
-        t_next = T * (one - alpha)
-        upd = ok & (t_next >= t_min)
-        w = alpha * T
-        # Every store unconditional and no select between a stored value and
-        # the value loaded from the same place: LLVM turns that into a masked
-        # store (see _select). The same bits: a lane not updated adds f * 0 to
-        # a sum that is never -0 (it starts at +0; features are finite),
-        # multiplies T by 1 and adds 0 to its stop index (exact integers).
-        wu = _select(upd, w, zero)
-        s[F0 + lane] = _mul_add(f0, wu, s[F0 + lane])
-        s[F1 + lane] = _mul_add(f1, wu, s[F1 + lane])
-        s[F2 + lane] = _mul_add(f2, wu, s[F2 + lane])
-        s[F3 + lane] = _mul_add(f3, wu, s[F3 + lane])
-        s[FT + lane] = T * _select(upd, one - alpha, one)  # t_next where updated
-        s[FL + lane] = s[FL + lane] + _select(ok & (t_next < t_min), kf - mf, zero)  # open = mf
+    if pair:
+        for lane in range(lanes):
+            alpha, reach = _lane_alpha(jx, lane_f[lane], u, a, b, c, dy, lpm, o, kc)
+            _lane_apply(s, 0, lane, lanes, alpha, reach, f0, f1, f2, f3, kf, mf, kc)
+            _lane_apply(s, 6 * lanes, lane, lanes, alpha, reach, f0, f1, f2, f3, kf, mf, kc)
+    else:
+        for lane in range(lanes):
+            alpha, reach = _lane_alpha(jx, lane_f[lane], u, a, b, c, dy, lpm, o, kc)
+            _lane_apply(s, at, lane, lanes, alpha, reach, f0, f1, f2, f3, kf, mf, kc)
 
 
 @njit(inline="always", fastmath=False)
@@ -707,32 +733,53 @@ def _ramp(T, t_min, inv_t_min, zero, one, two, three):
 
 
 @njit(inline="always", fastmath=False)
-def _segment_forward_smooth(s, jx, u, a, b, c, dy, pc, c0, c1, o, f0, f1, f2, f3, kf, mf, lanes,
-                            lane_f, kc, ks):
-    """:func:`_segment_forward` with the smooth window (module docstring):
-    alpha = min(ALPHA_MAX, o exp(p) - (c0 + c1 p)) on [p_c, 0] (``o``: the
-    Gaussian's A of :func:`_smooth_constants`), weights
-    faded by r(T), the stopping Gaussian applied and counted (stop index k +
-    1). ks = (2, 3, 1 / T_MIN) in the block's type."""
+def _lane_alpha_smooth(jx, lf, u, a, b, c, dy, pc, c0, c1, o, kc):
+    """:func:`_lane_alpha` with the smooth window: alpha = min(ALPHA_MAX,
+    o exp(p) - (c0 + c1 p)) on [p_c, 0] (``o``: the Gaussian's A of
+    :func:`_smooth_constants`)."""
+    zero, one, half, a_max, a_min, t_min, p_min = kc
+    dx = u - ((jx + lf) + half)
+    power = _mul_add(-(b * dx), dy, -half * _mul_add(a * dx, dx, c * dy * dy))
+    G = _exp_neg_any(min(max(power, p_min), zero))
+    alpha = min(a_max, max(zero, _mul_add(o, G, -_mul_add(c1, power, c0))))
+    return alpha, (power <= zero) & (power >= pc)
+
+
+@njit(inline="always", fastmath=False)
+def _lane_apply_smooth(s, at, lane, lanes, alpha, reach, f0, f1, f2, f3, kf, mf, kc, ks):
+    """:func:`_lane_apply` with the smooth window: weights faded by r(T), the
+    stopping Gaussian applied and counted (stop index k + 1)."""
     zero, one, half, a_max, a_min, t_min, p_min = kc
     two, three, inv_t_min = ks
-    FT, F0, F1, F2, F3, FL = 0, lanes, 2 * lanes, 3 * lanes, 4 * lanes, 5 * lanes
-    for lane in range(lanes):
-        dx = u - ((jx + lane_f[lane]) + half)
-        power = _mul_add(-(b * dx), dy, -half * _mul_add(a * dx, dx, c * dy * dy))
-        G = _exp_neg_any(min(max(power, p_min), zero))
-        alpha = min(a_max, max(zero, _mul_add(o, G, -_mul_add(c1, power, c0))))
-        ok = (power <= zero) & (power >= pc) & (s[FL + lane] == mf)
-        T = s[FT + lane]
-        r = _ramp(T, t_min, inv_t_min, zero, one, two, three)[0]
-        t_next = T * (one - alpha)
-        wu = _select(ok, alpha * T * r, zero)
-        s[F0 + lane] = _mul_add(f0, wu, s[F0 + lane])
-        s[F1 + lane] = _mul_add(f1, wu, s[F1 + lane])
-        s[F2 + lane] = _mul_add(f2, wu, s[F2 + lane])
-        s[F3 + lane] = _mul_add(f3, wu, s[F3 + lane])
-        s[FT + lane] = T * _select(ok, one - alpha, one)
-        s[FL + lane] = s[FL + lane] + _select(ok & (t_next < t_min), (kf + one) - mf, zero)
+    FT, F0, F1, F2, F3, FL = at, at + lanes, at + 2 * lanes, at + 3 * lanes, at + 4 * lanes, at + 5 * lanes
+    ok = reach & (s[FL + lane] == mf)
+    T = s[FT + lane]
+    r = _ramp(T, t_min, inv_t_min, zero, one, two, three)[0]
+    t_next = T * (one - alpha)
+    wu = _select(ok, alpha * T * r, zero)
+    s[F0 + lane] = _mul_add(f0, wu, s[F0 + lane])
+    s[F1 + lane] = _mul_add(f1, wu, s[F1 + lane])
+    s[F2 + lane] = _mul_add(f2, wu, s[F2 + lane])
+    s[F3 + lane] = _mul_add(f3, wu, s[F3 + lane])
+    s[FT + lane] = T * _select(ok, one - alpha, one)
+    s[FL + lane] = s[FL + lane] + _select(ok & (t_next < t_min), (kf + one) - mf, zero)
+
+
+@njit(inline="always", fastmath=False)
+def _segment_forward_smooth(s, at, pair, jx, u, a, b, c, dy, pc, c0, c1, o, f0, f1, f2, f3, kf,
+                            mf, lanes, lane_f, kc, ks):
+    """:func:`_segment_forward` with the smooth window (module docstring).
+    ks = (2, 3, 1 / T_MIN) in the block's type."""
+    if pair:
+        for lane in range(lanes):
+            alpha, reach = _lane_alpha_smooth(jx, lane_f[lane], u, a, b, c, dy, pc, c0, c1, o, kc)
+            _lane_apply_smooth(s, 0, lane, lanes, alpha, reach, f0, f1, f2, f3, kf, mf, kc, ks)
+            _lane_apply_smooth(s, 6 * lanes, lane, lanes, alpha, reach, f0, f1, f2, f3, kf, mf, kc,
+                               ks)
+    else:
+        for lane in range(lanes):
+            alpha, reach = _lane_alpha_smooth(jx, lane_f[lane], u, a, b, c, dy, pc, c0, c1, o, kc)
+            _lane_apply_smooth(s, at, lane, lanes, alpha, reach, f0, f1, f2, f3, kf, mf, kc, ks)
 
 
 @njit(inline="always", fastmath=False)
@@ -747,12 +794,62 @@ def _block_open(st, at, mf, lanes):
     return False
 
 
-def _make_forward(ftype, lanes: int, smooth: bool = False):
+@njit(inline="always", fastmath=False)
+def _composite_gaussian(geo, g, kf, st, at, pair, nstates, reached, x0, y0, tw, th, mf, smooth,
+                        ftype, lanes, nseg, per_segment, FBLK, FL, lane_f, kc, ks):
+    """Composite Gaussian g, list position kf, into a tile's segment blocks,
+    each holding ``nstates`` pixel states of FBLK values one after the other:
+    into the state at offset ``at``, or with ``pair`` into the first two
+    with the same alphas. A block whose pixels have stopped in every state
+    it composites into is left alone."""
+    lpm = geo[g, 4]
+    if lpm > 0.0:
+        return
+    half = ftype(0.5)
+    a, b, m2, det, u, v = geo[g, 1], geo[g, 2], geo[g, 5], geo[g, 6], geo[g, 7], geo[g, 8]
+    inv_a = geo[g, 14]
+    o_f, a_f, b_f, c_f, lpm_f, u_f, v_f, f0, f1, f2, f3 = _segment_values(geo, g, ftype)
+    i_lo, i_hi = _rows_of(v, geo[g, 13], y0, th)
+    _rows_reached(reached, i_lo, i_hi, u, v, a, b, det, m2, inv_a, x0, y0, tw, lanes, nseg,
+                  per_segment)
+    stride = nstates * FBLK
+    for ii in range(i_lo, i_hi + 1):
+        h_lo, h_hi = _row_segments(reached, ii, u, v, a, b, det, m2, inv_a, x0, y0, tw, lanes,
+                                   nseg, per_segment)
+        if h_lo > h_hi:
+            continue
+        dy_f = v_f - (ftype(y0 + ii) + half)
+        for h in range(h_lo, h_hi + 1):
+            blk = (ii * nseg + h) * stride
+            if not (_block_open(st, blk + at + FL, mf, lanes)
+                    or (pair and _block_open(st, blk + FBLK + FL, mf, lanes))):
+                continue
+            if smooth:
+                pc_f, A_f, c0_f, c1_f, _u0, _q0, _q1 = _smooth_values(geo, g, ftype)
+                _segment_forward_smooth(st[blk:blk + stride], at, pair, ftype(x0 + h * lanes), u_f,
+                                        a_f, b_f, c_f, dy_f, pc_f, c0_f, c1_f, A_f, f0, f1, f2, f3,
+                                        kf, mf, lanes, lane_f, kc, ks)
+            else:
+                _segment_forward(st[blk:blk + stride], at, pair, ftype(x0 + h * lanes), u_f, a_f,
+                                 b_f, c_f, dy_f, lpm_f, o_f, f0, f1, f2, f3, kf, mf, lanes, lane_f,
+                                 kc)
+
+
+def _make_forward(ftype, lanes: int, smooth: bool = False, two_orders: bool = False):
     """The forward compositing kernel computing in ``ftype`` with segments of
     ``lanes`` pixels (one AVX-512 register: 8 float64 or 16 float32), with the
     cut window or (``smooth``) the smooth one. Per-Gaussian
     set-up, row ranges and the segments reached stay float64; the per-pixel
     tests and compositing run in ``ftype``.
+
+    Two depth orders at once (issue 67's cross-fade; ``two_orders``, a kernel
+    of its own, as each inlined copy of the compositing compiles anew): the
+    kernel takes a second list ``gids_b`` with the same members per tile in
+    another order, and a weight ``s_blend``; a tile whose two lists differ is composited in
+    both (two pixel states; where both lists hold the same Gaussian at the
+    same position, its alphas are computed once for both) and written as
+    out_a + s_blend (out_b - out_a), the same bits as two separate renders
+    blended so; ``gids`` twice is a plain render.
 
     The kernel is a closure over plain values only (type, ints, constants,
     arrays): numba's on-disk cache keys a closure by its values, and a
@@ -767,12 +864,13 @@ def _make_forward(ftype, lanes: int, smooth: bool = False):
     per_segment = lanes < 16  # tile rows of 16 hold several segments: find each
 
     @njit(parallel=True, cache=True, fastmath=False)
-    def kernel(tile_ids, offsets, gids, means2d, conics, opac, feats, bg,
-               width, height, tile, out, out_T, n_contrib, order, bounds):
+    def kernel(tile_ids, offsets, gids, means2d, conics, opac, feats, bg, width, height, tile,
+               out, out_T, n_contrib, order, bounds, gids_b=None, s_blend=0.0):
         tiles_x = (width + tile - 1) // tile
         C = feats.shape[1]
         nseg = (tile + lanes - 1) // lanes
         geo = _prepare_gaussians(means2d, conics, opac, feats, smooth)
+        sb = ftype(s_blend)
         for w in prange(bounds.shape[0] - 1):
             for r in range(bounds[w], bounds[w + 1]):
                 si = order[r]
@@ -780,61 +878,64 @@ def _make_forward(ftype, lanes: int, smooth: bool = False):
                 start = offsets[si]
                 m = offsets[si + 1] - start
                 mf = ftype(m)
-                # one block per (row, segment): lanes past the tile's width start closed
-                st = np.zeros(th * nseg * FBLK, dtype=ftype)
+                pair = False
+                if two_orders:
+                    for k in range(m):
+                        if gids[start + k] != gids_b[start + k]:
+                            pair = True
+                            break
+                # one block per (row, segment), holding each state's values (two in a
+                # tile whose orders differ): lanes past the tile's width start closed
+                ns = 2 if pair else 1
+                st = np.zeros(th * nseg * ns * FBLK, dtype=ftype)
                 reached = np.zeros(th * nseg, dtype=np.bool_)
                 for ii in range(th):
                     for jj in range(nseg * lanes):
-                        blk = (ii * nseg + jj // lanes) * FBLK
-                        st[blk + FT + jj % lanes] = one
-                        st[blk + FL + jj % lanes] = mf if jj < tw else -one
-                for k in range(m):
-                    g = gids[start + k]
-                    lpm = geo[g, 4]
-                    if lpm > 0.0:
-                        continue
-                    a, b, m2, det, u, v = geo[g, 1], geo[g, 2], geo[g, 5], geo[g, 6], geo[g, 7], geo[g, 8]
-                    inv_a = geo[g, 14]
-                    o_f, a_f, b_f, c_f, lpm_f, u_f, v_f, f0, f1, f2, f3 = _segment_values(geo, g, ftype)
-                    kf = ftype(k)
-                    i_lo, i_hi = _rows_of(v, geo[g, 13], y0, th)
-                    _rows_reached(reached, i_lo, i_hi, u, v, a, b, det, m2, inv_a, x0, y0, tw, lanes,
-                                  nseg, per_segment)
-                    for ii in range(i_lo, i_hi + 1):
-                        h_lo, h_hi = _row_segments(reached, ii, u, v, a, b, det, m2, inv_a, x0, y0, tw,
-                                                   lanes, nseg, per_segment)
-                        if h_lo > h_hi:
-                            continue
-                        dy_f = v_f - (ftype(y0 + ii) + half)
-                        for h in range(h_lo, h_hi + 1):
-                            blk = (ii * nseg + h) * FBLK
-                            if not _block_open(st, blk + FL, mf, lanes):
-                                continue
-                            if smooth:
-                                pc_f, A_f, c0_f, c1_f, _u0, _q0, _q1 = _smooth_values(geo, g, ftype)
-                                _segment_forward_smooth(st[blk:blk + FBLK], ftype(x0 + h * lanes), u_f,
-                                                        a_f, b_f, c_f, dy_f, pc_f, c0_f, c1_f, A_f, f0,
-                                                        f1, f2, f3, kf, mf, lanes, lane_f, kc, ks)
-                            else:
-                                _segment_forward(st[blk:blk + FBLK], ftype(x0 + h * lanes), u_f, a_f,
-                                                 b_f, c_f, dy_f, lpm_f, o_f, f0, f1, f2, f3, kf, mf,
-                                                 lanes, lane_f, kc)
+                        for q in range(ns):
+                            blk = ((ii * nseg + jj // lanes) * ns + q) * FBLK
+                            st[blk + FT + jj % lanes] = one
+                            st[blk + FL + jj % lanes] = mf if jj < tw else -one
+                if not two_orders:  # a constant: numba compiles one of the branches
+                    for k in range(m):
+                        _composite_gaussian(geo, gids[start + k], ftype(k), st, 0, False, 1, reached,
+                                            x0, y0, tw, th, mf, smooth, ftype, lanes, nseg,
+                                            per_segment, FBLK, FL, lane_f, kc, ks)
+                else:
+                    for k in range(m):
+                        g = gids[start + k]
+                        g2 = gids_b[start + k]
+                        # the same Gaussian at the same position: its alphas once, into
+                        # both states; else each list's Gaussian into its own state
+                        # (one call site: each inlined copy of it is compiled anew)
+                        for q in range(1 if g == g2 else 2):
+                            _composite_gaussian(geo, g2 if q == 1 else g, ftype(k), st, q * FBLK,
+                                                pair and g == g2, ns, reached, x0, y0, tw, th, mf,
+                                                smooth, ftype, lanes, nseg, per_segment, FBLK, FL,
+                                                lane_f, kc, ks)
                 for ii in range(th):
                     for jj in range(tw):
-                        blk = (ii * nseg + jj // lanes) * FBLK
+                        blk = (ii * nseg + jj // lanes) * ns * FBLK
                         lane = jj % lanes
                         T = st[blk + FT + lane]
                         for ch in range(C):
-                            out[y0 + ii, x0 + jj, ch] = _mul_add(T, ftype(bg[ch]), st[blk + lanes * (1 + ch) + lane])
+                            va = _mul_add(T, ftype(bg[ch]), st[blk + lanes * (1 + ch) + lane])
+                            if pair:
+                                b2 = blk + FBLK
+                                vb = _mul_add(st[b2 + FT + lane], ftype(bg[ch]),
+                                              st[b2 + lanes * (1 + ch) + lane])
+                                va = va + sb * (vb - va)
+                            out[y0 + ii, x0 + jj, ch] = va
                         out_T[y0 + ii, x0 + jj] = T
                         n_contrib[y0 + ii, x0 + jj] = int(st[blk + FL + lane])
 
     kernel.__doc__ = """Composite the tiles ``tile_ids`` (row-major tile numbers), computing in
-    %s; the list of tile_ids[s] is gids[offsets[s]:offsets[s + 1]]. out (H,W,C),
-    C <= 4, out_T (H,W) final transmittance, n_contrib (H,W) = number of list
-    entries processed (the backward walks [0, n_contrib)); pixels of other tiles
-    are untouched. Thread w renders positions order[bounds[w]:bounds[w + 1]] of
-    tile_ids (:func:`tile_schedule`).""" % np.dtype(ftype).name
+    %s; the list of tile_ids[s] is gids[offsets[s]:offsets[s + 1]] (and in a
+    second depth order gids_b[...], cross-faded by s_blend: :func:`_make_forward`).
+    out (H,W,C), C <= 4, out_T (H,W) final transmittance, n_contrib (H,W) =
+    number of list entries processed (the backward walks [0, n_contrib); both
+    of the first order); pixels of other tiles are untouched. Thread w renders
+    positions order[bounds[w]:bounds[w + 1]] of tile_ids
+    (:func:`tile_schedule`).""" % np.dtype(ftype).name
     return kernel
 
 
@@ -844,6 +945,9 @@ raster_forward_kernel = _make_forward(np.float64, LANES)
 raster_forward_kernel_f32 = _make_forward(np.float32, LANES_F32)
 raster_forward_kernel_smooth = _make_forward(np.float64, LANES, smooth=True)
 raster_forward_kernel_f32_smooth = _make_forward(np.float32, LANES_F32, smooth=True)
+_BLEND_KERNELS = {(np.dtype(dt), smooth): _make_forward(dt, lanes, smooth, two_orders=True)
+                  for dt, lanes in ((np.float64, LANES), (np.float32, LANES_F32))
+                  for smooth in (False, True)}
 
 
 def check_window(window: str) -> str:
@@ -853,15 +957,20 @@ def check_window(window: str) -> str:
     return window
 
 
-def forward_kernel(compute_dtype, offsets: np.ndarray, window: str = "cut"):
+def forward_kernel(compute_dtype, offsets: np.ndarray, window: str = "cut", two_orders: bool = False):
     """The forward kernel computing in ``compute_dtype``: float32 (16 lanes,
     for renders that no backward pass follows) or float64 (8 lanes; the
     backward recomputes in float64, so a forward it follows computes so too),
-    with ``window`` (:data:`WINDOWS`). float32 falls back to float64 for a
-    tile list longer than float32 counts exactly (2^24 entries)."""
+    with ``window`` (:data:`WINDOWS`); with ``two_orders``, the kernel that
+    composites two depth orders and cross-fades them (:func:`_make_forward`).
+    float32 falls back to float64 for a tile list longer than float32 counts
+    exactly (2^24 entries)."""
     smooth = check_window(window) == "smooth"
-    if np.dtype(compute_dtype) == np.float32 and (
-            offsets.shape[0] < 2 or int(np.diff(offsets).max()) < F32_MAX_LIST):
+    f32 = np.dtype(compute_dtype) == np.float32 and (
+        offsets.shape[0] < 2 or int(np.diff(offsets).max()) < F32_MAX_LIST)
+    if two_orders:
+        return _BLEND_KERNELS[(np.dtype(np.float32 if f32 else np.float64), smooth)]
+    if f32:
         return raster_forward_kernel_f32_smooth if smooth else raster_forward_kernel_f32
     return raster_forward_kernel_smooth if smooth else raster_forward_kernel
 
