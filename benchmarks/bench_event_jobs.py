@@ -83,8 +83,8 @@ def main() -> None:
     rev = "" if args.quick else args.baseline_rev
     rows = []
     with harness.clock() as total, tempfile.TemporaryDirectory() as tmp:
-        with harness.baseline_checkout(rev) if rev else nullcontext(None) as old:
-            for code, label in ((harness.REPO, "today"), (old, f"baseline {rev}")):
+        with harness.baseline_checkout(rev) if rev else nullcontext(None) as checkout:
+            for code, label in ((harness.REPO, "today"), (checkout, f"baseline {rev}")):
                 if code is None:
                     continue
                 for name in names:
