@@ -34,7 +34,9 @@ against its own dense reference; their rows' methods are named ``smooth:
 window's ``fixed 2400`` case by case. Methods ``... cubic k`` feed k points
 per step on the cubic through the renders (``events.sampling.substeps``);
 ``fixed F slopes k`` do so with each render's own slope
-(``events.sampling.slopes: difference``: a second render 2 us later).
+(``events.sampling.slopes: difference``: a second render 2 us later);
+``curve e cubic k`` set each step from the cubic's measured error, at most
+e x theta (``events.sampling.mode: curve``, ``error_fraction``).
 
 Scenes: ``demo``, ``temple_ring``, ``llff_fern`` and ``mouse_colmap`` as built
 (cached) by bench_event_sampling.py (``event_runs.build_scenes``). ``--quick``: the tests' textured plane
@@ -72,6 +74,15 @@ METHODS = {  # name -> (mode, fps, sampling overrides)
     # a render and its 2 us difference per step, points on the Hermite curve with those slopes
     "fixed 1200 slopes 2": ("fixed", 1200.0, {"substeps": 2, "slopes": "difference"}),
     "fixed 600 slopes 4": ("fixed", 600.0, {"substeps": 4, "slopes": "difference"}),
+    # the curve clock: steps from the cubic's measured error (a fraction of theta), 4 points per step
+    "curve 0.02 cubic 4": ("curve", 2400.0, {"error_fraction": 0.02, "substeps": 4}),
+    "curve 0.05 cubic 4": ("curve", 2400.0, {"error_fraction": 0.05, "substeps": 4}),
+    "curve 0.1 cubic 4": ("curve", 2400.0, {"error_fraction": 0.1, "substeps": 4}),
+    # ... with the worst 1 % of pixels set aside instead of 0.1 %
+    "curve 0.05 cubic 4 outliers 0.01": ("curve", 2400.0, {"error_fraction": 0.05, "substeps": 4,
+                                                           "outlier_fraction": 0.01}),
+    "curve 0.1 cubic 4 outliers 0.01": ("curve", 2400.0, {"error_fraction": 0.1, "substeps": 4,
+                                                          "outlier_fraction": 0.01}),
 }
 DEFAULT_METHODS = ("fixed 2400", "fixed 1200", "motion 0.1", "motion 0.25", "motion 0.5", "motion 1", "tile")
 
@@ -218,7 +229,8 @@ def main() -> None:
     ap.add_argument("--scenes", default="demo,temple_ring,llff_fern,mouse_colmap")
     ap.add_argument("--speeds", default="mild,medium,strong")
     ap.add_argument("--sensors", default="davis346,imx636")
-    ap.add_argument("--methods", default=",".join(DEFAULT_METHODS), help=f"of {', '.join(METHODS)}")
+    ap.add_argument("--methods", default=",".join(DEFAULT_METHODS),
+                    help=f"of {', '.join(METHODS)} ({BASELINE}, the baseline, always runs)")
     ap.add_argument("--window", choices=["cut", "smooth"], default="cut",
                     help="the models' compositing window (smooth: bench_window.py's models)")
     ap.add_argument("--ref-renders", type=int, default=500,
@@ -254,6 +266,11 @@ def measure(args):
     import pandas as pd
 
     methods = args.methods.split(",")
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        raise SystemExit(f"--methods: unknown {unknown} (of {', '.join(METHODS)})")
+    if BASELINE not in methods:  # every case is compared with it: it always runs
+        methods.insert(0, BASELINE)
     rows = []
     if args.quick:
         tmp = Path(tempfile.mkdtemp(prefix="bench_ef_"))

@@ -20,13 +20,16 @@ The settings (window: sampling):
   own slope (a second render 2 us later);
 * smooth: the motion clock at 1 px, 4 points per step on the cubic through
   the renders;
-* smooth: the motion clock at 2 px, 8 points per step.
+* smooth: the motion clock at 2 px, 8 points per step;
+* smooth: the curve clock (``events.sampling.mode: curve``) at an error of
+  0.02 and of 0.05 theta, 4 points per step (not in the baseline revision:
+  today only).
 
 How faithful each is: ``bench_event_fidelity.py``. Here only its cost, with
 its render and event counts.
 
 Usage: python benchmarks/bench_event_jobs.py [--quick] [--span-s 1.0] [--trajectory base_mild]
-       [--baseline-rev REV | --baseline-rev ""]
+       [--baseline-rev REV | --baseline-rev ""] [--settings "smooth, fixed 2400;..."]
 Writes benchmarks/results/bench_event_jobs[_quick].csv and .png; the last
 line printed is the headline.
 """
@@ -52,8 +55,12 @@ SETTINGS = {
                                             "substeps": 4}),
     "smooth, motion 2 cubic 8": ("smooth", {"mode": "motion", "fixed_fps": 2400.0, "max_motion_px": 2.0,
                                             "substeps": 8}),
+    "smooth, curve 0.02 cubic 4": ("smooth", {"mode": "curve", "fixed_fps": 2400.0, "error_fraction": 0.02,
+                                              "substeps": 4}),
+    "smooth, curve 0.05 cubic 4": ("smooth", {"mode": "curve", "fixed_fps": 2400.0, "error_fraction": 0.05,
+                                              "substeps": 4}),
 }
-QUICK = (BASELINE, "smooth, motion 1 cubic 4")
+QUICK = (BASELINE, "smooth, curve 0.05 cubic 4")
 
 
 def run_job(code: Path, window: str, sampling: dict, traj: str, span_s: float, out: Path) -> dict:
@@ -69,17 +76,23 @@ def run_job(code: Path, window: str, sampling: dict, traj: str, span_s: float, o
 def main() -> None:
     import pandas as pd
 
-    ap = harness.parser(__doc__, quick="0.1 s, the baseline and the 1 px clock, no baseline code "
+    ap = harness.parser(__doc__, quick="0.1 s, the baseline and the curve clock, no baseline code "
                         "(about 1 min)", baseline_rev="48ec9bc")
     ap.add_argument("--span-s", type=float, default=1.0, help="simulated seconds from the path's start")
     ap.add_argument("--trajectory", default="base_mild")
+    ap.add_argument("--settings", default=";".join(s for s in SETTINGS if s != BASELINE),
+                    help=f"separated by ';', of: {'; '.join(s for s in SETTINGS if s != BASELINE)} "
+                    "(the baseline always runs)")
     args = ap.parse_args()
+    unknown = [s for s in args.settings.split(";") if s not in SETTINGS]
+    if unknown:
+        raise SystemExit(f"--settings: unknown {unknown} (of {', '.join(SETTINGS)})")
     if not all((CACHE / w / "model.json").exists() for w in ("cut", "smooth")):
         harness.report(None, f"whole event jobs not measured: no demo models in {CACHE} here "
                        "(benchmarks/bench_window.py --quick trains them)")
         return
     span = 0.1 if args.quick else args.span_s
-    names = QUICK if args.quick else tuple(SETTINGS)
+    names = QUICK if args.quick else (BASELINE, *[s for s in args.settings.split(";") if s != BASELINE])
     rev = "" if args.quick else args.baseline_rev
     rows = []
     with harness.clock() as total, tempfile.TemporaryDirectory() as tmp:
@@ -89,8 +102,8 @@ def main() -> None:
                     continue
                 for name in names:
                     window, sampling = SETTINGS[name]
-                    if label != "today" and window == "cut":
-                        continue  # the cut window's renders did not change
+                    if label != "today" and (window == "cut" or sampling["mode"] == "curve"):
+                        continue  # the cut window's renders did not change; no curve clock then
                     print(f"{label}: {name} ...", flush=True)
                     # untimed first: a fresh worktree compiles its kernels (numba's cache)
                     run_job(Path(code), window, sampling, args.trajectory, 0.01, Path(tmp) / "warm")

@@ -179,7 +179,8 @@ def isa_targets(spec: str | None) -> list[str]:
 def machine() -> str:
     """The CPU, the CPUs this process may use and the instruction set the
     kernels are compiled for, e.g. ``AMD EPYC 7B13, 2 CPUs, AVX2+FMA (no
-    AVX-512)``: every figure names it."""
+    AVX-512)``, or ``..., AVX-512, kernels compiled for haswell (torch avx2)``
+    under ``NUMBA_CPU_NAME`` / ``ATEN_CPU_CAPABILITY``: every figure names it."""
     model, flags = platform.processor() or platform.machine(), cpu_flags()
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
@@ -194,6 +195,11 @@ def machine() -> str:
         isa = "AVX2+FMA (no AVX-512)" if "fma" in flags else "AVX2 (no AVX-512)"
     else:
         isa = platform.machine()
+    target = os.environ.get("NUMBA_CPU_NAME")  # code generated for another CPU than this one
+    if target:
+        isa += f", kernels compiled for {target}"
+        if os.environ.get("ATEN_CPU_CAPABILITY"):
+            isa += f" (torch {os.environ['ATEN_CPU_CAPABILITY']})"
     return f"{model}, {len(os.sched_getaffinity(0))} CPUs, {isa}"
 
 

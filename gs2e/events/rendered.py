@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections import deque
 from pathlib import Path
 from typing import Iterator
 
@@ -54,18 +55,21 @@ SLOPE_DT_US = 2
 
 
 def bound_log(settings: EventSettings) -> float:
-    """The sampling bound on the per-pixel change of log(L + eps), eps the
-    model's dark floor (:func:`sampling_log_eps`):
-    ``sampling.bound_fraction`` x the smallest contrast threshold the config
-    can draw (theta_on / theta_off, or the low end of theta_range), as a
-    log-intensity step (voltmeter: log(1 + theta / k1), the bright-pixel
-    limit of the voltage threshold)."""
+    """The sampling bound in log(L + eps), eps the model's dark floor
+    (:func:`sampling_log_eps`): on the per-pixel change between samples
+    (modes adaptive, tile: ``sampling.bound_fraction``) or on the estimated
+    error of the curve between them (mode curve: ``sampling.error_fraction``),
+    times the smallest contrast threshold the config can draw (theta_on /
+    theta_off, or the low end of theta_range) as a log-intensity step
+    (voltmeter: log(1 + theta / k1), the bright-pixel limit of the voltage
+    threshold)."""
     cfg = require(settings, EventSettings, "bound_log")
     theta = min(cfg.theta_on, cfg.theta_off)
     if cfg.theta_sampling != "fixed":
         theta = min(theta, min(cfg.theta_range))
     theta = model_class(cfg.model).sampling_step(cfg, theta)
-    return float(cfg.sampling.bound_fraction) * theta
+    sc = cfg.sampling
+    return float(sc.error_fraction if sc.mode == "curve" else sc.bound_fraction) * theta
 
 
 def sampling_log_eps(settings: EventSettings) -> float:
@@ -94,6 +98,13 @@ def _hermite_luminance(g0, m0, g1, m1, h, s, log_eps, out):
             out[i, j] = max(math.exp(g) - log_eps, 0.0)
 
 
+def _middle_slope(ga, gb, gc, ha: float, hb: float):
+    """Slope at the middle of three samples ha and hb apart: the derivative
+    of the parabola through them, exact to O(h^2) on uneven steps (where
+    Catmull-Rom's (gc - ga) / (ha + hb) is only O(h)); Catmull-Rom's on even ones."""
+    return (gc - gb) * (ha / (hb * (ha + hb))) + (gb - ga) * (hb / (ha * (ha + hb)))
+
+
 def cubic_substeps(frames, substeps: int, log_eps: float, first: tuple):
     """Frames between renders on a cubic: yields (t_us, (H, W) float32
     luminance), ``substeps`` per step between consecutive renders of
@@ -104,10 +115,11 @@ def cubic_substeps(frames, substeps: int, log_eps: float, first: tuple):
     In g = log(L + log_eps), each step [t_i, t_{i+1}] is the cubic Hermite
     curve through g_i and g_{i+1}. Its slopes are a render's own ``slope``
     ((H, W) float64, dg/dt per us) where given, else from the neighbouring
-    renders, m_i = (g_{i+1} - g_{i-1}) / (t_{i+1} - t_{i-1}) (Catmull-Rom on
-    the renders' own, uneven, times; one-sided at the span's ends). On a
-    signal smooth in time the error is O(h^3) with the neighbours' slopes and
-    O(h^4) with exact ones, against a line's O(h^2). Points fall at whole
+    renders: the derivative at t_i of the parabola through renders i - 1, i
+    and i + 1 (Catmull-Rom, (g_{i+1} - g_{i-1}) / (t_{i+1} - t_{i-1}), where
+    steps are even; one-sided at the span's ends). On a signal smooth in
+    time the error is O(h^3) with the neighbours' slopes, even or uneven
+    steps, and O(h^4) with exact ones, against a line's O(h^2). Points fall at whole
     microseconds (fewer where the step is shorter than ``substeps`` us);
     luminance is clamped at 0; the renders are passed on as they are. Reads
     one render ahead.
@@ -130,9 +142,9 @@ def cubic_substeps(frames, substeps: int, log_eps: float, first: tuple):
         t2, l2, g2, d2 = (None, None, None, None) if nxt is None else parts(nxt)
         h = float(t1 - t0)
         m0 = (d0 if d0 is not None else (g1 - g0) / h if t_prev is None
-              else (g1 - g_prev) / float(t1 - t_prev))
+              else _middle_slope(g_prev, g0, g1, float(t0 - t_prev), h))
         m1 = (d1 if d1 is not None else (g1 - g0) / h if t2 is None
-              else (g2 - g0) / float(t2 - t0))
+              else _middle_slope(g0, g1, g2, h, float(t2 - t1)))
         done = set()
         for j in range(1, k):
             t = int(round(t0 + h * j / k))
@@ -242,9 +254,14 @@ class RenderedSource:
             raise ConfigError("events.sampling.slopes: difference needs a model continuous in time "
                               f"(splat.window: smooth); {model_dir} was trained with the cut window, "
                               "whose renders jump where a Gaussian crosses its cut-off")
+        if self.continuous is None and sc.mode == "curve":
+            log.warning("events %s: mode curve on a model of the cut window, whose renders jump "
+                        "where a Gaussian crosses its cut-off or two swap depth: the curve's "
+                        "bound takes each jump as curvature and shortens the step (train with "
+                        "splat.window: smooth)", self.name)
         if self.continuous is not None and settings.sampling.mode == "tile":
             log.warning("events %s: mode tile renders tiles in each render's own depth order; "
-                        "only the whole-image modes (fixed, motion, adaptive) render continuous "
+                        "only the whole-image modes (fixed, motion, adaptive, curve) render continuous "
                         "in time", self.name)
         if span_us is not None:  # a part of the trajectory only
             if not self.t0_us <= span_us[0] < span_us[1] <= self.t1_us:
@@ -439,6 +456,12 @@ class RenderedSource:
             yield from times
 
     def _adaptive_frames(self):
+        """Modes adaptive and curve: (t_us, luminance) after t0, one clock
+        per span between the path's turns (:func:`adaptive_samples`). Mode
+        curve bounds the curve's error (:func:`curve_error`), its history and
+        step carried across spans, and the image motion where
+        ``max_motion_px`` is set; its first step is dt_min_us (unchecked: a
+        fixed_fps period moves a fast HD image by pixels)."""
         cache: dict[int, np.ndarray] = {}
 
         def render_log(t: int) -> np.ndarray:
@@ -449,13 +472,19 @@ class RenderedSource:
         sc = self.sc
         dt0 = self._first_step_us()
         first = np.log(self.luminance.astype(np.float64) + self.log_eps)  # start() rendered t0
+        curve = sc.mode == "curve"
+        degree = (3 if sc.substeps > 1 else 2) if curve else None
+        history = deque([(self.t0_us, first)], maxlen=degree) if curve else None
+        limit = self._motion_limit if curve and sc.max_motion_px is not None else None
         # one clock per span between the path's turns: a step across a turn would
         # compare two near-identical frames and miss the way out and back
         edges = self.traj.monotone_spans(self.t0_us, self.t1_us).astype(np.int64)
         for a, b in zip(edges[:-1], edges[1:]):
+            if curve:  # nothing to estimate the path's first step from: dt_min, then checked
+                dt0 = history[-1][0] - history[-2][0] if len(history) > 1 else int(sc.dt_min_us)
             gen = adaptive_samples(render_log, int(a), int(b), self.bound, int(sc.dt_min_us),
                                    self._dt_max_us(), dt0, self.stats, float(sc.outlier_fraction),
-                                   first_log=first)
+                                   first_log=first, degree=degree, limit=limit, history=history)
             next(gen)
             self.stats.accepted -= 1  # start() or the previous span counted its first time
             for t, log_frame in gen:
@@ -464,6 +493,20 @@ class RenderedSource:
                 for k in [k for k in cache if k < t]:
                     del cache[k]
                 yield t, lum
+
+    def _motion_limit(self, t_us: int, step_us: int) -> int:
+        """The longest step from ``t_us``, at most ``step_us``, over which no
+        drawn Gaussian's projected centre moves more than ``max_motion_px``
+        (:func:`image_motion_px`; at least dt_min_us): the motion clock's
+        bound as a cap on mode curve's steps. Projections only."""
+        sc = self.sc
+        cur = self.renderer.centres(self.pose_at(t_us))
+        while step_us > sc.dt_min_us:
+            m = image_motion_px(cur, self.renderer.centres(self.pose_at(t_us + step_us)))
+            if m <= sc.max_motion_px:
+                break
+            step_us = max(int(sc.dt_min_us), int(step_us * max(0.2, 0.9 * sc.max_motion_px / m)))
+        return step_us
 
     def _tile_batches(self) -> Iterator[TileBatch]:
         b = self._first_batch

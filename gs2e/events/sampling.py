@@ -19,6 +19,17 @@ L's drift as constant. How densely to sample is the event stage's choice
     projected scale (:func:`gs2e.splat.forward.image_motion_px`), measured
     on the trajectory's continuous pose. Costs one projection per step, no
     trial renders; blind to what motion does not drive (view-dependent colour).
+``curve``
+    one clock for the whole image, bounded by the measured error of the curve
+    the event models see between renders (the cubic through them with
+    ``substeps`` > 1, else the line): each new render's residual against the
+    curve through the earlier ones estimates the signal's third (second)
+    derivative, and a step whose estimated error exceeds the bound is
+    rendered again shorter (:func:`curve_error`). Long steps where the signal
+    is smooth in time, short ones at a disocclusion, a Gaussian near the
+    camera or a depth-order cross-fade; with ``max_motion_px`` set, steps are
+    also capped by the image motion. Meant for models continuous in time
+    (``splat.window: smooth``, issue 67).
 ``tile``
     one clock per 16 x 16 tile (the rasterizer's tiles). Guarantee, per pixel,
     between consecutive samples of its tile:
@@ -49,6 +60,7 @@ that projected centres move at most ``window_motion_px`` between the poses.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Callable, Iterator
 
@@ -60,7 +72,7 @@ from gs2e.common.errors import ConfigError
 from gs2e.events._kernels import tile_box
 from gs2e.events.models import TILE, TileBatch
 
-MODES = ("fixed", "adaptive", "motion", "tile")
+MODES = ("fixed", "adaptive", "motion", "curve", "tile")
 
 
 @dataclass
@@ -236,30 +248,92 @@ def max_log_change(log_a: np.ndarray, log_b: np.ndarray, outlier_fraction: float
     return float(np.partition(d, d.size - 1 - k)[d.size - 1 - k])
 
 
+# curve_error: the largest interpolation error over a step of 1 as a multiple of
+# the divided difference of that degree (cubic: Catmull-Rom's 0.0962 for g''' / 6;
+# line: 1/8 |g''| = 1/4 of g'' / 2)
+CURVE_ERROR_COEF = {3: 0.0962, 2: 0.25}
+
+
+def curve_error(history, t_us: int, g: np.ndarray, degree: int,
+                outlier_fraction: float = 0.0) -> float | None:
+    """Estimated largest error of the curve between the last sample of
+    ``history`` and a new sample (``t_us``, ``g``), over all pixels but the
+    ``outlier_fraction`` worst (as :func:`max_log_change`), in the units of g:
+    the measured curvature bound of mode ``curve``.
+
+    ``history``: earlier accepted samples ((t_us, (H, W) log frame), oldest
+    first). ``degree`` 3: the cubic through the renders (Catmull-Rom,
+    :func:`gs2e.events.rendered.cubic_substeps`), whose error on a step h is
+    at most 0.0962 h^3 |g'''| / 6 (the extremum of s (2s - 1)(s - 1) on
+    [0, 1], the error of Catmull-Rom on g = t^3; uneven steps taken as even);
+    degree 2: the line, at most h^2 |g''| / 8. The derivative is the divided
+    difference of the new sample and the last ``degree`` of ``history``: the
+    residual of their polynomial extrapolated to ``t_us``, over the product
+    of the distances. Zero on a polynomial of degree - 1; a jump (a
+    disocclusion, a Gaussian near the camera) shows as a large residual.
+    None while ``history`` holds fewer than ``degree`` samples. Conservative
+    for a cubic with exact slopes (``events.sampling.slopes: difference``),
+    whose error is O(h^4). ValueError for another degree.
+    """
+    if degree not in CURVE_ERROR_COEF:
+        raise ValueError(f"curve_error: degree must be 2 or 3, got {degree}")
+    if len(history) < degree:
+        return None
+    pts = list(history)[-degree:]
+    ts = [float(ti) for ti, _ in pts]
+    t = float(t_us)
+    pred = np.zeros(g.shape, np.float64)
+    for i, (_, gi) in enumerate(pts):  # Lagrange's polynomial, extrapolated to t
+        pred += math.prod((t - tj) / (ts[i] - tj) for j, tj in enumerate(ts) if j != i) * gi
+    span = abs(math.prod(t - ti for ti in ts))
+    h = t - ts[-1]
+    return max_log_change(pred, g, outlier_fraction) / span * CURVE_ERROR_COEF[degree] * h ** degree
+
+
 def adaptive_samples(render_log: Callable[[int], np.ndarray], t0_us: int, t1_us: int, bound: float,
                      dt_min_us: int, dt_max_us: int, dt_init_us: int | None = None,
                      stats: SamplerStats | None = None, outlier_fraction: float = 0.0,
-                     first_log: np.ndarray | None = None) -> Iterator[tuple[int, np.ndarray]]:
+                     first_log: np.ndarray | None = None, degree: int | None = None,
+                     limit: Callable[[int, int], int] | None = None,
+                     history: "deque | None" = None) -> Iterator[tuple[int, np.ndarray]]:
     """Yield (t_us, log frame) from t0_us to t1_us (both included) such that
     consecutive log frames differ by at most ``bound`` per pixel, unless the
     step is already ``dt_min_us`` (then the step is taken and counted as forced);
     with ``outlier_fraction`` f > 0, all pixels but the floor(f N) that change
     most (see :func:`max_log_change`). One clock for the whole image.
 
+    With ``degree`` (2 or 3: mode ``curve``) the bound is on the estimated
+    error of the curve between samples (:func:`curve_error`) instead of the
+    change, and steps scale by its ``degree``-th root; the first step is
+    taken unchecked (nothing to estimate from) and the next ones with the
+    line's estimate until ``degree`` samples exist. ``history``: a deque of
+    accepted (t_us, log frame) that the estimate reads, carried from span to
+    span by the caller (a last sample at t0 is then not rendered again); by
+    default a new one.
+    ``limit(t_us, step_us)``: the longest step from t_us, at most step_us,
+    that another bound allows (mode ``curve``: the image motion).
+
     ``render_log(t_us)`` returns the log-intensity frame at an integer time.
     Steps are integers in [dt_min_us, dt_max_us] (the last one may be
     shorter); growth is at most 2x per step. Rejected trial frames are kept
     and, once a shorter step has been accepted, tried as the next sample
     without rendering: no time is rendered twice. Memory: two frames plus
-    the rejected trials ahead of the current time (a few). ``first_log``: the
-    frame at t0 if the caller has it (not rendered again).
+    the rejected trials ahead of the current time (a few; with ``degree``,
+    ``degree`` - 1 more). ``first_log``: the frame at t0 if the caller has it
+    (not rendered again).
     """
     if not (t1_us >= t0_us and 1 <= dt_min_us <= dt_max_us and bound > 0 and 0 <= outlier_fraction < 1):
         raise ValueError(f"bad sampler arguments t0={t0_us} t1={t1_us} dt=[{dt_min_us},{dt_max_us}] "
                          f"bound={bound} outlier_fraction={outlier_fraction}")
     st = stats if stats is not None else SamplerStats()
+    hist = history if history is not None else deque(maxlen=degree or 1)
+    root = 1.0 / (degree or 1)
     t = int(t0_us)
-    cur = render_log(t) if first_log is None else first_log
+    if hist and hist[-1][0] == t:
+        cur = hist[-1][1]
+    else:
+        cur = render_log(t) if first_log is None else first_log
+        hist.append((t, cur))
     st.accepted += 1
     yield t, cur
     dt = int(dt_init_us or dt_min_us)
@@ -271,32 +345,40 @@ def adaptive_samples(render_log: Callable[[int], np.ndarray], t0_us: int, t1_us:
             t_new, nxt, reused = nearest, pending[nearest], True  # costs no render
         else:
             dt = int(min(max(dt, dt_min_us), dt_max_us, t1_us - t))
+            if limit is not None:
+                dt = max(min(dt_min_us, t1_us - t), int(limit(t, dt)))
             t_new = t + dt
             reused = t_new in pending
             nxt = pending[t_new] if reused else render_log(t_new)
         accepted = False
         step = t_new - t
-        change = max_log_change(cur, nxt, outlier_fraction)
-        if change > bound and step > dt_min_us:
+        # a curve's error once enough samples exist (the line's after the first step)
+        change = (max_log_change(cur, nxt, outlier_fraction) if degree is None
+                  else curve_error(hist, t_new, nxt, min(degree, len(hist)), outlier_fraction)
+                  if len(hist) >= 2 else None)
+        if change is not None and change > bound and step > dt_min_us:
             if not reused:
                 st.rejected += 1
                 pending[t_new] = nxt
             # shrink towards the step that would just meet the bound (locally linear signal)
-            dt = max(dt_min_us, int(step * max(0.2, 0.9 * bound / change)))
+            dt = max(dt_min_us, int(step * max(0.2, 0.9 * (bound / change) ** root)))
             continue
-        if change > bound:
+        if change is not None and change > bound:
             st.forced += 1
         st.reused += int(reused)
         t, cur, accepted = t_new, nxt, True
+        hist.append((t, cur))
         for k in [k for k in pending if k <= t]:
             del pending[k]
         st.accepted += 1
-        st.max_change = max(st.max_change, change) if change <= bound else st.max_change
+        if change is not None and change <= bound:
+            st.max_change = max(st.max_change, change)
         st.step(step)
         yield t, cur
         # predict the next step from this one; shrinking ahead of the bound
         # avoids the wasted render of a rejected trial
-        grow = 2.0 if change <= 0 else min(2.0, max(0.5, 0.9 * bound / change))
+        grow = (1.0 if change is None else 2.0 if not change  # unchecked steps do not grow
+                else min(2.0, max(0.5, 0.9 * (bound / change) ** root)))
         dt = max(dt_min_us, int(step * grow))
 
 

@@ -24,13 +24,14 @@ from gs2e.common.errors import InputError
 class SamplingSettings:
     """``events.sampling``: when the renderer is sampled (times in us)."""
 
-    mode: str                 # fixed | adaptive | tile | motion
+    mode: str                 # fixed | adaptive | tile | motion | curve
     fixed_fps: float          # fixed mode's rate; the others' first step
     bound_fraction: float     # adaptive / tile: fraction of the smallest log step per sample
-    outlier_fraction: float   # adaptive: pixels allowed over the bound
+    error_fraction: float     # curve: the curve's error between renders, same units
+    outlier_fraction: float   # adaptive / curve: pixels allowed over the bound
     dt_min_us: int
     dt_max_us: int
-    max_motion_px: float | None   # tile / motion: image motion per step (px / Gaussian sigma)
+    max_motion_px: float | None   # tile / motion / curve: image motion per step (px / Gaussian sigma)
     window_motion_px: float   # tile: motion over which a tile's candidate list is kept
     substeps: int             # points per step on the cubic through the renders (1: renders only)
     slopes: str               # the cubic's slopes: neighbours (Catmull-Rom) | difference (2 us)
