@@ -78,6 +78,8 @@ METHODS = {  # name -> (mode, fps, sampling overrides)
     "curve 0.02 cubic 4": ("curve", 2400.0, {"error_fraction": 0.02, "substeps": 4}),
     "curve 0.05 cubic 4": ("curve", 2400.0, {"error_fraction": 0.05, "substeps": 4}),
     "curve 0.1 cubic 4": ("curve", 2400.0, {"error_fraction": 0.1, "substeps": 4}),
+    "curve 0.02 cubic 2": ("curve", 2400.0, {"error_fraction": 0.02, "substeps": 2}),
+    "curve 0.02 cubic 8": ("curve", 2400.0, {"error_fraction": 0.02, "substeps": 8}),
     # ... with the worst 1 % of pixels set aside instead of 0.1 %
     "curve 0.05 cubic 4 outliers 0.01": ("curve", 2400.0, {"error_fraction": 0.05, "substeps": 4,
                                                            "outlier_fraction": 0.01}),

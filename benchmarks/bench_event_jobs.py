@@ -22,8 +22,8 @@ The settings (window: sampling):
   the renders;
 * smooth: the motion clock at 2 px, 8 points per step;
 * smooth: the curve clock (``events.sampling.mode: curve``) at an error of
-  0.02 and of 0.05 theta, 4 points per step (not in the baseline revision:
-  today only).
+  0.02 and of 0.05 theta, 4 points per step, and at 0.02 with 8 points (not
+  in the baseline revision: today only).
 
 How faithful each is: ``bench_event_fidelity.py``. Here only its cost, with
 its render and event counts.
@@ -59,6 +59,8 @@ SETTINGS = {
                                               "substeps": 4}),
     "smooth, curve 0.05 cubic 4": ("smooth", {"mode": "curve", "fixed_fps": 2400.0, "error_fraction": 0.05,
                                               "substeps": 4}),
+    "smooth, curve 0.02 cubic 8": ("smooth", {"mode": "curve", "fixed_fps": 2400.0, "error_fraction": 0.02,
+                                              "substeps": 8}),
 }
 QUICK = (BASELINE, "smooth, curve 0.05 cubic 4")
 
