@@ -54,6 +54,26 @@ def test_cubic_error_falls_as_h_cubed_and_beats_a_line():
     assert all(c < 0.2 * lin for c, lin in errs.values()), errs
 
 
+def test_points_stay_within_what_a_render_holds():
+    """A pixel that saturates (0.4, then 1.0 at every later render): the
+    cubic through the renders overshoots past 1 between them, which the
+    event models refuse as luminance; clamped at lum_max (the event source
+    passes 1, or the light's largest scale), every point is a valid one and
+    the renders pass unchanged. Found on temple_ring (1.00006)."""
+    from gs2e.events.models import IdealModel
+
+    vals = [0.02, 0.4, 1.0, 1.0, 1.0]
+    frames = [(1000 * (i + 1), np.full((1, 2), v, np.float32)) for i, v in enumerate(vals)]
+    free = list(cubic_substeps(iter(frames[1:]), 8, EPS, frames[0]))
+    assert max(float(f.max()) for _, f in free) > 1.0  # the overshoot is real
+    out = list(cubic_substeps(iter(frames[1:]), 8, EPS, frames[0], lum_max=1.0))
+    assert max(float(f.max()) for _, f in out) == 1.0
+    assert [t for t, _ in out] == [t for t, _ in free]
+    m = IdealModel((1, 2), theta_on=0.2, theta_off=0.2, log_eps=EPS)
+    m.start(frames[0][0], frames[0][1])
+    m.process_batch(np.array([t for t, _ in out], np.int64), np.stack([f for _, f in out]))
+
+
 def test_steps_shorter_than_the_points_skip_duplicates():
     out, frames = _run(2, 8, n=5)
     ts = [t for t, _ in out]

@@ -83,11 +83,12 @@ def sampling_log_eps(settings: EventSettings) -> float:
 
 
 @njit(cache=True, parallel=True)
-def _hermite_luminance(g0, m0, g1, m1, h, s, log_eps, out):
-    """out = max(exp(g) - log_eps, 0) with g the cubic Hermite curve through
-    (g0, slope m0) and (g1, slope m1) at s in [0, 1] of a step of h us, in
-    one pass over the pixels (as whole-frame numpy, the same sums took a dozen
-    passes over float64 frames)."""
+def _hermite_luminance(g0, m0, g1, m1, h, s, log_eps, lum_max, out):
+    """out = exp(g) - log_eps clamped to [0, lum_max], g the cubic Hermite
+    curve through (g0, slope m0) and (g1, slope m1) at s in [0, 1] of a step
+    of h us, in one pass over the pixels (as whole-frame numpy, the same sums
+    took a dozen passes over float64 frames). The clamp: a cubic through a
+    pixel that saturates overshoots past what a render can hold."""
     s2 = s * s
     s3 = s2 * s
     c0, c1 = 2.0 * s3 - 3.0 * s2 + 1.0, (s3 - 2.0 * s2 + s) * h
@@ -95,7 +96,7 @@ def _hermite_luminance(g0, m0, g1, m1, h, s, log_eps, out):
     for i in prange(out.shape[0]):
         for j in range(out.shape[1]):
             g = c0 * g0[i, j] + c1 * m0[i, j] + c2 * g1[i, j] + c3 * m1[i, j]
-            out[i, j] = max(math.exp(g) - log_eps, 0.0)
+            out[i, j] = min(max(math.exp(g) - log_eps, 0.0), lum_max)
 
 
 def _middle_slope(ga, gb, gc, ha: float, hb: float):
@@ -105,7 +106,7 @@ def _middle_slope(ga, gb, gc, ha: float, hb: float):
     return (gc - gb) * (ha / (hb * (ha + hb))) + (gb - ga) * (hb / (ha * (ha + hb)))
 
 
-def cubic_substeps(frames, substeps: int, log_eps: float, first: tuple):
+def cubic_substeps(frames, substeps: int, log_eps: float, first: tuple, lum_max: float = math.inf):
     """Frames between renders on a cubic: yields (t_us, (H, W) float32
     luminance), ``substeps`` per step between consecutive renders of
     ``frames`` (an iterator of (t_us, luminance) or (t_us, luminance, slope)
@@ -121,8 +122,10 @@ def cubic_substeps(frames, substeps: int, log_eps: float, first: tuple):
     time the error is O(h^3) with the neighbours' slopes, even or uneven
     steps, and O(h^4) with exact ones, against a line's O(h^2). Points fall at whole
     microseconds (fewer where the step is shorter than ``substeps`` us);
-    luminance is clamped at 0; the renders are passed on as they are. Reads
-    one render ahead.
+    luminance is clamped to [0, ``lum_max``] (the event source passes the
+    largest a render holds: 1, or the light's largest scale), where the cubic
+    through a saturating or darkening pixel overshoots; the renders are
+    passed on as they are. Reads one render ahead.
     """
     k = int(substeps)
     t_prev, g_prev = None, None
@@ -152,7 +155,7 @@ def cubic_substeps(frames, substeps: int, log_eps: float, first: tuple):
                 continue
             done.add(t)
             out = np.empty(g0.shape, np.float32)
-            _hermite_luminance(g0, m0, g1, m1, h, (t - t0) / h, log_eps, out)
+            _hermite_luminance(g0, m0, g1, m1, h, (t - t0) / h, log_eps, float(lum_max), out)
             yield t, out
         yield t1, l1  # the render itself
         if t2 is None:
@@ -359,7 +362,8 @@ class RenderedSource:
             first = (self.t0_us, self.luminance.copy())
             if self.sc.slopes == "difference":
                 first += (self.log_slope(*first),)
-            frames = cubic_substeps(self._rendered(frames), self.sc.substeps, self.log_eps, first)
+            frames = cubic_substeps(self._rendered(frames), self.sc.substeps, self.log_eps, first,
+                                    self.lum_max)
         ts = []
         for t, f in frames:
             if f is None:
