@@ -199,3 +199,27 @@ def test_rendered_source_in_curve_mode_on_a_plane_continuous_in_time(tmp_path, c
     assert "mode curve on a model of the cut window" in caplog.text
     with pytest.raises(ConfigError, match="error_fraction"):
         check_config(load_config({"events": {"sampling": {"mode": "curve", "error_fraction": 0}}}))
+
+
+def test_rendered_source_in_curve_mode_takes_the_motion_cap(tmp_path):
+    """mode: curve with max_motion_px: no two consecutive renders further
+    apart than that in image motion (the motion clock's measure), and more
+    renders than without the cap on a plane the curve alone lets it cross
+    in long steps."""
+    from gs2e.events.rendered import RenderedSource
+    from gs2e.splat.forward import image_motion_px
+
+    model, traj = _smooth_plane(tmp_path, 20.0)
+    renders = {}
+    for cap in (None, 0.05):
+        cfg = check_config(load_config({"events": {"model": "ideal", "sampling": {
+            "mode": "curve", "max_motion_px": cap}}}))["events"]
+        src = RenderedSource(model, traj, event_settings(cfg))
+        mid = (src.t0_us + src.t1_us) // 2
+        src = RenderedSource(model, traj, event_settings(cfg), span_us=(mid, mid + 60_000))
+        ts, _ = _frames(src)  # substeps 1: every frame is a render
+        renders[cap] = src.stats.renders
+        if cap:
+            proj = [src.renderer.centres(src.pose_at(int(t))) for t in ts]
+            assert max(image_motion_px(a, b) for a, b in zip(proj, proj[1:])) <= cap
+    assert renders[0.05] > renders[None]

@@ -501,16 +501,16 @@ class RenderedSource:
     def _motion_limit(self, t_us: int, step_us: int) -> int:
         """The longest step from ``t_us``, at most ``step_us``, over which no
         drawn Gaussian's projected centre moves more than ``max_motion_px``
-        (:func:`image_motion_px`; at least dt_min_us): the motion clock's
-        bound as a cap on mode curve's steps. Projections only."""
+        (at least dt_min_us): the motion clock's first step
+        (:func:`motion_times`) as a cap on mode curve's steps. Projections only."""
         sc = self.sc
-        cur = self.renderer.centres(self.pose_at(t_us))
-        while step_us > sc.dt_min_us:
-            m = image_motion_px(cur, self.renderer.centres(self.pose_at(t_us + step_us)))
-            if m <= sc.max_motion_px:
-                break
-            step_us = max(int(sc.dt_min_us), int(step_us * max(0.2, 0.9 * sc.max_motion_px / m)))
-        return step_us
+        if step_us <= sc.dt_min_us:
+            return step_us
+        times = motion_times(lambda t: self.renderer.centres(self.pose_at(t)), image_motion_px,
+                             t_us, t_us + step_us, float(sc.max_motion_px), int(sc.dt_min_us),
+                             step_us, step_us)
+        next(times)
+        return next(times) - t_us
 
     def _tile_batches(self) -> Iterator[TileBatch]:
         b = self._first_batch
