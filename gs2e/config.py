@@ -324,7 +324,7 @@ def _check_splat(cfg: dict) -> None:
             raise _missing("splat.ply_path", s["ply_path"])
     if s["window"] != "cut" and s["backend"] == "gsplat":
         raise ConfigError(f"splat.window: {s['window']} needs splat.backend cpu or auto (gsplat composites "
-                          "with the cut window only)")
+                          "with the cut window only: set splat.window: cut to train on it)")
 
 
 def _check_sensor_size(path: str) -> None:
@@ -348,10 +348,14 @@ def _check_events(cfg: dict) -> None:
     lo, hi = e["theta_range"]
     if lo > hi:
         raise ConfigError(f"events.theta_range: low {lo:g} is larger than high {hi:g}")
-    if e["sampling"]["substeps"] > 1 and e["sampling"]["mode"] == "tile":
+    # substeps null: several points in mode curve, none elsewhere
+    # (gs2e.events.settings.points_per_step; not imported: every stage loads this module)
+    substeps = e["sampling"]["substeps"]
+    points = substeps > 1 if substeps is not None else e["sampling"]["mode"] == "curve"
+    if points and e["sampling"]["mode"] == "tile":
         raise ConfigError("events.sampling.substeps: points between renders need a whole-image mode "
-                          "(fixed, motion or adaptive), not tile")
-    if e["sampling"]["slopes"] != "neighbours" and e["sampling"]["substeps"] < 2:
+                          "(fixed, motion, adaptive or curve), not tile")
+    if e["sampling"]["slopes"] != "neighbours" and not points:
         raise ConfigError(f"events.sampling.slopes={e['sampling']['slopes']} shapes the points between "
                           "renders: set events.sampling.substeps > 1")
     if e["sampling"]["mode"] == "motion" and e["sampling"]["max_motion_px"] is None:
@@ -512,7 +516,7 @@ def _check_window_backend(cfg: dict) -> None:
     """A model of the smooth window renders on the cpu only (gsplat has the cut window)."""
     if cfg["splat"]["window"] != "cut" and cfg["render"]["backend"] == "gsplat":
         raise ConfigError(f"render.backend: gsplat composites with the cut window only; splat.window is "
-                          f"{cfg['splat']['window']} (use render.backend cpu or auto)")
+                          f"{cfg['splat']['window']} (use render.backend cpu or auto, or splat.window: cut)")
 
 
 def _check_window_slopes(cfg: dict) -> None:

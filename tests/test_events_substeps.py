@@ -85,6 +85,21 @@ def test_substeps_need_a_whole_image_mode():
 
     with pytest.raises(ConfigError, match="substeps"):
         check_config(load_config({"events": {"sampling": {"mode": "tile", "substeps": 4}}}))
+    check_config(load_config({"events": {"sampling": {"mode": "tile"}}}))  # null: none in tile
+
+
+@pytest.mark.parametrize("sampling, points", [({}, 4), ({"mode": "fixed"}, 1), ({"mode": "tile"}, 1),
+                                              ({"mode": "motion", "max_motion_px": 1.0}, 1),
+                                              ({"substeps": 8}, 8), ({"mode": "fixed", "substeps": 2}, 2)])
+def test_points_per_step_by_default_are_the_curve_clocks(sampling, points):
+    """substeps null (the default): the cubic's 4 points per step in mode curve
+    (the default mode), the renders alone in the others; a value given wins."""
+    from gs2e.config import check_config
+    from gs2e.events.settings import event_settings
+
+    cfg = check_config(load_config({"events": {"sampling": sampling}}))
+    assert cfg["events"]["sampling"]["substeps"] == sampling.get("substeps")  # recorded as given
+    assert event_settings(cfg["events"]).sampling.substeps == points
 
 
 def test_exact_slopes_make_a_cubic_exact_where_the_neighbours_do_not():
@@ -117,11 +132,13 @@ def test_slopes_by_difference_need_substeps_and_a_model_continuous_in_time(tmp_p
     from gs2e.testing import plane_model, straight_trajectory
 
     with pytest.raises(ConfigError, match="events.sampling.slopes=difference.*substeps"):
-        check_config(load_config({"events": {"sampling": {"slopes": "difference"}}}))
-    slopes = {"events": {"model": "ideal", "sampling": {"fixed_fps": 600.0, "substeps": 4, "slopes": "difference"}}}
+        check_config(load_config({"events": {"sampling": {"mode": "fixed", "slopes": "difference"}}}))
+    check_config(load_config({"events": {"sampling": {"slopes": "difference"}}}))  # curve: 4 points
+    slopes = {"events": {"model": "ideal", "sampling": {"mode": "fixed", "fixed_fps": 600.0, "substeps": 4,
+                                                        "slopes": "difference"}}}
     with pytest.raises(ConfigError, match="slopes: difference needs .*splat.window: smooth"):
-        check_config(load_config(slopes), workflow=True)  # the workflow trains with the cut window
-    check_config(load_config({**slopes, "splat": {"window": "smooth"}}), workflow=True)
+        check_config(load_config({**slopes, "splat": {"window": "cut"}}), workflow=True)
+    check_config(load_config(slopes), workflow=True)  # the default window: smooth
     cfg = check_config(load_config(slopes))["events"]
     model, traj = plane_model(tmp_path), straight_trajectory(tmp_path, 0.2)
     with pytest.raises(ConfigError, match=f"slopes: difference needs a model continuous in time.*{model}"):
@@ -147,7 +164,7 @@ def test_slopes_by_difference_follow_the_continuous_render_between_renders(tmp_p
     errs, renders = {}, {}
     for slopes in ("neighbours", "difference"):
         cfg = check_config(load_config({"events": {"model": "ideal", "sampling": {
-            "fixed_fps": 600.0, "substeps": 4, "slopes": slopes}}}))["events"]
+            "mode": "fixed", "fixed_fps": 600.0, "substeps": 4, "slopes": slopes}}}))["events"]
         src = RenderedSource(model, traj, event_settings(cfg))
         mid = (src.t0_us + src.t1_us) // 2  # the camera over the plane's middle
         src = RenderedSource(model, traj, event_settings(cfg), span_us=(mid, mid + 50_000))

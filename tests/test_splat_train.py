@@ -195,8 +195,10 @@ def test_ply_import_renders_and_evaluates(tiny_scene, tmp_path):
     assert st["ply_path"].endswith("iteration_7000/point_cloud.ply")
     views = load_views(tiny_scene, scene, [1])
     _, test_v = split_views(views, c.test_every)
-    ref = evaluate(to_params(g), test_v, torch.tensor(bg), 1)
-    assert ref["psnr"] < evaluate(to_params(g), test_v, BG, 1)["psnr"] - 0.5  # bg matters
+    # scored and rendered with splat.window (the default, smooth), as every stage renders it
+    assert st["window"] == c.window == "smooth"
+    ref = evaluate(to_params(g), test_v, torch.tensor(bg), 1, window="smooth")
+    assert ref["psnr"] < evaluate(to_params(g), test_v, BG, 1, window="smooth")["psnr"] - 0.5  # bg matters
     assert st["test_psnr"] == pytest.approx(ref["psnr"], abs=1e-4)
     assert st["test_ssim"] == pytest.approx(ref["ssim"], abs=1e-5)
     back = read_ply(tmp_path / "m" / "point_cloud" / "iteration_7000" / "point_cloud.ply")
@@ -209,6 +211,11 @@ def test_ply_import_renders_and_evaluates(tiny_scene, tmp_path):
     c = cfg(model_source="ply", background=bg,
             ply_path=str(official / "point_cloud" / "iteration_7000" / "point_cloud.ply"))
     assert train(tiny_scene, tmp_path / "m3", c)["test_psnr"] == pytest.approx(ref["psnr"], abs=1e-4)
+    # as the official code trained it: the cut window
+    st = train(tiny_scene, tmp_path / "m4", c.replace(window="cut"))
+    assert st["window"] == "cut"
+    assert st["test_psnr"] == pytest.approx(evaluate(to_params(g), test_v, torch.tensor(bg), 1, window="cut")["psnr"],
+                                            abs=1e-4)
 
 
 # ----------------------------------------------------------------- bad input

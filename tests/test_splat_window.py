@@ -172,6 +172,9 @@ def test_config_refuses_the_smooth_window_on_gsplat():
         check_config(load_config({"splat": {"window": "smooth"}, "render": {"backend": "gsplat"}}),
                      workflow=True)
     check_config(load_config({"splat": {"window": "smooth", "backend": "auto"}}), workflow=True)
+    # the default window is smooth: asking for gsplat alone says what to set
+    with pytest.raises(ConfigError, match="splat.window: smooth .*set splat.window: cut"):
+        check_config(load_config({"splat": {"backend": "gsplat"}}))
 
 
 def test_backend_for_a_smooth_model_is_the_cpu():

@@ -20,6 +20,18 @@ from typing import Any, Mapping
 from gs2e.common.errors import InputError
 
 
+CURVE_SUBSTEPS = 4  # points per step of mode curve where substeps is null (docs/events.md)
+
+
+def points_per_step(mode: str, substeps: int | None) -> int:
+    """``events.sampling.substeps`` resolved: null = :data:`CURVE_SUBSTEPS` in
+    mode curve (the cubic its error bound assumes), 1 in the other modes
+    (the renders only; mode tile takes no points between renders)."""
+    if substeps is not None:
+        return int(substeps)
+    return CURVE_SUBSTEPS if mode == "curve" else 1
+
+
 @dataclass(frozen=True)
 class SamplingSettings:
     """``events.sampling``: when the renderer is sampled (times in us)."""
@@ -33,7 +45,7 @@ class SamplingSettings:
     dt_max_us: int
     max_motion_px: float | None   # tile / motion / curve: image motion per step (px / Gaussian sigma)
     window_motion_px: float   # tile: motion over which a tile's candidate list is kept
-    substeps: int             # points per step on the cubic through the renders (1: renders only)
+    substeps: int             # points per step on the cubic through the renders (1: renders only; resolved)
     slopes: str               # the cubic's slopes: neighbours (Catmull-Rom) | difference (2 us)
 
 
@@ -125,8 +137,9 @@ def event_settings(section: "Mapping[str, Any]") -> EventSettings:
     kw = {k: sec[k] for k in names}
     kw["theta_range"] = tuple(float(v) for v in sec["theta_range"])
     kw["containers"] = tuple(sec["containers"] or ())
-    kw["sampling"] = SamplingSettings(**{f.name: sec["sampling"][f.name]
-                                         for f in fields(SamplingSettings)})
+    sampling = {f.name: sec["sampling"][f.name] for f in fields(SamplingSettings)}
+    sampling["substeps"] = points_per_step(sampling["mode"], sampling["substeps"])
+    kw["sampling"] = SamplingSettings(**sampling)
     return EventSettings(**kw, _section=given)
 
 

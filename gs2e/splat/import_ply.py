@@ -41,7 +41,9 @@ def import_ply(ply_path: str | None, scene: Scene, scene_dir: Path, out_dir: Pat
     path, iterations = find_model_ply(ply_path)
     g = read_ply(path)
     sh_deg = int(round(math.sqrt(g["sh"].shape[1]))) - 1
-    ev = evaluate(to_params(g), test_views, background, sh_deg, stats["backend"])
+    # scored with the window every stage will render it with (splat.window), not
+    # necessarily the one it was trained with (official 3DGS: cut)
+    ev = evaluate(to_params(g), test_views, background, sh_deg, stats["backend"], stats["window"])
     stats.update({"source": "ply", "ply_path": str(path), "iterations": iterations,
                   "n_gaussians": int(len(g["means"])), "train_time_s": None,
                   "test_psnr": ev["psnr"], "test_ssim": ev["ssim"], "test_lpips": None,
