@@ -73,6 +73,11 @@ def stage_commands(wd: Path, out: Path) -> dict[str, list[str]]:
                   "--trajectory", traj, "--out", str(out / "bench.parquet"), "--png", str(out / "bench.png"),
                   "--config-json", sec("bench")],
         "bench_summary": ["bench-summary", str(out / "bench.parquet"), "--out", str(out / "bench_all.parquet")],
+        # the dataset's rules: a scene's quality gates, the whole run's datasheet
+        "gate": ["gate", "--scene-dir", str(tiny), "--scene-id", "tiny", "--runs", "mini00_medium",
+                 "--out", str(out / "gate.json"), "--config-json", sec("dataset")],
+        "datasheet": ["datasheet", "--summary", str(res / "summary.parquet"), "--scenes-table",
+                      str(wd / "scenes.tsv"), "--out", str(out / "datasheet.md"), "--config-json", sec("dataset")],
         "bench_real": ["bench-real", str(SHARED_DATA / "slider_depth"), "--out", str(out / "bench_real.parquet"),
                        "--config-json", sec("bench")],
         # the real recording along its path through the tiny scene: only what runs matters here
