@@ -448,6 +448,9 @@ PROBES = [
           lambda t: ["datasheet", "--summary", t / "summary.parquet", "--scenes-table",
                      _write(t / "scenes.tsv", "scene_id\tlayout\tpath\toverrides\ndemo\tdemo\t\t\n"),
                      "--out", t / "out.md"], ("summary.parquet",), "out.md"),
+    Probe("datasheet-bad-scenes-json", "a datasheet given scenes that are not a list of rows",
+          lambda t: ["datasheet", "--summary", t / "summary.parquet", "--scenes-json", '{"demo": "demo"}',
+                     "--out", t / "out.md"], ("--scenes-json", "scene_id"), "out.md"),
     Probe("clean-missing", "cleaning a results folder that does not exist",
           lambda t: ["clean", t / "nope"], ("nope", "no such folder"), None),
 ]

@@ -176,7 +176,7 @@ def test_report_key_change_reruns_only_tables_and_report(tiny_pipeline, tmp_path
     (tmp_path / "change.yaml").write_text("metrics: {preview_window_ms: 5}\n")
     rows = summary_rows(*args, "--configfile", str(tmp_path / "change.yaml"))
     plan = pending(rows)
-    check_stage_rules(set(plan), {"scene_metrics", "summary"})
+    check_stage_rules(set(plan), downstream("scene_metrics"))  # the summary and the datasheet from it
     assert "report" in plan and own_params_changed(rows) == set()
 
 
@@ -223,9 +223,10 @@ def test_added_scene_leaves_the_existing_scene_alone(tiny_pipeline, tmp_path):
     plan = pending(summary_rows(*sm_args(wd, table)))
     tiny2 = {rule for rule, outs in plan.items() if any(o.startswith("results/tiny2/") for o in outs)}
     tiny = {rule for rule, outs in plan.items() if any(o.startswith("results/tiny/") for o in outs)}
-    assert tiny2 == STAGE_RULES - {"summary"}
+    assert tiny2 == STAGE_RULES - {"summary", "datasheet"}
     assert tiny == moved_tiny
     assert plan["summary"] == {"results/summary.parquet"}
+    assert plan["datasheet"] == {"results/datasheet.md"}
 
 
 def test_same_table_elsewhere_reruns_nothing(tiny_pipeline, tmp_path):

@@ -237,16 +237,15 @@ def _cell(text: str | None) -> str | None:
     return re.sub(r"\s+", " ", text.replace("|", "/")).strip() if text else None
 
 
-def write_datasheet(summary_path: str | Path, status_path: str | Path | None, scenes_table: str | Path,
+def write_datasheet(summary_path: str | Path, status_path: str | Path | None, scenes: list[dict],
                     settings: DatasetSettings, out: str | Path) -> None:
     """Write ``out`` (datasheet.md, atomically) from a run's summary, status
-    table (optional) and scenes table. Nothing measured in time goes in (no
-    date, host or CPU time): the same data gives the same bytes.
+    table (optional) and scenes (the scenes table's rows: scene_id, layout,
+    path). Nothing measured in time goes in (no date, host or CPU time): the
+    same data gives the same bytes.
 
     Raises InputError naming the summary or status table when it is absent."""
     from gs2e.common.atomic import atomic_file
-    from gs2e.config import load_scenes
-
     from gs2e.common.errors import InputError
 
     for what, path in (("summary", summary_path), ("status table", status_path)):
@@ -256,7 +255,7 @@ def write_datasheet(summary_path: str | Path, status_path: str | Path | None, sc
     status = pd.read_parquet(status_path) if status_path else None
     card = card_table(summary, status, {})
     sources = {}
-    for row in load_scenes(scenes_table):
+    for row in scenes:
         path = row.get("path")
         sources[row["scene_id"]] = {"layout": row["layout"], "path": path, **provenance(path)}
     with atomic_file(out, "w") as fh:

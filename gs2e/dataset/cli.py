@@ -70,7 +70,10 @@ def register_status(sub: argparse._SubParsersAction) -> None:
                                    "the statistics of summary.parquet and the scenes that failed.")
     d.add_argument("--summary", required=True, help="summary.parquet")
     d.add_argument("--status", default=None, help="scene_status.parquet of `gs2e dataset` (optional)")
-    d.add_argument("--scenes-table", required=True, help="the scenes table (layouts and input folders)")
+    rows = d.add_mutually_exclusive_group(required=True)
+    rows.add_argument("--scenes-table", help="the scenes table (layouts and input folders)")
+    rows.add_argument("--scenes-json", help="its rows as JSON, [{scene_id, layout, path}, ...] (the workflow "
+                                            "passes them as a parameter: a table moved elsewhere reruns nothing)")
     d.add_argument("--out", required=True, help="datasheet.md (written atomically)")
     add_config_args(d)
     d.set_defaults(func=run_datasheet)
@@ -103,10 +106,22 @@ def run_status(args: argparse.Namespace) -> int:
 
 
 def run_datasheet(args: argparse.Namespace) -> int:
+    import json
+
+    from gs2e.common.errors import InputError
     from gs2e.dataset.card import write_datasheet
     from gs2e.dataset.settings import DatasetSettings
 
-    write_datasheet(args.summary, args.status, args.scenes_table,
+    if args.scenes_table is not None:
+        from gs2e.config import load_scenes
+
+        scenes = load_scenes(args.scenes_table)
+    else:
+        scenes = json.loads(args.scenes_json)
+        if not (isinstance(scenes, list) and all(isinstance(r, dict) and {"scene_id", "layout"} <= set(r)
+                                                  for r in scenes)):
+            raise InputError("--scenes-json: expected a list of {scene_id, layout, path} objects")
+    write_datasheet(args.summary, args.status, scenes,
                     DatasetSettings.load(args.config_json, args.config), args.out)
     return 0
 

@@ -6,7 +6,7 @@
 # The datasheet (Gebru et al.): the scenes, their sources and terms read from the input
 # folders, the gates, the statistics and the scenes that failed (gs2e.dataset.card).
 def datasheet_inputs(wildcards):
-    out = {"summary": res("summary.parquet"), "scenes": config["scenes"]}
+    out = {"summary": res("summary.parquet")}
     if os.path.exists(STATUS):
         out["status"] = STATUS
     return out
@@ -67,6 +67,8 @@ rule datasheet:
         res("datasheet.md"),
     params:
         cfg=section_json(config, "dataset"),
+        # the table's rows, not its path: the same table elsewhere reruns nothing
+        scenes=json.dumps([{k: row.get(k) for k in ("scene_id", "layout", "path")} for row in SCENES.values()]),
         status=lambda wc, input: f"--status {shlex.quote(input.status)}" if "status" in input.keys() else "",
         code=code_version("datasheet"),
     conda:
@@ -77,5 +79,5 @@ rule datasheet:
         res("benchmarks", "datasheet.tsv")
     threads: 1
     shell:
-        "{GS2E} datasheet --summary {input.summary:q} {params.status} --scenes-table {input.scenes:q}"
+        "{GS2E} datasheet --summary {input.summary:q} {params.status} --scenes-json {params.scenes:q}"
         " --out {output:q} --config-json {params.cfg:q} 2> {log:q}"
