@@ -96,11 +96,56 @@ def test_continuous_renderer_cross_fades_a_depth_swap_and_equals_a_render_at_kno
     knots = OrderKnots(0.0, 0.07e6)  # the swap (0.5 s) between knots
     cr = ContinuousRenderer(r, pose, knots, 1e6)
     cont = np.array([cr.render(t)[8, 8].copy() for t in ts])
-    assert np.abs(np.diff(plain, axis=0)).max() > 0.05  # the swap: one jump
-    assert np.abs(np.diff(cont, axis=0)).max() < 0.01
+    jump = np.abs(np.diff(plain, axis=0)).max()
+    assert jump > 0.05  # the swap: one jump
+    # spread over the fade (a quarter of 70 ms: 35 steps of 0.5 ms): the smoothstep's
+    # steepest slope, 1.5 / 35 of the jump per step
+    assert np.abs(np.diff(cont, axis=0)).max() < 0.06 * jump
     for t in (0.42e6, 0.49e6, 0.56e6):  # knots
         np.testing.assert_array_equal(cr.render(t), r.render(pose(t)))
     assert order_knots(r, pose, 0.0, 1e6, 2.0).dt_us > 0
+
+
+def test_orders_cross_fade_over_the_middle_of_each_knot_interval():
+    """OrderKnots.bracket: the weight of order j + 1 is 0 before the interval's
+    middle ``fade``, 1 after it and a smoothstep across it (C1); fade 1 is the
+    smoothstep over the whole interval."""
+    k = OrderKnots(100.0, 1000.0, fade=0.25)
+    assert k.bracket(100.0) == (0, 0.0) and k.bracket(474.0) == (0, 0.0)
+    assert k.bracket(600.0) == (0, pytest.approx(0.5)) and k.bracket(726.0) == (0, 1.0)
+    assert k.bracket(1099.0) == (0, 1.0) and k.bracket(1100.0) == (1, 0.0)
+    t = np.linspace(100.0, 3100.0, 30001)
+    w = np.array([sum(k.bracket(x)) for x in t])  # j + s: continuous and rising
+    assert np.all(np.diff(w) >= 0) and np.abs(np.diff(w)).max() < 1e-3
+    whole = OrderKnots(0.0, 1000.0, fade=1.0)
+    for f in (0.0, 0.1, 0.5, 0.9):
+        assert whole.bracket(1000.0 * f)[1] == pytest.approx(f * f * (3 - 2 * f))
+
+
+def test_outside_the_fade_one_order_is_composited():
+    """Where the weight is 0 or 1 the continuous render is the plain composite
+    in one held order (no tile composited twice); inside the fade, two."""
+    p = random_scene(n=300, seed=3, sh_degree=0)
+    cam = look_at_camera(40, 32)
+    params = {k: v.detach().numpy() for k, v in p.items() if k != "background"}
+    r = ForwardRenderer(params, 0, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height,
+                        dtype=np.float64, window="smooth")
+    c2w0 = np.linalg.inv(cam.viewmat)
+
+    def pose(t_us):  # turning about the scene: Gaussians swap depth
+        a = 0.5 * t_us / 1e6
+        rot = np.array([[np.cos(a), 0, np.sin(a), 0], [0, 1, 0, 0], [-np.sin(a), 0, np.cos(a), 0], [0, 0, 0, 1]])
+        return rot @ c2w0
+
+    cr = ContinuousRenderer(r, pose, OrderKnots(0.0, 1e5, fade=0.25), 1e6)
+    for t, j in ((2e4, 0), (9e4, 1), (1.2e5, 1)):  # before, after, next interval's start
+        r.tiles_blended = 0
+        img = cr.render(t).copy()
+        order = r.depth_order_at(pose(j * 1e5))
+        np.testing.assert_array_equal(img, r.render_blended(pose(t), order, order, 0.0))
+        assert r.tiles_blended == 0
+    cr.render(5e4)  # the middle of the fade
+    assert r.tiles_blended > 0
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])

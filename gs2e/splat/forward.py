@@ -404,10 +404,11 @@ class ForwardRenderer:
         vm = self._viewmat(c2w)
         self._project(vm, None)
         vis = (self.radii > 0) & self._binned
-        orders = [o[vis[o]] for o in (order_a, order_b)]
+        orders = [o[vis[o]] for o in ((order_a,) if s == 0.0 else (order_a, order_b))]
         lists = [_raster.bin_rects_kernel(o, self.rect[o], self.width, self.height, TILE,
                                           numba.get_num_threads()) for o in orders]
-        (offsets, gids_a), (_, gids_b) = lists
+        offsets, gids_a = lists[0]
+        gids_b = lists[-1][1]
         self._composite(np.arange(self.n_tiles, dtype=np.int64), offsets, gids_a, self.image,
                         None if s == 0.0 else gids_b, s)
         self.renders += 1
@@ -514,6 +515,11 @@ class ForwardRenderer:
 # ---------------------------------------------------------------- continuous in time
 ORDER_PROBES = 64  # poses probed for the path's largest image-motion rate
 ORDER_PROBE_US = 1000  # step over which each probe measures it
+# Fraction of each knot interval over which the two held orders cross-fade, centred
+# in it; the rest of the interval composites one order, at the cost of a plain
+# render. A fade this short left the curve clock's renders as they were (the swaps'
+# differences are small against its bound) and cut the composites' cost: docs/events.md.
+ORDER_FADE = 0.25
 
 
 @dataclass(frozen=True)
@@ -521,18 +527,22 @@ class OrderKnots:
     """Times at which a continuous render takes its depth orders: every
     ``dt_us`` from ``t0_us`` (the path's start), so every stage that renders
     the path (sharp frames, blurred frames' sub-frames, events) composes the
-    same image at the same time, whatever span it renders."""
+    same image at the same time, whatever span it renders. The orders of
+    knots j and j + 1 cross-fade over the middle ``fade`` of the interval
+    between them (1: all of it)."""
 
     t0_us: float
     dt_us: float
+    fade: float = ORDER_FADE
 
     def bracket(self, t_us: float) -> tuple[int, float]:
-        """(j, s): t_us lies in knot interval [t_j, t_{j+1}] at smoothstep
-        weight s in [0, 1] (C1: s' = 0 at both knots)."""
+        """(j, s): t_us lies in knot interval [t_j, t_{j+1}] at weight s in
+        [0, 1] of order j + 1: 0 before the interval's middle ``fade``, 1
+        after it, a smoothstep across it (C1: s' = 0 where it starts and ends)."""
         x = (float(t_us) - self.t0_us) / self.dt_us
         j = int(math.floor(x))
-        f = x - j
-        return j, f * f * (3.0 - 2.0 * f)
+        u = min(1.0, max(0.0, (x - j - 0.5 * (1.0 - self.fade)) / self.fade))
+        return j, u * u * (3.0 - 2.0 * u)
 
     def time(self, j: int) -> float:
         return self.t0_us + j * self.dt_us
@@ -567,9 +577,11 @@ class ContinuousRenderer:
     change a pixel by a jump. Here the order is held at the knots (:class:`OrderKnots`)
     and cross-faded between them: at time t in [t_j, t_{j+1}] the image is
     (1 - s) x the composite in the order of t_j + s x the one in the order of
-    t_{j+1} (:meth:`ForwardRenderer.render_blended`, s the knot's smoothstep),
-    both at t's pose. At a knot it is that pose's ordinary render, and it is
-    C1 across knots where each fixed-order composite is.
+    t_{j+1} (:meth:`ForwardRenderer.render_blended`, s from
+    :meth:`OrderKnots.bracket`: a smoothstep over the middle ``fade`` of the
+    interval), both at t's pose; where s is 0 or 1 one order is composited,
+    at the cost of a plain render. At a knot it is that pose's ordinary
+    render, and it is C1 in time where each fixed-order composite is.
 
     ``renderer``: a :class:`ForwardRenderer` (its window: the model's);
     ``pose_at``: t_us -> (4, 4) c2w on [knots.t0_us, t1_us] (a knot past the
@@ -592,4 +604,8 @@ class ContinuousRenderer:
     def render(self, t_us: float) -> np.ndarray:
         """(H, W, 3) image at ``t_us`` (the renderer's buffer)."""
         j, s = self.knots.bracket(t_us)
-        return self.renderer.render_blended(self.pose_at(t_us), self._order(j), self._order(j + 1), s)
+        if s == 1.0:  # past the fade: order j + 1 alone
+            j, s = j + 1, 0.0
+        order = self._order(j)
+        return self.renderer.render_blended(self.pose_at(t_us), order,
+                                            order if s == 0.0 else self._order(j + 1), s)
