@@ -110,9 +110,10 @@ def main() -> None:
             for code, label in ((harness.REPO, "today"), (checkout, f"baseline {rev}")):
                 if code is None:
                     continue
+                modes = modes_of(code)
                 for name in names:
                     window, sampling = SETTINGS[name]
-                    if label != "today" and (window == "cut" or sampling["mode"] not in modes_of(code)):
+                    if label != "today" and (window == "cut" or sampling["mode"] not in modes):
                         continue  # the cut window's renders did not change; a mode it lacks
                     print(f"{label}: {name} ...", flush=True)
                     # untimed first: a fresh worktree compiles its kernels (numba's cache)

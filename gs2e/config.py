@@ -343,15 +343,26 @@ def _check_sensor_size(path: str) -> None:
         raise ConfigError(f"events.sensor_file: {path}: sensor {why}")
 
 
+CURVE_SUBSTEPS = 4  # points per step of mode curve where substeps is null (docs/events.md)
+
+
+def points_per_step(mode: str, substeps: int | None) -> int:
+    """``events.sampling.substeps`` resolved: null = :data:`CURVE_SUBSTEPS` in
+    mode curve (the cubic its error bound assumes), 1 in the other modes
+    (the renders only; mode tile takes no points between renders). Here, not
+    in gs2e.events.settings (which uses it), so that the config check needs
+    no event module."""
+    if substeps is not None:
+        return int(substeps)
+    return CURVE_SUBSTEPS if mode == "curve" else 1
+
+
 def _check_events(cfg: dict) -> None:
     e = cfg["events"]
     lo, hi = e["theta_range"]
     if lo > hi:
         raise ConfigError(f"events.theta_range: low {lo:g} is larger than high {hi:g}")
-    # substeps null: several points in mode curve, none elsewhere
-    # (gs2e.events.settings.points_per_step; not imported: every stage loads this module)
-    substeps = e["sampling"]["substeps"]
-    points = substeps > 1 if substeps is not None else e["sampling"]["mode"] == "curve"
+    points = points_per_step(e["sampling"]["mode"], e["sampling"]["substeps"]) > 1
     if points and e["sampling"]["mode"] == "tile":
         raise ConfigError("events.sampling.substeps: points between renders need a whole-image mode "
                           "(fixed, motion, adaptive or curve), not tile")

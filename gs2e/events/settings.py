@@ -18,18 +18,7 @@ from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
 from gs2e.common.errors import InputError
-
-
-CURVE_SUBSTEPS = 4  # points per step of mode curve where substeps is null (docs/events.md)
-
-
-def points_per_step(mode: str, substeps: int | None) -> int:
-    """``events.sampling.substeps`` resolved: null = :data:`CURVE_SUBSTEPS` in
-    mode curve (the cubic its error bound assumes), 1 in the other modes
-    (the renders only; mode tile takes no points between renders)."""
-    if substeps is not None:
-        return int(substeps)
-    return CURVE_SUBSTEPS if mode == "curve" else 1
+from gs2e.config import points_per_step
 
 
 @dataclass(frozen=True)
