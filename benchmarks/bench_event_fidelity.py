@@ -34,7 +34,8 @@ against its own dense reference; their rows' methods are named ``smooth:
 window's ``fixed 2400`` case by case. Methods ``... cubic k`` feed k points
 per step on the cubic through the renders (``events.sampling.substeps``);
 ``fixed F slopes k`` do so with each render's own slope
-(``events.sampling.slopes: difference``: a second render 2 us later);
+(``events.sampling.slopes: difference``: a second render 2 us later),
+``fixed F tangent k`` with the tangent pass's exact slope (``slopes: tangent``);
 ``curve e cubic k`` set each step from the cubic's measured error, at most
 e x theta (``events.sampling.mode: curve``, ``error_fraction``).
 
@@ -74,6 +75,8 @@ METHODS = {  # name -> (mode, fps, sampling overrides)
     # a render and its 2 us difference per step, points on the Hermite curve with those slopes
     "fixed 1200 slopes 2": ("fixed", 1200.0, {"substeps": 2, "slopes": "difference"}),
     "fixed 600 slopes 4": ("fixed", 600.0, {"substeps": 4, "slopes": "difference"}),
+    # the same with each render's slope from the tangent pass (no second render)
+    "fixed 600 tangent 4": ("fixed", 600.0, {"substeps": 4, "slopes": "tangent"}),
     # the curve clock: steps from the cubic's measured error (a fraction of theta), 4 points per step
     "curve 0.02 cubic 4": ("curve", 2400.0, {"error_fraction": 0.02, "substeps": 4}),
     "curve 0.05 cubic 4": ("curve", 2400.0, {"error_fraction": 0.05, "substeps": 4}),

@@ -17,7 +17,8 @@ The settings (window: sampling):
 * cut: fixed 2400 fps (the baseline);
 * smooth: fixed 2400 fps, continuous in time (orders held and cross-faded);
 * smooth: fixed 600 fps, 4 points per step on the cubic with each render's
-  own slope (a second render 2 us later);
+  own slope (a second render 2 us later), and with the slope from the
+  tangent pass (``events.sampling.slopes: tangent``);
 * smooth: the motion clock at 1 px, 4 points per step on the cubic through
   the renders;
 * smooth: the motion clock at 2 px, 8 points per step;
@@ -51,6 +52,8 @@ SETTINGS = {
     "smooth, fixed 2400": ("smooth", {"mode": "fixed", "fixed_fps": 2400.0}),
     "smooth, fixed 600 slopes 4": ("smooth", {"mode": "fixed", "fixed_fps": 600.0, "substeps": 4,
                                               "slopes": "difference"}),
+    "smooth, fixed 600 tangent 4": ("smooth", {"mode": "fixed", "fixed_fps": 600.0, "substeps": 4,
+                                               "slopes": "tangent"}),
     "smooth, motion 1 cubic 4": ("smooth", {"mode": "motion", "fixed_fps": 2400.0, "max_motion_px": 1.0,
                                             "substeps": 4}),
     "smooth, motion 2 cubic 8": ("smooth", {"mode": "motion", "fixed_fps": 2400.0, "max_motion_px": 2.0,

@@ -15,8 +15,10 @@ bench_groundtruth.py: 2,000 steps at the DAVIS346 size), and scored on the
 held-out views with its own window. Render cost per frame at the DAVIS346
 camera along ``base_mild`` (process CPU ms, float32, the event stage's
 renderer): the cut model with the cut window; the smooth model with the
-smooth window and a per-render sort; and with the continuous renderer
-(orders cross-faded between knots ``render.order_step_px`` = 2 px apart).
+smooth window and a per-render sort; with the continuous renderer
+(orders cross-faded between knots ``render.order_step_px`` = 2 px apart);
+and the continuous renderer's tangent pass (the image and its exact time
+derivative, float64: :mod:`gs2e.splat.tangent`).
 
 Scenes: demo, temple_ring, llff_fern, mouse_colmap, as cached by
 ``bench_groundtruth.py`` (run it first). ``--quick``: demo only.
@@ -103,6 +105,9 @@ def render_costs(scene: str, reps: int) -> dict:
             out["continuous_render_ms"] = harness.median_cpu_ms(
                 lambda it=iter(np.tile(times, 3)): cr.render(next(it)), reps)
             out["tiles_blended_share"] = r.tiles_blended / max(1, r.renders) / r.n_tiles
+            cr.render_tangent(times[0])  # compiles
+            out["tangent_pass_ms"] = harness.median_cpu_ms(
+                lambda it=iter(np.tile(times, 3)): cr.render_tangent(next(it)), reps)
     return out
 
 
@@ -153,6 +158,7 @@ def main() -> None:
             if rc:
                 r["smooth_render_ratio"] = r["smooth_render_ms"] / r["cut_render_ms"]
                 r["continuous_render_ratio"] = r["continuous_render_ms"] / r["cut_render_ms"]
+                r["tangent_pass_ratio"] = r["tangent_pass_ms"] / r["cut_render_ms"]
             print(f"{scene}: PSNR cut {r['cut_psnr']:.2f} smooth {r['smooth_psnr']:.2f} dB", flush=True)
     df = pd.DataFrame(rows)
     name = "bench_window" + ("_quick" if args.quick else "") + (f"_seed{args.seed_offset}" if args.seed_offset else "")
@@ -166,12 +172,13 @@ def main() -> None:
     png = harness.save_plot(plot(df), name)
     table = df[["scene", "cut_psnr", "smooth_psnr", "psnr_delta_db", "cut_gaussians", "smooth_gaussians",
                 "train_cpu_ratio", "cut_render_ms", "smooth_render_ms", "continuous_render_ms",
-                "tiles_blended_share"]].round(3)
+                "tiles_blended_share", "tangent_pass_ms"]].round(3)
     head = (f"smooth window against cut: held-out PSNR {df.psnr_delta_db.min():+.2f} to "
             f"{df.psnr_delta_db.max():+.2f} dB, training CPU {df.train_cpu_ratio.min():.2f}-"
             f"{df.train_cpu_ratio.max():.2f}x, render {df.smooth_render_ratio.min():.2f}-"
             f"{df.smooth_render_ratio.max():.2f}x, continuous render (orders cross-faded) "
-            f"{df.continuous_render_ratio.min():.2f}-{df.continuous_render_ratio.max():.2f}x "
+            f"{df.continuous_render_ratio.min():.2f}-{df.continuous_render_ratio.max():.2f}x, "
+            f"its tangent pass {df.tangent_pass_ratio.min():.2f}-{df.tangent_pass_ratio.max():.2f}x "
             f"({len(df)} scenes)")
     harness.report(table, head, [csv, png])
 

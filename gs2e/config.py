@@ -531,9 +531,11 @@ def _check_window_backend(cfg: dict) -> None:
 
 
 def _check_window_slopes(cfg: dict) -> None:
-    """Slopes by difference need renders continuous in time: the smooth window's."""
-    if cfg["events"]["sampling"]["slopes"] == "difference" and cfg["splat"]["window"] == "cut":
-        raise ConfigError("events.sampling.slopes: difference needs a model continuous in time "
+    """A render's own slope (by difference or the tangent pass) needs renders
+    continuous in time: the smooth window's."""
+    slopes = cfg["events"]["sampling"]["slopes"]
+    if slopes != "neighbours" and cfg["splat"]["window"] == "cut":
+        raise ConfigError(f"events.sampling.slopes: {slopes} needs a model continuous in time "
                           "(splat.window: smooth); the cut window's renders jump where a Gaussian "
                           "crosses its cut-off")
 

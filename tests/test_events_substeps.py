@@ -183,3 +183,48 @@ def test_slopes_by_difference_follow_the_continuous_render_between_renders(tmp_p
     n_steps = 30  # 50 ms at 600 fps
     assert renders["neighbours"] == n_steps + 1 and renders["difference"] == 2 * (n_steps + 1)
     assert errs["difference"] < 0.5 * errs["neighbours"], errs
+
+
+@pytest.mark.parametrize("cfa,light", [(None, False), ("RGGB", True)])
+def test_slopes_by_the_tangent_pass_are_the_renders_derivative(tmp_path, cfa, light):
+    """``events.sampling.slopes: tangent``: each render's slope of log(L +
+    log_eps) from the tangent pass, through the luminance (or a colour
+    filter's channel) and a flickering light's scale, against a central
+    difference of the rendered frames over +-8 us (float32 frames: their
+    rounding bounds the agreement); no second render per step (a tangent pass
+    each, counted apart); refused on a model of the cut window, naming it."""
+    import json
+
+    from gs2e.config import check_config
+    from gs2e.events.rendered import RenderedSource
+    from gs2e.events.settings import event_settings
+    from gs2e.light.settings import Condition
+    from gs2e.testing import plane_model, straight_trajectory
+
+    model, traj = plane_model(tmp_path), straight_trajectory(tmp_path, 20.0)
+    ev = {"model": "ideal", "sampling": {"mode": "fixed", "fixed_fps": 600.0, "substeps": 4,
+                                         "slopes": "tangent"}}
+    if cfa:
+        ev["cfa"] = cfa
+    cfg = event_settings(check_config(load_config({"events": ev}))["events"])
+    with pytest.raises(ConfigError, match=f"slopes: tangent needs a model continuous in time.*{model}"):
+        RenderedSource(model, traj, cfg)
+    with pytest.raises(ConfigError, match="slopes: tangent needs .*splat.window: smooth"):
+        check_config(load_config({"events": ev, "splat": {"window": "cut"}}), workflow=True)
+    info = json.loads((model / "model.json").read_text())
+    (model / "model.json").write_text(json.dumps({**info, "window": "smooth"}))
+    cond = (Condition("flicker", 500.0, 500.0, None, 0.5, 0.0, 100.0, 0.3, "sine") if light else None)
+    src = RenderedSource(model, traj, cfg, light=cond)
+    mid = (src.t0_us + src.t1_us) // 2
+    src = RenderedSource(model, traj, cfg, light=cond, span_us=(mid, mid + 20_000))
+    src.start()
+    for t in (mid + 1_003, mid + 9_117):
+        g = {d: np.log(src.frame(t + d).astype(np.float64) + src.log_eps) for d in (-8, 8)}
+        fd = (g[8] - g[-8]) / 16.0
+        tan = src.tangent_log_slope(t)
+        assert np.abs(fd).max() > 1e-4  # the plane moves under the camera
+        assert np.abs(tan - fd).max() < 0.02 * np.abs(fd).max(), np.abs(tan - fd).max()
+    src = RenderedSource(model, traj, cfg, light=cond, span_us=(mid, mid + 20_000))
+    src.start()
+    n = sum(len(ts) for ts, _ in src.batches())
+    assert src.stats.renders == 13 and src.stats.tangents == 13 and n == 12 * 4

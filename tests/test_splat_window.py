@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from gs2e.splat import raster as R
-from gs2e.splat.forward import ContinuousRenderer, ForwardRenderer, OrderKnots, order_knots
+from gs2e.splat.forward import ORDER_FADE, ContinuousRenderer, ForwardRenderer, OrderKnots, order_knots
 from gs2e.splat.project import LOWPASS_PX2
 from gs2e.splat.rasterize import SplatCamera, rasterize
 from gs2e.splat.reference import render_reference
@@ -98,9 +98,10 @@ def test_continuous_renderer_cross_fades_a_depth_swap_and_equals_a_render_at_kno
     cont = np.array([cr.render(t)[8, 8].copy() for t in ts])
     jump = np.abs(np.diff(plain, axis=0)).max()
     assert jump > 0.05  # the swap: one jump
-    # spread over the fade (a quarter of 70 ms: 35 steps of 0.5 ms): the smoothstep's
-    # steepest slope, 1.5 / 35 of the jump per step
-    assert np.abs(np.diff(cont, axis=0)).max() < 0.06 * jump
+    # spread over the fade (ORDER_FADE of 70 ms, steps of 0.5 ms): the smoothstep's
+    # steepest slope, 1.5 / (steps in the fade) of the jump per step
+    steps = ORDER_FADE * 0.07e6 / 0.5e3
+    assert np.abs(np.diff(cont, axis=0)).max() < 1.2 * 1.5 / steps * jump
     for t in (0.42e6, 0.49e6, 0.56e6):  # knots
         np.testing.assert_array_equal(cr.render(t), r.render(pose(t)))
     assert order_knots(r, pose, 0.0, 1e6, 2.0).dt_us > 0

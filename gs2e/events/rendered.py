@@ -32,7 +32,7 @@ from gs2e.events.models import TileBatch, log_contrast, model_class
 from gs2e.events.sensors import get_sensor, resolve_cfa
 from gs2e.events.settings import EventSettings
 from gs2e.events.sampling import (MODES, SamplerStats, TileSampler, adaptive_samples, cfa_channels,
-                                  image_cfa, image_luminance, motion_times)
+                                  image_cfa, image_luminance, image_luminance_rate, motion_times)
 from gs2e.light.curve import LightCurve
 from gs2e.light.settings import Condition
 from gs2e.splat.backend import resolve_backend_for
@@ -253,8 +253,8 @@ class RenderedSource:
         self.continuous = (None if self.window == "cut" else ContinuousRenderer(
             cpu, path_pose, order_knots(cpu, path_pose, self.t0_us, self.t1_us, order_step_px),
             self.t1_us))
-        if sc.slopes == "difference" and self.continuous is None:
-            raise ConfigError("events.sampling.slopes: difference needs a model continuous in time "
+        if sc.slopes != "neighbours" and self.continuous is None:
+            raise ConfigError(f"events.sampling.slopes: {sc.slopes} needs a model continuous in time "
                               f"(splat.window: smooth); {model_dir} was trained with the cut window, "
                               "whose renders jump where a Gaussian crosses its cut-off")
         if self.continuous is None and sc.mode == "curve":
@@ -360,7 +360,7 @@ class RenderedSource:
             frames = self._adaptive_frames()
         if self.sc.substeps > 1:
             first = (self.t0_us, self.luminance.copy())
-            if self.sc.slopes == "difference":
+            if self.sc.slopes != "neighbours":
                 first += (self.log_slope(*first),)
             frames = cubic_substeps(self._rendered(frames), self.sc.substeps, self.log_eps, first,
                                     self.lum_max)
@@ -383,26 +383,48 @@ class RenderedSource:
     def _rendered(self, frames) -> Iterator[tuple]:
         """``frames`` ((t, frame or None: render it)) with every frame rendered
         into its own array (:func:`cubic_substeps` holds four), and its
-        :meth:`log_slope` with ``events.sampling.slopes: difference``."""
+        :meth:`log_slope` with ``events.sampling.slopes`` difference or tangent."""
         for t, f in frames:
             if f is None:
                 self.stats.accepted += 1
                 f = self.frame(t)
-            yield (t, f, self.log_slope(t, f)) if self.sc.slopes == "difference" else (t, f)
+            yield (t, f, self.log_slope(t, f)) if self.sc.slopes != "neighbours" else (t, f)
 
     def log_slope(self, t_us: int, lum: np.ndarray) -> np.ndarray | None:
-        """d/dt log(L + log_eps) at ``t_us`` ((H, W) float64, per us) from
-        ``lum`` = :meth:`frame` (t_us) and a second render
-        :data:`SLOPE_DT_US` later (earlier at the span's end): a one-sided
-        difference, the derivative up to O(SLOPE_DT_US) on a model continuous
-        in time. None on a span shorter than that (the cubic then takes the
-        neighbours' slopes)."""
+        """d/dt log(L + log_eps) at ``t_us`` ((H, W) float64, per us) of
+        ``lum`` = :meth:`frame` (t_us). ``events.sampling.slopes: difference``:
+        from a second render :data:`SLOPE_DT_US` later (earlier at the span's
+        end), a one-sided difference, the derivative up to O(SLOPE_DT_US) on a
+        model continuous in time; None on a span shorter than that (the cubic
+        then takes the neighbours' slopes). ``tangent``: the exact derivative
+        from the tangent pass (:meth:`tangent_log_slope`)."""
+        if self.sc.slopes == "tangent":
+            return self.tangent_log_slope(t_us)
         dt = (SLOPE_DT_US if t_us + SLOPE_DT_US <= self.t1_us
               else -SLOPE_DT_US if t_us - SLOPE_DT_US >= self.t0_us else 0)
         if not dt:
             return None
         g = np.log(lum.astype(np.float64) + self.log_eps)
         return (np.log(self.frame(t_us + dt).astype(np.float64) + self.log_eps) - g) / dt
+
+    def tangent_log_slope(self, t_us: int) -> np.ndarray:
+        """d/dt log(L + log_eps) at ``t_us`` ((H, W) float64, per us) from the
+        tangent pass (:meth:`gs2e.splat.forward.ContinuousRenderer.render_tangent`:
+        the image's exact derivative, float64), through the luminance (or the
+        colour filter's channel) and the light's scale s(t) (its rate by a
+        central difference over +-1 us): (dL s + L ds) / (L s + log_eps).
+        Counted in ``stats.tangents``, not as a render."""
+        img, dimg = self.continuous.render_tangent(float(t_us))
+        lum, dlum = np.empty(self.shape), np.empty(self.shape)
+        image_luminance_rate(img, dimg, self.cfa if self.cfa is not None else np.zeros((0, 0), np.int64),
+                             lum, dlum)
+        if self.light is not None:
+            lo, hi = max(self.t0_us, t_us - 1), min(self.t1_us, t_us + 1)
+            sc = self.light.scale(np.array([float(t_us), float(lo), float(hi)]))
+            dlum = dlum * sc[0] + lum * ((sc[2] - sc[1]) / (hi - lo) if hi > lo else 0.0)
+            lum = lum * sc[0]
+        self.stats.tangents += 1
+        return dlum / (lum + self.log_eps)
 
     def step_motion_px(self, step_us: int, n: int = STEP_MOTION_PROBES) -> np.ndarray:
         """Image motion (px, :func:`gs2e.splat.forward.image_motion_px`: the

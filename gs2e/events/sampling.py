@@ -67,7 +67,7 @@ from typing import Callable, Iterator
 import numpy as np
 from numba import njit, prange
 
-from gs2e.common.color import srgb_decode
+from gs2e.common.color import srgb_decode, srgb_decode_slope
 from gs2e.common.errors import ConfigError
 from gs2e.events._kernels import tile_box
 from gs2e.events.models import TILE, TileBatch
@@ -90,6 +90,7 @@ class SamplerStats:
     min_step_us: int = 0
     max_step_us: int = 0
     windows: int = 0          # candidate windows built (tile mode)
+    tangents: int = 0         # tangent passes (events.sampling.slopes: tangent), not renders
     # fixed mode, rendered: image motion (px, image_motion_px) over one step at
     # evenly spread times (None where not measured)
     step_motion_px_p50: float | None = None
@@ -116,6 +117,31 @@ def image_luminance(image, out):
     for y in prange(image.shape[0]):
         for x in range(image.shape[1]):
             out[y, x] = _srgb_lum(image[y, x, 0], image[y, x, 1], image[y, x, 2])
+
+
+@njit(cache=True, parallel=True)
+def image_luminance_rate(image, rate, channels, lum, dlum):
+    """Linear value lum (H, W) of an (H, W, 3) sRGB ``image`` and its time
+    derivative dlum from the image's ``rate`` (H, W, 3; per us): Rec. 709
+    luminance, or with ``channels`` (2, 2) int64 (:func:`cfa_channels`) each
+    pixel's own channel (a (0, 0) array: luminance). A value clamped to
+    [0, 1] before decoding has no rate."""
+    cfa = channels.shape[0] == 2
+    for y in prange(image.shape[0]):
+        for x in range(image.shape[1]):
+            acc, dacc = 0.0, 0.0
+            for c, w in ((0, 0.2126), (1, 0.7152), (2, 0.0722)):
+                if cfa:
+                    if c != channels[y % 2, x % 2]:
+                        continue
+                    w = 1.0
+                v = float(image[y, x, c])
+                vc = min(max(v, 0.0), 1.0)
+                acc += w * srgb_decode(vc)
+                if vc == v:
+                    dacc += w * srgb_decode_slope(v) * rate[y, x, c]
+            lum[y, x] = acc
+            dlum[y, x] = dacc
 
 
 # colour filter arrays: the channel (0 R, 1 G, 2 B) over pixel (y % 2, x % 2)

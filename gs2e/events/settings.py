@@ -35,7 +35,7 @@ class SamplingSettings:
     max_motion_px: float | None   # tile / motion / curve: image motion per step (px / Gaussian sigma)
     window_motion_px: float   # tile: motion over which a tile's candidate list is kept
     substeps: int             # points per step on the cubic through the renders (1: renders only; resolved)
-    slopes: str               # the cubic's slopes: neighbours (Catmull-Rom) | difference (2 us)
+    slopes: str               # the cubic's slopes: neighbours (Catmull-Rom) | difference (2 us) | tangent
 
 
 @dataclass(frozen=True)

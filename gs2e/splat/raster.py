@@ -750,7 +750,7 @@ def _lane_apply_smooth(s, at, lane, lanes, alpha, reach, f0, f1, f2, f3, kf, mf,
     """:func:`_lane_apply` with the smooth window: weights faded by r(T), the
     stopping Gaussian applied and counted (stop index k + 1)."""
     zero, one, half, a_max, a_min, t_min, p_min = kc
-    two, three, inv_t_min = ks
+    two, three, inv_t_min = ks[0], ks[1], ks[2]
     FT, F0, F1, F2, F3, FL = at, at + lanes, at + 2 * lanes, at + 3 * lanes, at + 4 * lanes, at + 5 * lanes
     ok = reach & (s[FL + lane] == mf)
     T = s[FT + lane]
@@ -769,7 +769,9 @@ def _lane_apply_smooth(s, at, lane, lanes, alpha, reach, f0, f1, f2, f3, kf, mf,
 def _segment_forward_smooth(s, at, pair, jx, u, a, b, c, dy, pc, c0, c1, o, f0, f1, f2, f3, kf,
                             mf, lanes, lane_f, kc, ks):
     """:func:`_segment_forward` with the smooth window (module docstring).
-    ks = (2, 3, 1 / T_MIN) in the block's type."""
+    ks = (2, 3, 1 / T_MIN, 3 T_MIN) in the block's type. (Leaving the fade
+    out of blocks where it is 1, as the backward does, did not pay here: the
+    fade is a few of the forward's operations per pixel.)"""
     if pair:
         for lane in range(lanes):
             alpha, reach = _lane_alpha_smooth(jx, lane_f[lane], u, a, b, c, dy, pc, c0, c1, o, kc)
@@ -780,6 +782,42 @@ def _segment_forward_smooth(s, at, pair, jx, u, a, b, c, dy, pc, c0, c1, o, f0, 
         for lane in range(lanes):
             alpha, reach = _lane_alpha_smooth(jx, lane_f[lane], u, a, b, c, dy, pc, c0, c1, o, kc)
             _lane_apply_smooth(s, at, lane, lanes, alpha, reach, f0, f1, f2, f3, kf, mf, kc, ks)
+
+
+@njit(inline="always", fastmath=False)
+def _lane_tangent(s, lane, lanes, jx, lf, u, a, b, c, dy, pc, c0, c1, A, f0, f1, f2, f3, d, kf, mf,
+                  kc, ks):
+    """:func:`_lane_apply_smooth` of :func:`_lane_alpha_smooth`'s alpha (the
+    same operations: the same bits) and, ahead of it, the time derivative of
+    the pixel's state (the tangent pass, :mod:`gs2e.splat.tangent`): d =
+    (du, dv, d conic a, b, c, d features 0..3) of the Gaussian; block fields
+    6 (dT) and 7..10 (d features) after the value's 6. d alpha = (A e^p - c1)
+    dp where alpha is not clamped, d w = d alpha T r + alpha dT (r + T r'),
+    dT' = dT (1 - alpha) - T d alpha."""
+    zero, one, half, a_max, a_min, t_min, p_min = kc
+    two, three, inv_t_min = ks[0], ks[1], ks[2]
+    du, dv, dca, dcb, dcc, e0, e1, e2, e3 = d
+    dx = u - ((jx + lf) + half)
+    power = _mul_add(-(b * dx), dy, -half * _mul_add(a * dx, dx, c * dy * dy))
+    G = _exp_neg_any(min(max(power, p_min), zero))
+    a_raw = _mul_add(A, G, -_mul_add(c1, power, c0))
+    alpha = min(a_max, max(zero, a_raw))
+    reach = (power <= zero) & (power >= pc)
+    ok = reach & (s[5 * lanes + lane] == mf)
+    dp = (-(a * dx + b * dy) * du - (b * dx + c * dy) * dv - half * (dca * dx * dx + dcc * dy * dy)
+          - dcb * dx * dy)
+    dal = _select(ok & (a_raw >= zero) & (a_raw <= a_max), (A * G - c1) * dp, zero)
+    T = s[lane]
+    dT = s[6 * lanes + lane]
+    r, dr = _ramp(T, t_min, inv_t_min, zero, one, two, three)
+    wu = _select(ok, alpha * T * r, zero)
+    dwu = _select(ok, dal * T * r + alpha * dT * (r + T * dr), zero)
+    s[7 * lanes + lane] = s[7 * lanes + lane] + (dwu * f0 + wu * e0)
+    s[8 * lanes + lane] = s[8 * lanes + lane] + (dwu * f1 + wu * e1)
+    s[9 * lanes + lane] = s[9 * lanes + lane] + (dwu * f2 + wu * e2)
+    s[10 * lanes + lane] = s[10 * lanes + lane] + (dwu * f3 + wu * e3)
+    s[6 * lanes + lane] = dT * (one - _select(ok, alpha, zero)) - T * dal
+    _lane_apply_smooth(s, 0, lane, lanes, alpha, reach, f0, f1, f2, f3, kf, mf, kc, ks)
 
 
 @njit(inline="always", fastmath=False)
@@ -796,12 +834,14 @@ def _block_open(st, at, mf, lanes):
 
 @njit(inline="always", fastmath=False)
 def _composite_gaussian(geo, g, kf, st, at, pair, nstates, reached, x0, y0, tw, th, mf, smooth,
-                        ftype, lanes, nseg, per_segment, FBLK, FL, lane_f, kc, ks):
+                        ftype, lanes, nseg, per_segment, FBLK, FL, lane_f, kc, ks, tangent, dgeo):
     """Composite Gaussian g, list position kf, into a tile's segment blocks,
     each holding ``nstates`` pixel states of FBLK values one after the other:
     into the state at offset ``at``, or with ``pair`` into the first two
     with the same alphas. A block whose pixels have stopped in every state
-    it composites into is left alone."""
+    it composites into is left alone. With ``tangent`` (the smooth window,
+    one state): the pixels' time derivatives too, from the Gaussian's rates
+    dgeo[g] (:func:`_lane_tangent`)."""
     lpm = geo[g, 4]
     if lpm > 0.0:
         return
@@ -824,7 +864,17 @@ def _composite_gaussian(geo, g, kf, st, at, pair, nstates, reached, x0, y0, tw, 
             if not (_block_open(st, blk + at + FL, mf, lanes)
                     or (pair and _block_open(st, blk + FBLK + FL, mf, lanes))):
                 continue
-            if smooth:
+            if smooth and tangent:
+                pc_f, A_f, c0_f, c1_f, _u0, _q0, _q1 = _smooth_values(geo, g, ftype)
+                d = (ftype(dgeo[g, 0]), ftype(dgeo[g, 1]), ftype(dgeo[g, 2]), ftype(dgeo[g, 3]),
+                     ftype(dgeo[g, 4]), ftype(dgeo[g, 5]), ftype(dgeo[g, 6]), ftype(dgeo[g, 7]),
+                     ftype(dgeo[g, 8]))
+                sb = st[blk:blk + stride]
+                jx = ftype(x0 + h * lanes)
+                for lane in range(lanes):
+                    _lane_tangent(sb, lane, lanes, jx, lane_f[lane], u_f, a_f, b_f, c_f, dy_f, pc_f,
+                                  c0_f, c1_f, A_f, f0, f1, f2, f3, d, kf, mf, kc, ks)
+            elif smooth:
                 pc_f, A_f, c0_f, c1_f, _u0, _q0, _q1 = _smooth_values(geo, g, ftype)
                 _segment_forward_smooth(st[blk:blk + stride], at, pair, ftype(x0 + h * lanes), u_f,
                                         a_f, b_f, c_f, dy_f, pc_f, c0_f, c1_f, A_f, f0, f1, f2, f3,
@@ -835,7 +885,8 @@ def _composite_gaussian(geo, g, kf, st, at, pair, nstates, reached, x0, y0, tw, 
                                  kc)
 
 
-def _make_forward(ftype, lanes: int, smooth: bool = False, two_orders: bool = False):
+def _make_forward(ftype, lanes: int, smooth: bool = False, two_orders: bool = False,
+                  tangent: bool = False):
     """The forward compositing kernel computing in ``ftype`` with segments of
     ``lanes`` pixels (one AVX-512 register: 8 float64 or 16 float32), with the
     cut window or (``smooth``) the smooth one. Per-Gaussian
@@ -851,21 +902,29 @@ def _make_forward(ftype, lanes: int, smooth: bool = False, two_orders: bool = Fa
     out_a + s_blend (out_b - out_a), the same bits as two separate renders
     blended so; ``gids`` twice is a plain render.
 
+    The tangent pass (``tangent``, smooth window, one order: a kernel of its
+    own): the kernel takes the Gaussians' rates ``dgeo`` (N, 9: du, dv, d
+    conic a, b, c, d features 0..3, per unit time) and writes the image's
+    derivative into ``dout`` beside the image, which has the same bits as
+    the plain render's (:func:`_lane_tangent`).
+
     The kernel is a closure over plain values only (type, ints, constants,
     arrays): numba's on-disk cache keys a closure by its values, and a
     dispatcher among them would pickle differently in every process."""
     zero, one, half = ftype(0.0), ftype(1.0), ftype(0.5)
     kc = (zero, one, half, ftype(ALPHA_MAX), ftype(ALPHA_MIN), ftype(T_MIN), ftype(POWER_MIN))
-    ks = (ftype(2.0), ftype(3.0), ftype(1.0 / T_MIN))
-    # segment block: 6 fields x lanes (T, features 0..3, stop index)
+    ks = (ftype(2.0), ftype(3.0), ftype(1.0 / T_MIN), ftype(3.0 * T_MIN))
+    # segment block: 6 fields x lanes (T, features 0..3, stop index); the
+    # tangent's 5 more (dT, d features 0..3)
     FT, FL = 0, 5 * lanes
-    FBLK = 6 * lanes
+    FBLK = (11 if tangent else 6) * lanes
     lane_f = np.arange(lanes).astype(ftype)  # exact: no per-segment int conversion
     per_segment = lanes < 16  # tile rows of 16 hold several segments: find each
 
     @njit(parallel=True, cache=True, fastmath=False)
     def kernel(tile_ids, offsets, gids, means2d, conics, opac, feats, bg, width, height, tile,
-               out, out_T, n_contrib, order, bounds, gids_b=None, s_blend=0.0):
+               out, out_T, n_contrib, order, bounds, gids_b=None, s_blend=0.0, dgeo=None,
+               dout=None):
         tiles_x = (width + tile - 1) // tile
         C = feats.shape[1]
         nseg = (tile + lanes - 1) // lanes
@@ -895,11 +954,16 @@ def _make_forward(ftype, lanes: int, smooth: bool = False, two_orders: bool = Fa
                             blk = ((ii * nseg + jj // lanes) * ns + q) * FBLK
                             st[blk + FT + jj % lanes] = one
                             st[blk + FL + jj % lanes] = mf if jj < tw else -one
-                if not two_orders:  # a constant: numba compiles one of the branches
+                if tangent:  # a constant: numba compiles one of the branches
                     for k in range(m):
                         _composite_gaussian(geo, gids[start + k], ftype(k), st, 0, False, 1, reached,
                                             x0, y0, tw, th, mf, smooth, ftype, lanes, nseg,
-                                            per_segment, FBLK, FL, lane_f, kc, ks)
+                                            per_segment, FBLK, FL, lane_f, kc, ks, True, dgeo)
+                elif not two_orders:
+                    for k in range(m):
+                        _composite_gaussian(geo, gids[start + k], ftype(k), st, 0, False, 1, reached,
+                                            x0, y0, tw, th, mf, smooth, ftype, lanes, nseg,
+                                            per_segment, FBLK, FL, lane_f, kc, ks, False, geo)
                 else:
                     for k in range(m):
                         g = gids[start + k]
@@ -911,7 +975,7 @@ def _make_forward(ftype, lanes: int, smooth: bool = False, two_orders: bool = Fa
                             _composite_gaussian(geo, g2 if q == 1 else g, ftype(k), st, q * FBLK,
                                                 pair and g == g2, ns, reached, x0, y0, tw, th, mf,
                                                 smooth, ftype, lanes, nseg, per_segment, FBLK, FL,
-                                                lane_f, kc, ks)
+                                                lane_f, kc, ks, False, geo)
                 for ii in range(th):
                     for jj in range(tw):
                         blk = (ii * nseg + jj // lanes) * ns * FBLK
@@ -925,6 +989,9 @@ def _make_forward(ftype, lanes: int, smooth: bool = False, two_orders: bool = Fa
                                               st[b2 + lanes * (1 + ch) + lane])
                                 va = va + sb * (vb - va)
                             out[y0 + ii, x0 + jj, ch] = va
+                            if tangent:
+                                dout[y0 + ii, x0 + jj, ch] = (st[blk + 6 * lanes + lane] * bg[ch]
+                                                              + st[blk + lanes * (7 + ch) + lane])
                         out_T[y0 + ii, x0 + jj] = T
                         n_contrib[y0 + ii, x0 + jj] = int(st[blk + FL + lane])
 
@@ -945,6 +1012,7 @@ raster_forward_kernel = _make_forward(np.float64, LANES)
 raster_forward_kernel_f32 = _make_forward(np.float32, LANES_F32)
 raster_forward_kernel_smooth = _make_forward(np.float64, LANES, smooth=True)
 raster_forward_kernel_f32_smooth = _make_forward(np.float32, LANES_F32, smooth=True)
+raster_tangent_kernel = _make_forward(np.float64, LANES, smooth=True, tangent=True)
 _BLEND_KERNELS = {(np.dtype(dt), smooth): _make_forward(dt, lanes, smooth, two_orders=True)
                   for dt, lanes in ((np.float64, LANES), (np.float32, LANES_F32))
                   for smooth in (False, True)}
@@ -989,6 +1057,17 @@ def _backward_layout(lanes: int) -> tuple:
 
 
 @njit(inline="always", fastmath=False)
+def _store_shape_grads(s, BACC, L, lane, ok, gp, dx, dy, a, b, c, half, zero):
+    """A pair's gradient terms in the 2D centre and the conic from dL/dpower
+    ``gp`` (where ``ok``, else 0), into the block's accumulators."""
+    s[BACC + lane] = _select(ok, -(gp * (a * dx + b * dy)), zero)
+    s[BACC + L + lane] = _select(ok, -(gp * (b * dx + c * dy)), zero)
+    s[BACC + 2 * L + lane] = _select(ok, -(half * gp * dx * dx), zero)
+    s[BACC + 3 * L + lane] = _select(ok, -(gp * dx * dy), zero)
+    s[BACC + 4 * L + lane] = _select(ok, -(half * gp * dy * dy), zero)
+
+
+@njit(inline="always", fastmath=False)
 def _segment_backward(s, jx, u, a, b, c, dy, lpm, o, f0, f1, f2, f3, kf, lanes, lane_f, kc,
                       lay):
     """Undo Gaussian k over one segment block (back to front) and add its
@@ -1029,11 +1108,52 @@ def _segment_backward(s, jx, u, a, b, c, dy, lpm, o, f0, f1, f2, f3, kf, lanes, 
         ok = ok & (a_raw <= a_max)  # clamped: no gradient to opacity or shape
         gp = alpha * g_alpha  # dL/dpower
         s[BACC + 5 * L + lane] = _select(ok, G * g_alpha, zero)
-        s[BACC + lane] = _select(ok, -(gp * (a * dx + b * dy)), zero)
-        s[BACC + L + lane] = _select(ok, -(gp * (b * dx + c * dy)), zero)
-        s[BACC + 2 * L + lane] = _select(ok, -(half * gp * dx * dx), zero)
-        s[BACC + 3 * L + lane] = _select(ok, -(gp * dx * dy), zero)
-        s[BACC + 4 * L + lane] = _select(ok, -(half * gp * dy * dy), zero)
+        _store_shape_grads(s, BACC, L, lane, ok, gp, dx, dy, a, b, c, half, zero)
+
+
+@njit(inline="always", fastmath=False)
+def _lane_backward_smooth(s, lane, jx, u, a, b, c, dy, pc, c0, c1, u0, q0, q1, o, f0, f1, f2, f3,
+                          kf, lanes, lane_f, kc, ks, lay, flat):
+    """One lane of :func:`_segment_backward_smooth`; ``flat`` (a constant at
+    each call site): the block's weights are not faded (r = 1, r' = 0), so
+    the fade's terms are left out; the same bits as with them."""
+    zero, one, half, a_max, a_min, t_min, p_min = kc
+    two, three, inv_t_min, t_flat = ks
+    BT, BTF, BGT, BS, BG, BL, BACC = lay
+    L = lanes
+    dx = u - ((jx + lane_f[lane]) + half)
+    power = _mul_add(-(b * dx), dy, -half * _mul_add(a * dx, dx, c * dy * dy))
+    ok = (power <= zero) & (power >= pc) & (kf < s[BL + lane])
+    G = _exp_neg_any(min(max(power, p_min), zero))
+    a_raw = _mul_add(o, G, -_mul_add(c1, power, c0))
+    alpha = min(a_max, max(zero, a_raw))
+    inv_om = one / (one - alpha)
+    T = s[BT + lane] * inv_om  # transmittance in front of this Gaussian
+    g0 = s[BG + lane]
+    g1 = s[BG + L + lane]
+    g2 = s[BG + 2 * L + lane]
+    g3 = s[BG + 3 * L + lane]
+    dotf = g0 * f0 + g1 * f1 + g2 * f2 + g3 * f3
+    if flat:  # r = 1, r' = 0: T r = T, alpha T (r + T r') = alpha T, to the bit
+        w = alpha * T
+        g_alpha = T * dotf - (s[BS + lane] + s[BGT + lane] * s[BTF + lane]) * inv_om
+        behind = w * dotf
+    else:
+        r, dr = _ramp(T, t_min, inv_t_min, zero, one, two, three)
+        Tr = T * r
+        w = alpha * Tr
+        g_alpha = Tr * dotf - (s[BS + lane] + s[BGT + lane] * s[BTF + lane]) * inv_om
+        behind = alpha * T * (r + T * dr) * dotf
+    s[BT + lane] = s[BT + lane] * _select(ok, inv_om, one)
+    s[BS + lane] = s[BS + lane] + _select(ok, behind, zero)
+    s[BACC + 6 * L + lane] = _select(ok, w * g0, zero)
+    s[BACC + 7 * L + lane] = _select(ok, w * g1, zero)
+    s[BACC + 8 * L + lane] = _select(ok, w * g2, zero)
+    s[BACC + 9 * L + lane] = _select(ok, w * g3, zero)
+    ok = ok & (a_raw <= a_max) & (a_raw >= zero)  # clamped: no gradient to opacity or shape
+    gp = (o * G - c1) * g_alpha  # dL/dpower
+    s[BACC + 5 * L + lane] = _select(ok, (u0 * G - _mul_add(q1, power, q0)) * g_alpha, zero)
+    _store_shape_grads(s, BACC, L, lane, ok, gp, dx, dy, a, b, c, half, zero)
 
 
 @njit(inline="always", fastmath=False)
@@ -1041,43 +1161,23 @@ def _segment_backward_smooth(s, jx, u, a, b, c, dy, pc, c0, c1, u0, q0, q1, o, f
                              lanes, lane_f, kc, ks, lay):
     """:func:`_segment_backward` for :func:`_segment_forward_smooth` (the
     module docstring's gradients; ``o``: the Gaussian's A): same block
-    layout, the sum behind a pixel S holding alpha T (r + T r') f.g."""
-    zero, one, half, a_max, a_min, t_min, p_min = kc
-    two, three, inv_t_min = ks
-    BT, BTF, BGT, BS, BG, BL, BACC = lay
-    L = lanes
+    layout, the sum behind a pixel S holding alpha T (r + T r') f.g. Where
+    every lane this Gaussian reaches still has T >= ``t_flat`` (3 T_MIN:
+    behind it, so in front of it too), r = 1 and r' = 0 in the whole block:
+    most blocks, as T falls under 2 T_MIN only at a pixel's last Gaussians."""
+    BT, BL = lay[0], lay[5]
+    t_flat = ks[3]
+    flat = True
     for lane in range(lanes):
-        dx = u - ((jx + lane_f[lane]) + half)
-        power = _mul_add(-(b * dx), dy, -half * _mul_add(a * dx, dx, c * dy * dy))
-        ok = (power <= zero) & (power >= pc) & (kf < s[BL + lane])
-        G = _exp_neg_any(min(max(power, p_min), zero))
-        a_raw = _mul_add(o, G, -_mul_add(c1, power, c0))
-        alpha = min(a_max, max(zero, a_raw))
-        inv_om = one / (one - alpha)
-        T = s[BT + lane] * inv_om  # transmittance in front of this Gaussian
-        r, dr = _ramp(T, t_min, inv_t_min, zero, one, two, three)
-        Tr = T * r
-        w = alpha * Tr
-        g0 = s[BG + lane]
-        g1 = s[BG + L + lane]
-        g2 = s[BG + 2 * L + lane]
-        g3 = s[BG + 3 * L + lane]
-        dotf = g0 * f0 + g1 * f1 + g2 * f2 + g3 * f3
-        g_alpha = Tr * dotf - (s[BS + lane] + s[BGT + lane] * s[BTF + lane]) * inv_om
-        s[BT + lane] = s[BT + lane] * _select(ok, inv_om, one)
-        s[BS + lane] = s[BS + lane] + _select(ok, alpha * T * (r + T * dr) * dotf, zero)
-        s[BACC + 6 * L + lane] = _select(ok, w * g0, zero)
-        s[BACC + 7 * L + lane] = _select(ok, w * g1, zero)
-        s[BACC + 8 * L + lane] = _select(ok, w * g2, zero)
-        s[BACC + 9 * L + lane] = _select(ok, w * g3, zero)
-        ok = ok & (a_raw <= a_max) & (a_raw >= zero)  # clamped: no gradient to opacity or shape
-        gp = (o * G - c1) * g_alpha  # dL/dpower
-        s[BACC + 5 * L + lane] = _select(ok, (u0 * G - _mul_add(q1, power, q0)) * g_alpha, zero)
-        s[BACC + lane] = _select(ok, -(gp * (a * dx + b * dy)), zero)
-        s[BACC + L + lane] = _select(ok, -(gp * (b * dx + c * dy)), zero)
-        s[BACC + 2 * L + lane] = _select(ok, -(half * gp * dx * dx), zero)
-        s[BACC + 3 * L + lane] = _select(ok, -(gp * dx * dy), zero)
-        s[BACC + 4 * L + lane] = _select(ok, -(half * gp * dy * dy), zero)
+        flat &= (kf >= s[BL + lane]) | (s[BT + lane] >= t_flat)
+    if flat:
+        for lane in range(lanes):
+            _lane_backward_smooth(s, lane, jx, u, a, b, c, dy, pc, c0, c1, u0, q0, q1, o, f0, f1, f2,
+                                  f3, kf, lanes, lane_f, kc, ks, lay, True)
+    else:
+        for lane in range(lanes):
+            _lane_backward_smooth(s, lane, jx, u, a, b, c, dy, pc, c0, c1, u0, q0, q1, o, f0, f1, f2,
+                                  f3, kf, lanes, lane_f, kc, ks, lay, False)
 
 
 @njit(inline="always", fastmath=False)
@@ -1094,7 +1194,7 @@ def _make_backward(ftype, lanes: int, smooth: bool = False):
     window (a closure over plain values, as :func:`_make_forward`)."""
     zero, one, half = ftype(0.0), ftype(1.0), ftype(0.5)
     kc = (zero, one, half, ftype(ALPHA_MAX), ftype(ALPHA_MIN), ftype(T_MIN), ftype(POWER_MIN))
-    ks = (ftype(2.0), ftype(3.0), ftype(1.0 / T_MIN))
+    ks = (ftype(2.0), ftype(3.0), ftype(1.0 / T_MIN), ftype(3.0 * T_MIN))
     lay, BBLK = _backward_layout(lanes)
     BT, BTF, BGT, BS, BG, BL, BACC = lay
     NACC = _NGRAD * lanes
