@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -185,14 +187,15 @@ def test_slopes_by_difference_follow_the_continuous_render_between_renders(tmp_p
     assert errs["difference"] < 0.5 * errs["neighbours"], errs
 
 
-@pytest.mark.parametrize("cfa,light", [(None, False), ("RGGB", True)])
+@pytest.mark.parametrize("cfa,light", [(None, None), ("RGGB", "sine"), (None, "square")])
 def test_slopes_by_the_tangent_pass_are_the_renders_derivative(tmp_path, cfa, light):
     """``events.sampling.slopes: tangent``: each render's slope of log(L +
     log_eps) from the tangent pass, through the luminance (or a colour
     filter's channel) and a flickering light's scale, against a central
     difference of the rendered frames over +-8 us (float32 frames: their
     rounding bounds the agreement); no second render per step (a tangent pass
-    each, counted apart); refused on a model of the cut window, naming it."""
+    each, counted apart); refused on a model of the cut window, naming it. A
+    square wave's edge adds no slope (its jump is not a rate)."""
     import json
 
     from gs2e.config import check_config
@@ -213,17 +216,20 @@ def test_slopes_by_the_tangent_pass_are_the_renders_derivative(tmp_path, cfa, li
         check_config(load_config({"events": ev, "splat": {"window": "cut"}}), workflow=True)
     info = json.loads((model / "model.json").read_text())
     (model / "model.json").write_text(json.dumps({**info, "window": "smooth"}))
-    cond = (Condition("flicker", 500.0, 500.0, None, 0.5, 0.0, 100.0, 0.3, "sine") if light else None)
+    cond = (Condition("flicker", 500.0, 500.0, None, 0.5, 0.0, 100.0, 0.3, light) if light else None)
     src = RenderedSource(model, traj, cfg, light=cond)
     mid = (src.t0_us + src.t1_us) // 2
     src = RenderedSource(model, traj, cfg, light=cond, span_us=(mid, mid + 20_000))
     src.start()
-    for t in (mid + 1_003, mid + 9_117):
+    edge = src.light.t0_us + 5_000 * math.ceil((mid - src.light.t0_us) / 5_000) if light else None
+    for t in (edge + 1_003, edge + 3_117) if light else (mid + 1_003, mid + 9_117):
         g = {d: np.log(src.frame(t + d).astype(np.float64) + src.log_eps) for d in (-8, 8)}
         fd = (g[8] - g[-8]) / 16.0
         tan = src.tangent_log_slope(t)
         assert np.abs(fd).max() > 1e-4  # the plane moves under the camera
         assert np.abs(tan - fd).max() < 0.02 * np.abs(fd).max(), np.abs(tan - fd).max()
+    if light == "square":  # at the edge (100 Hz: every 5 ms of the path) as 1 ms after it
+        assert np.abs(src.tangent_log_slope(edge)).max() < 2 * np.abs(src.tangent_log_slope(edge + 1_000)).max()
     src = RenderedSource(model, traj, cfg, light=cond, span_us=(mid, mid + 20_000))
     src.start()
     n = sum(len(ts) for ts, _ in src.batches())

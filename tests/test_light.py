@@ -57,6 +57,35 @@ def test_mean_scale_integrates_flicker_and_a_step(span):
         assert curve.mean_scale(*span) == pytest.approx(dense, rel=2e-4)
 
 
+@pytest.mark.parametrize("over", [dict(flicker_hz=100.0, flicker_depth=0.3, flicker_waveform="sine"),
+                                  dict(flicker_hz=120.0, flicker_depth=0.5, flicker_waveform="rectified"),
+                                  dict(ramp_to_lux=50.0, ramp_start=0.2, ramp_duration=0.5),
+                                  dict(ramp_to_lux=50.0, ramp_start=0.2, ramp_duration=0.5, flicker_hz=100.0,
+                                       flicker_depth=0.2, flicker_waveform="sine")])
+def test_light_rate_is_the_derivative_of_its_scale(over):
+    """LightCurve.rate (the tangent pass's light term) against a central
+    difference of scale over +-0.5 us, away from a rectified wave's kinks."""
+    curve = LightCurve(_cond(**over), 0.0, 1e5)
+    t = np.linspace(1000.0, 99_000.0, 997) + 0.37
+    fd = (curve.scale(t + 0.5) - curve.scale(t - 0.5)) / 1.0
+    rate = curve.rate(t)
+    half = 0.5e6 / over.get("flicker_hz", 1.0)
+    away = np.abs(((t / half) % 1.0) - 0.5) < 0.45  # not within 5 % of a half period of a kink
+    assert np.abs(fd).max() > 1e-6
+    np.testing.assert_allclose(rate[away], fd[away], rtol=1e-5, atol=1e-9 * np.abs(fd).max())
+
+
+@pytest.mark.parametrize("over", [dict(flicker_hz=100.0, flicker_depth=0.3, flicker_waveform="square"),
+                                  dict(ramp_to_lux=50.0, ramp_start=0.5, ramp_duration=0.0)])
+def test_light_rate_has_no_jump_in_it(over):
+    """A square wave's and a step's jumps have no rate, at the jump too
+    (a difference across one would be the jump over its width)."""
+    curve = LightCurve(_cond(**over), 0.0, 1e5)
+    t = np.array([4_999.0, 5_000.0, 5_001.0, 50_000.0, 33_333.0])
+    assert np.all(curve.rate(t) == 0.0)
+    assert np.ptp(curve.scale(t)) > 0.1  # the jumps are there
+
+
 def test_light_step_and_bound():
     curve = LightCurve(_cond(lux=50.0, ramp_to_lux=50_000.0, ramp_start=0.5, ramp_duration=0.0), 0, 2_000_000)
     assert curve.scale(np.array([999_999.0, 1_000_000.0])).tolist() == [0.1, 100.0]

@@ -41,7 +41,8 @@ def test_tangent_is_the_derivative_of_the_continuous_render(sh_degree, backgroun
     r, pose = _scene(sh_degree, background=background)
     knots = OrderKnots(0.0, 1e5, fade=0.25)
     cr = ContinuousRenderer(r, pose, knots, 1e6)
-    for t in (2.1e4, 5.03e4, 6.2e4):  # before the fade, inside it twice
+    crossfaded = False
+    for t in (2.1e4, 5.03e4, 6.2e4, 8.0e4):  # before the fade, inside it twice, after it
         img, dimg = cr.render_tangent(t)
         ref = cr.render(t)
         if knots.bracket(t)[1] in (0.0, 1.0):
@@ -52,8 +53,13 @@ def test_tangent_is_the_derivative_of_the_continuous_render(sh_degree, backgroun
         scale = np.abs(fd).max()
         assert scale > 1e-7  # the image moves
         assert np.abs(dimg - fd).max() < 1e-5 * scale, (t, np.abs(dimg - fd).max() / scale)
-        if knots.bracket(t)[1] not in (0.0, 1.0):
-            assert knots.weight_rate(t) > 0
+        j, w = knots.bracket(t)
+        if w not in (0.0, 1.0):  # the fade's own term, ds/dt (B - A), counts here
+            r.render_blended(pose(t), cr._order(j), cr._order(j), 0.0)
+            a = r.image.copy()
+            r.render_blended(pose(t), cr._order(j + 1), cr._order(j + 1), 0.0)
+            crossfaded |= knots.weight_rate(t) * np.abs(r.image - a).max() > 0.05 * scale
+    assert crossfaded
 
 
 def test_tangent_through_opaque_stacks_where_pixels_stop():
@@ -78,8 +84,11 @@ def test_weight_rate_is_the_derivative_of_the_fade():
     assert k.weight_rate(200.0) == 0.0 and k.weight_rate(600.0) == pytest.approx(1.5 / 250.0)
 
 
-def test_tangent_refuses_the_cut_window():
+def test_tangent_refuses_the_cut_window_and_a_path_without_a_rate():
     r, pose = _scene(0)
+    cr = ContinuousRenderer(r, pose, OrderKnots(0.0, 1e5), 0.0)  # a path of one instant
+    with pytest.raises(ValueError, match="no pose rate at 0.0 us"):
+        cr.render_tangent(0.0)
     cut = ForwardRenderer({"sh_dc": np.zeros((1, 1, 3)), "sh_rest": np.zeros((1, 0, 3)),
                            "means": np.zeros((1, 3)), "quats": np.array([[1.0, 0, 0, 0]]),
                            "log_scales": np.zeros((1, 3)), "opacity_logits": np.zeros(1)},

@@ -411,18 +411,19 @@ class RenderedSource:
         """d/dt log(L + log_eps) at ``t_us`` ((H, W) float64, per us) from the
         tangent pass (:meth:`gs2e.splat.forward.ContinuousRenderer.render_tangent`:
         the image's exact derivative, float64), through the luminance (or the
-        colour filter's channel) and the light's scale s(t) (its rate by a
-        central difference over +-1 us): (dL s + L ds) / (L s + log_eps).
+        colour filter's channel) and the light's scale s(t) (its rate:
+        :meth:`gs2e.light.curve.LightCurve.rate`, none across a square wave's
+        or a step's jump): (dL s + L ds) / (L s + log_eps).
         Counted in ``stats.tangents``, not as a render."""
         img, dimg = self.continuous.render_tangent(float(t_us))
         lum, dlum = np.empty(self.shape), np.empty(self.shape)
         image_luminance_rate(img, dimg, self.cfa if self.cfa is not None else np.zeros((0, 0), np.int64),
                              lum, dlum)
         if self.light is not None:
-            lo, hi = max(self.t0_us, t_us - 1), min(self.t1_us, t_us + 1)
-            sc = self.light.scale(np.array([float(t_us), float(lo), float(hi)]))
-            dlum = dlum * sc[0] + lum * ((sc[2] - sc[1]) / (hi - lo) if hi > lo else 0.0)
-            lum = lum * sc[0]
+            t = np.array([float(t_us)])
+            sc, dsc = float(self.light.scale(t)[0]), float(self.light.rate(t)[0])
+            dlum = dlum * sc + lum * dsc
+            lum = lum * sc
         self.stats.tangents += 1
         return dlum / (lum + self.log_eps)
 

@@ -99,6 +99,36 @@ class LightCurve:
         """s(t) = E(t) m(t) / reference_lux: the factor on the trained linear radiance."""
         return self.lux(t_us) / self.condition.reference_lux
 
+    def rate(self, t_us) -> np.ndarray:
+        """d s / d t (per us) at times ``t_us`` (any shape), from the formulas
+        of :meth:`lux`: exact where s is smooth; a square wave's and a step's
+        jumps have no rate (0 on both sides: a derivative across them would
+        be the jump over the difference's width), a rectified wave's kinks
+        the side that :meth:`lux` takes there."""
+        c = self.condition
+        t = np.asarray(t_us, np.float64)
+        e, de = np.full(t.shape, c.lux), np.zeros(t.shape)
+        if self.ramp:
+            ratio = c.ramp_to_lux / c.lux
+            if self.ramp_b_us > self.ramp_a_us:
+                w = self.ramp_b_us - self.ramp_a_us
+                u = np.clip((t - self.ramp_a_us) / w, 0.0, 1.0)
+                e = c.lux * ratio ** smoothstep(u)
+                de = np.where((u > 0) & (u < 1), e * math.log(ratio) * 6.0 * u * (1.0 - u) / w, 0.0)
+            else:
+                e = np.where(t >= self.ramp_a_us, c.ramp_to_lux, c.lux)
+        m, dm = np.ones(t.shape), np.zeros(t.shape)
+        if self.flickers:
+            hz, d, ts = c.flicker_hz, c.flicker_depth, (t - self.t0_us) * 1e-6
+            m = flicker(ts, hz, d, c.flicker_waveform)
+            if c.flicker_waveform == "sine":
+                dm = d * 2 * math.pi * hz * np.cos(2 * math.pi * hz * ts) * 1e-6
+            elif c.flicker_waveform == "rectified":
+                b = 1.0 / ((1.0 - d) / (2.0 * d) + 2.0 / math.pi)
+                sn = np.sin(math.pi * hz * ts)
+                dm = b * np.where(sn >= 0, 1.0, -1.0) * math.pi * hz * np.cos(math.pi * hz * ts) * 1e-6
+        return (de * m + e * dm) / c.reference_lux
+
     def max_scale(self) -> float:
         """An upper bound of s(t) over the run."""
         c = self.condition

@@ -453,6 +453,8 @@ class ForwardRenderer:
         m2, cn, op, col = (self.means2d, self.conics, self.opac, self.colors.astype(np.float64))
         tiles = np.arange(self.n_tiles, dtype=np.int64)
         T, nc = np.empty(shape[:2]), np.empty(shape[:2], np.int32)
+        if s != 0.0 and np.array_equal(gids_a, gids_b):  # the orders agree on every tile
+            s = 0.0
         out = []
         for gids in ((gids_a,) if s == 0.0 else (gids_a, gids_b)):
             img, dimg = np.zeros(shape), np.zeros(shape)
@@ -678,6 +680,9 @@ class ContinuousRenderer:
         if s == 1.0:
             j, s = j + 1, 0.0
         lo, hi = max(self.knots.t0_us, t_us - h_us), min(self.t1_us, t_us + h_us)
+        if not hi > lo:
+            raise ValueError(f"render_tangent: no pose rate at {t_us} us with h_us={h_us} on the path "
+                             f"[{self.knots.t0_us}, {self.t1_us}] us")
         r = self.renderer
         dvm = (r._viewmat(self.pose_at(hi)) - r._viewmat(self.pose_at(lo))) / (hi - lo)
         order = self._order(j)

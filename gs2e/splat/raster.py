@@ -1162,8 +1162,9 @@ def _segment_backward_smooth(s, jx, u, a, b, c, dy, pc, c0, c1, u0, q0, q1, o, f
     """:func:`_segment_backward` for :func:`_segment_forward_smooth` (the
     module docstring's gradients; ``o``: the Gaussian's A): same block
     layout, the sum behind a pixel S holding alpha T (r + T r') f.g. Where
-    every lane this Gaussian reaches still has T >= ``t_flat`` (3 T_MIN:
-    behind it, so in front of it too), r = 1 and r' = 0 in the whole block:
+    every lane that has not stopped before this Gaussian (kf < its stop
+    index, reached or not) has T >= ``t_flat`` behind it (3 T_MIN; so in
+    front of it too), r = 1 and r' = 0 in the whole block:
     most blocks, as T falls under 2 T_MIN only at a pixel's last Gaussians."""
     BT, BL = lay[0], lay[5]
     t_flat = ks[3]
