@@ -44,10 +44,15 @@ def flicker(t_s: np.ndarray, hz: float, depth: float, waveform: str) -> np.ndarr
         return 1.0 + depth * np.sin(2 * math.pi * hz * t_s)
     if waveform == "square":
         return 1.0 + depth * np.where(np.sin(2 * math.pi * hz * t_s) >= 0, 1.0, -1.0)
-    # rectified: min a, max a + b; b / (2a + b) = d  ->  a = b (1 - d) / (2 d)
-    b = 1.0 / ((1.0 - depth) / (2.0 * depth) + 2.0 / math.pi)
-    a = b * (1.0 - depth) / (2.0 * depth)
+    a, b = _rectified(depth)
     return a + b * np.abs(np.sin(math.pi * hz * t_s))
+
+
+def _rectified(depth: float) -> tuple[float, float]:
+    """(a, b) of the rectified wave a + b |sin(pi f t)|: min a, max a + b,
+    b / (2a + b) = depth and mean a + 2 b / pi = 1."""
+    b = 1.0 / ((1.0 - depth) / (2.0 * depth) + 2.0 / math.pi)
+    return b * (1.0 - depth) / (2.0 * depth), b
 
 
 def smoothstep(x: np.ndarray) -> np.ndarray:
@@ -83,6 +88,14 @@ class LightCurve:
         """Illuminance E(t) m(t) (lux-equivalents) at times ``t_us`` (any shape)."""
         c = self.condition
         t = np.asarray(t_us, np.float64)
+        e = self._ramped(t)
+        if self.flickers:
+            e = e * flicker((t - self.t0_us) * 1e-6, c.flicker_hz, c.flicker_depth, c.flicker_waveform)
+        return e
+
+    def _ramped(self, t: np.ndarray) -> np.ndarray:
+        """E(t): the illuminance before the flicker (lux-equivalents)."""
+        c = self.condition
         e = np.full(t.shape, c.lux)
         if self.ramp:
             if self.ramp_b_us > self.ramp_a_us:
@@ -91,8 +104,6 @@ class LightCurve:
                 x = (t >= self.ramp_a_us).astype(np.float64)
             e = np.where(x <= 0, c.lux, np.where(x >= 1, c.ramp_to_lux,  # exact on the plateaus
                                                  c.lux * (c.ramp_to_lux / c.lux) ** x))
-        if self.flickers:
-            e = e * flicker((t - self.t0_us) * 1e-6, c.flicker_hz, c.flicker_depth, c.flicker_waveform)
         return e
 
     def scale(self, t_us) -> np.ndarray:
@@ -107,16 +118,12 @@ class LightCurve:
         the side that :meth:`lux` takes there."""
         c = self.condition
         t = np.asarray(t_us, np.float64)
-        e, de = np.full(t.shape, c.lux), np.zeros(t.shape)
-        if self.ramp:
-            ratio = c.ramp_to_lux / c.lux
-            if self.ramp_b_us > self.ramp_a_us:
-                w = self.ramp_b_us - self.ramp_a_us
-                u = np.clip((t - self.ramp_a_us) / w, 0.0, 1.0)
-                e = c.lux * ratio ** smoothstep(u)
-                de = np.where((u > 0) & (u < 1), e * math.log(ratio) * 6.0 * u * (1.0 - u) / w, 0.0)
-            else:
-                e = np.where(t >= self.ramp_a_us, c.ramp_to_lux, c.lux)
+        e, de = self._ramped(t), np.zeros(t.shape)
+        if self.ramp and self.ramp_b_us > self.ramp_a_us:  # E = lux ratio^smoothstep(u)
+            w = self.ramp_b_us - self.ramp_a_us
+            u = (t - self.ramp_a_us) / w
+            de = np.where((u > 0) & (u < 1), e * math.log(c.ramp_to_lux / c.lux) * 6.0 * u * (1.0 - u) / w,
+                          0.0)
         m, dm = np.ones(t.shape), np.zeros(t.shape)
         if self.flickers:
             hz, d, ts = c.flicker_hz, c.flicker_depth, (t - self.t0_us) * 1e-6
@@ -124,9 +131,8 @@ class LightCurve:
             if c.flicker_waveform == "sine":
                 dm = d * 2 * math.pi * hz * np.cos(2 * math.pi * hz * ts) * 1e-6
             elif c.flicker_waveform == "rectified":
-                b = 1.0 / ((1.0 - d) / (2.0 * d) + 2.0 / math.pi)
-                sn = np.sin(math.pi * hz * ts)
-                dm = b * np.where(sn >= 0, 1.0, -1.0) * math.pi * hz * np.cos(math.pi * hz * ts) * 1e-6
+                sign = np.where(np.sin(math.pi * hz * ts) >= 0, 1.0, -1.0)
+                dm = _rectified(d)[1] * sign * math.pi * hz * np.cos(math.pi * hz * ts) * 1e-6
         return (de * m + e * dm) / c.reference_lux
 
     def max_scale(self) -> float:

@@ -660,14 +660,19 @@ class ContinuousRenderer:
             self._orders[j] = self.renderer.depth_order_at(self.pose_at(int(round(t))))
         return self._orders[j]
 
-    def render(self, t_us: float) -> np.ndarray:
-        """(H, W, 3) image at ``t_us`` (the renderer's buffer)."""
+    def _held(self, t_us: float) -> tuple[np.ndarray, np.ndarray, float]:
+        """(order_a, order_b, s) at ``t_us``: the orders to composite and the
+        weight of order_b (:meth:`OrderKnots.bracket`; past the fade, s = 1,
+        order j + 1 alone)."""
         j, s = self.knots.bracket(t_us)
-        if s == 1.0:  # past the fade: order j + 1 alone
+        if s == 1.0:
             j, s = j + 1, 0.0
         order = self._order(j)
-        return self.renderer.render_blended(self.pose_at(t_us), order,
-                                            order if s == 0.0 else self._order(j + 1), s)
+        return order, (order if s == 0.0 else self._order(j + 1)), s
+
+    def render(self, t_us: float) -> np.ndarray:
+        """(H, W, 3) image at ``t_us`` (the renderer's buffer)."""
+        return self.renderer.render_blended(self.pose_at(t_us), *self._held(t_us))
 
     def render_tangent(self, t_us: float, h_us: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
         """(image, d image / dt per us) at ``t_us``, both (H, W, 3) float64
@@ -675,16 +680,10 @@ class ContinuousRenderer:
         (to rounding) and its exact derivative. The view matrix's rate is the
         central difference of the path's pose over +-``h_us`` (one-sided at
         the path's ends), exact to O(h_us^2) on the smooth pose curve."""
-        j, s = self.knots.bracket(t_us)
-        ds = self.knots.weight_rate(t_us)
-        if s == 1.0:
-            j, s = j + 1, 0.0
         lo, hi = max(self.knots.t0_us, t_us - h_us), min(self.t1_us, t_us + h_us)
         if not hi > lo:
             raise ValueError(f"render_tangent: no pose rate at {t_us} us with h_us={h_us} on the path "
                              f"[{self.knots.t0_us}, {self.t1_us}] us")
         r = self.renderer
         dvm = (r._viewmat(self.pose_at(hi)) - r._viewmat(self.pose_at(lo))) / (hi - lo)
-        order = self._order(j)
-        return r.render_tangent(self.pose_at(t_us), dvm, order, order if s == 0.0 else self._order(j + 1),
-                                s, ds)
+        return r.render_tangent(self.pose_at(t_us), dvm, *self._held(t_us), self.knots.weight_rate(t_us))

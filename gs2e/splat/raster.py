@@ -750,7 +750,7 @@ def _lane_apply_smooth(s, at, lane, lanes, alpha, reach, f0, f1, f2, f3, kf, mf,
     """:func:`_lane_apply` with the smooth window: weights faded by r(T), the
     stopping Gaussian applied and counted (stop index k + 1)."""
     zero, one, half, a_max, a_min, t_min, p_min = kc
-    two, three, inv_t_min = ks[0], ks[1], ks[2]
+    two, three, inv_t_min = ks
     FT, F0, F1, F2, F3, FL = at, at + lanes, at + 2 * lanes, at + 3 * lanes, at + 4 * lanes, at + 5 * lanes
     ok = reach & (s[FL + lane] == mf)
     T = s[FT + lane]
@@ -769,9 +769,9 @@ def _lane_apply_smooth(s, at, lane, lanes, alpha, reach, f0, f1, f2, f3, kf, mf,
 def _segment_forward_smooth(s, at, pair, jx, u, a, b, c, dy, pc, c0, c1, o, f0, f1, f2, f3, kf,
                             mf, lanes, lane_f, kc, ks):
     """:func:`_segment_forward` with the smooth window (module docstring).
-    ks = (2, 3, 1 / T_MIN, 3 T_MIN) in the block's type. (Leaving the fade
-    out of blocks where it is 1, as the backward does, did not pay here: the
-    fade is a few of the forward's operations per pixel.)"""
+    ks = (2, 3, 1 / T_MIN) in the block's type. (Leaving the fade out of
+    blocks where it is 1, as the backward does, did not pay here: the fade
+    is a few of the forward's operations per pixel.)"""
     if pair:
         for lane in range(lanes):
             alpha, reach = _lane_alpha_smooth(jx, lane_f[lane], u, a, b, c, dy, pc, c0, c1, o, kc)
@@ -795,7 +795,7 @@ def _lane_tangent(s, lane, lanes, jx, lf, u, a, b, c, dy, pc, c0, c1, A, f0, f1,
     dp where alpha is not clamped, d w = d alpha T r + alpha dT (r + T r'),
     dT' = dT (1 - alpha) - T d alpha."""
     zero, one, half, a_max, a_min, t_min, p_min = kc
-    two, three, inv_t_min = ks[0], ks[1], ks[2]
+    two, three, inv_t_min = ks
     du, dv, dca, dcb, dcc, e0, e1, e2, e3 = d
     dx = u - ((jx + lf) + half)
     power = _mul_add(-(b * dx), dy, -half * _mul_add(a * dx, dx, c * dy * dy))
@@ -913,7 +913,7 @@ def _make_forward(ftype, lanes: int, smooth: bool = False, two_orders: bool = Fa
     dispatcher among them would pickle differently in every process."""
     zero, one, half = ftype(0.0), ftype(1.0), ftype(0.5)
     kc = (zero, one, half, ftype(ALPHA_MAX), ftype(ALPHA_MIN), ftype(T_MIN), ftype(POWER_MIN))
-    ks = (ftype(2.0), ftype(3.0), ftype(1.0 / T_MIN), ftype(3.0 * T_MIN))
+    ks = (ftype(2.0), ftype(3.0), ftype(1.0 / T_MIN))
     # segment block: 6 fields x lanes (T, features 0..3, stop index); the
     # tangent's 5 more (dT, d features 0..3)
     FT, FL = 0, 5 * lanes
@@ -1195,6 +1195,7 @@ def _make_backward(ftype, lanes: int, smooth: bool = False):
     window (a closure over plain values, as :func:`_make_forward`)."""
     zero, one, half = ftype(0.0), ftype(1.0), ftype(0.5)
     kc = (zero, one, half, ftype(ALPHA_MAX), ftype(ALPHA_MIN), ftype(T_MIN), ftype(POWER_MIN))
+    # and the T above which the fade is 1 (_segment_backward_smooth)
     ks = (ftype(2.0), ftype(3.0), ftype(1.0 / T_MIN), ftype(3.0 * T_MIN))
     lay, BBLK = _backward_layout(lanes)
     BT, BTF, BGT, BS, BG, BL, BACC = lay
